@@ -1,0 +1,306 @@
+//! Command-line integration tests: outputs, exit codes and messages.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_cellinject"))
+}
+
+fn run(args: &[&str]) -> Output {
+    bin().args(args).output().expect("run cellinject")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn tempdir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("cellinject-cli-{tag}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const PROTOTYPE: &str = include_str!("../../../configs/prototype.toml");
+
+fn json(args: &[&str]) -> Value {
+    let o = run(args);
+    assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+    serde_json::from_str(&stdout(&o)).unwrap()
+}
+
+fn vec_of(v: &Value, key: &str) -> Vec<f64> {
+    v[key]
+        .as_array()
+        .unwrap_or_else(|| panic!("key {key} missing"))
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+#[test]
+fn tension_json_has_every_key_with_the_documented_lengths() {
+    let common = [
+        "dl1", "dl", "dX", "Fq", "F_work", "dl1_work", "dl_work", "dX_work", "chi",
+    ];
+    let a1 = json(&["tension", "--approach", "1", "--format", "json"]);
+    let a2 = json(&["tension", "--approach", "2", "--format", "json"]);
+    for k in common {
+        assert_eq!(vec_of(&a1, k).len(), 3, "{k}");
+        assert_eq!(vec_of(&a2, k).len(), 3, "{k}");
+    }
+    assert_eq!(vec_of(&a1, "dl0").len(), 3);
+    assert_eq!(vec_of(&a2, "dq0").len(), 3);
+    assert!(a1.get("dq0").is_none() && a2.get("dl0").is_none());
+    assert_eq!(vec_of(&a1, "Fw").len(), 4);
+    assert_eq!(vec_of(&a2, "Fw").len(), 4);
+    // Eq. (49) = eq. (58): the approaches share the working range, A3's travel on axis 3.
+    let (c1, c2) = (vec_of(&a1, "chi"), vec_of(&a2, "chi"));
+    for i in 0..3 {
+        assert!(
+            (c1[i] - c2[i]).abs() <= 1e-12 * c1[i].abs(),
+            "{c1:?} {c2:?}"
+        );
+    }
+    assert_eq!(c1[2], 60e-6);
+    // Eq. (46) within 0.1 %.
+    let f = vec_of(&a1, "F_work");
+    assert!((f[0] / -111.686 - 1.0).abs() < 1e-3, "{f:?}");
+    // Margins: approach 1 exceeds the J1/J2 torque limit at the full working shift.
+    assert_eq!(a1["margins"]["ok"], Value::Bool(false));
+    assert_eq!(a2["margins"]["ok"], Value::Bool(true));
+    assert_eq!(a1["warnings"].as_array().unwrap().len(), 2);
+}
+
+#[test]
+fn tension_text_is_a_table_in_micrometres_and_millinewton_metres() {
+    let o = run(&["tension", "--approach", "1"]);
+    assert!(o.status.success());
+    let s = stdout(&o);
+    assert!(s.contains("µm") && s.contains("mN·m"), "{s}");
+    assert!(s.contains("(38)") && s.contains("-256.712"), "{s}");
+    assert!(s.contains("warning: J1 bending torque"), "{s}");
+}
+
+#[test]
+fn model_reports_the_jacobians_and_linearisation_error() {
+    let v = json(&["model", "--format", "json"]);
+    assert_eq!(v["J"][0][0].as_f64().unwrap(), 0.18);
+    assert_eq!(v["L"][1][1].as_f64().unwrap(), -0.03);
+    assert!((v["W"][0][1].as_f64().unwrap() - 0.03 / 0.073).abs() < 1e-12);
+    assert_eq!(v["B_l"].as_array().unwrap().len(), 2);
+    let lin = v["linearisation"].as_array().unwrap();
+    assert_eq!(lin.len(), 2);
+    let r1 = lin[0]["dX"]["relative"].as_f64().unwrap();
+    let r2 = lin[1]["dX"]["relative"].as_f64().unwrap();
+    assert!(r1 > r2 && r1 < 1e-2, "{r1} {r2}");
+    let o = run(&["model"]);
+    assert!(stdout(&o).contains("B_l"));
+}
+
+fn check_golden(actual: &str, golden: &Path) {
+    if std::env::var_os("UPDATE_GOLDEN").is_some() {
+        fs::write(golden, actual).unwrap();
+    }
+    let expected = fs::read_to_string(golden).expect("golden file (UPDATE_GOLDEN=1 writes it)");
+    assert!(
+        actual == expected,
+        "report differs from {}; rerun with UPDATE_GOLDEN=1 after checking the change",
+        golden.display()
+    );
+}
+
+#[test]
+fn reproduce_prints_the_table_and_writes_the_golden_report() {
+    let dir = tempdir("reproduce");
+    let o = run(&["reproduce", "--out", dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    assert!(s.contains("20 of 20 computed figures agree"), "{s}");
+    let md = fs::read_to_string(dir.join("reproduce.md")).unwrap();
+    check_golden(
+        &md,
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden/reproduce.md"),
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn no_arguments_runs_the_reproduction_on_the_embedded_prototype() {
+    let dir = tempdir("noargs");
+    let o = bin().current_dir(&dir).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("ICINCO-2012 prototype"));
+    assert!(dir.join("reports/reproduce.md").exists());
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn every_command_has_help() {
+    for args in [
+        vec!["--help"],
+        vec!["tension", "--help"],
+        vec!["model", "--help"],
+        vec!["reproduce", "--help"],
+    ] {
+        let o = run(&args);
+        assert!(o.status.success(), "{args:?}");
+        assert!(stdout(&o).contains("Usage"), "{args:?}");
+    }
+}
+
+/// Writes a variant of the prototype description and runs `tension` on it.
+fn bad_description(tag: &str, from: &str, to: &str) -> (Output, String) {
+    assert!(PROTOTYPE.contains(from), "{from}");
+    let dir = tempdir(tag);
+    let path = dir.join(format!("{tag}.toml"));
+    fs::write(&path, PROTOTYPE.replacen(from, to, 1)).unwrap();
+    let p = path.to_str().unwrap().to_string();
+    let o = run(&["tension", "--approach", "1", "--config", &p]);
+    (o, p)
+}
+
+#[test]
+fn each_class_of_bad_description_exits_2_naming_file_and_key() {
+    let cases = [
+        ("missing", "b2 = 0.180", "", "`geometry.b2` is missing"),
+        (
+            "unknown",
+            "b1 = 0.030",
+            "b1 = 0.030\nb0 = 1.0",
+            "unknown key `geometry.b0`",
+        ),
+        (
+            "zero-stiffness",
+            "stiffness = 27e6        #",
+            "stiffness = 0.0 #",
+            "`actuators.A1.stiffness`: 0 must be positive",
+        ),
+        (
+            "negative-length",
+            "a11 = 0.007",
+            "a11 = -0.007",
+            "`geometry.a11`: -0.007 must be positive",
+        ),
+        (
+            "nonfinite",
+            "b1 = 0.030",
+            "b1 = inf",
+            "`geometry.b1`: inf must be a finite number",
+        ),
+        (
+            "flexure",
+            "J3 = [340.3, 340.3]",
+            "J3 = [340.3, -1.0]",
+            "`flexures.J3[1]`",
+        ),
+        (
+            "type",
+            "b1 = 0.030",
+            "b1 = \"30 mm\"",
+            "`geometry.b1` must be a number, found a string",
+        ),
+        (
+            "singular",
+            "actuator_azimuth = [0.0, 1.5707963267948966]",
+            "actuator_azimuth = [0.5, 0.5]",
+            "Jacobian L is singular",
+        ),
+        (
+            "preload",
+            "preload = [-100.0, -100.0]",
+            "preload = [100.0, -100.0]",
+            "`tension.preload[0]`: 100 must be negative",
+        ),
+        (
+            "capacity",
+            "preload = [-100.0, -100.0]",
+            "preload = [-100.0, -1500.0]",
+            "exceeds the push capacity of A2",
+        ),
+        (
+            "travel",
+            "work_shift = [-30e-6, -30e-6]",
+            "work_shift = [-30e-6, 45e-6]",
+            "exceeds the travel of A2",
+        ),
+        (
+            "syntax",
+            "name = \"ICINCO-2012 prototype\"",
+            "name = ",
+            "not valid TOML",
+        ),
+    ];
+    for (tag, from, to, msg) in cases {
+        let (o, path) = bad_description(tag, from, to);
+        assert_eq!(o.status.code(), Some(2), "{tag}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(
+            e.contains(&path),
+            "{tag}: message does not name the file: {e}"
+        );
+        assert!(e.contains(msg), "{tag}: expected `{msg}` in: {e}");
+        assert!(!e.contains("panicked"), "{tag}: {e}");
+        assert_eq!(e.lines().count(), 1, "{tag}: one message: {e}");
+    }
+}
+
+#[test]
+fn unreadable_inputs_and_bad_arguments_exit_2() {
+    let o = run(&[
+        "tension",
+        "--approach",
+        "1",
+        "--config",
+        "/nonexistent/x.toml",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("/nonexistent/x.toml"));
+    let o = run(&["tension", "--approach", "3"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--approach"));
+    let o = run(&["tension", "--approach", "1", "--format", "xml"]);
+    assert_eq!(o.status.code(), Some(2));
+    // --out below a regular file cannot be created.
+    let dir = tempdir("badout");
+    let file = dir.join("file");
+    fs::write(&file, "x").unwrap();
+    let target = file.join("sub");
+    let o = run(&["reproduce", "--out", target.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--out"), "{}", stderr(&o));
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn another_design_gives_its_own_answer() {
+    let dir = tempdir("other");
+    let path = dir.join("other.toml");
+    fs::write(&path, PROTOTYPE.replacen("b2 = 0.180", "b2 = 0.120", 1)).unwrap();
+    let v = json(&[
+        "tension",
+        "--approach",
+        "1",
+        "--format",
+        "json",
+        "--config",
+        path.to_str().unwrap(),
+    ]);
+    let dx = vec_of(&v, "dX");
+    // Same joint motion, shorter lever: the end-effector offset scales with b2.
+    assert!(
+        (dx[0] / (-1518.0504e-6 * 120.0 / 180.0) - 1.0).abs() < 1e-5,
+        "{dx:?}"
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}

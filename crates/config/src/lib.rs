@@ -1,0 +1,412 @@
+//! # cellinject-config
+//!
+//! The manipulator description file (TOML, SI units): parsing and validation.
+//! The paper's prototype ships as `configs/prototype.toml` and is embedded here as
+//! [`PROTOTYPE_TOML`]. Every error names the key at fault, in dotted form
+//! (`geometry.b1`, `actuators.A2.travel`, `tension.preload[1]`).
+//!
+//! **Architecture invariant:** this crate parses text it is given; it never opens a
+//! file. The binary reads files and adds the file name to the error.
+
+use std::collections::BTreeSet;
+
+use cellinject_model::{Actuator, Design, Flexures, Geometry, Mechanism, ModelError, TensionSpec};
+use thiserror::Error;
+
+/// The embedded description of the paper's prototype (`configs/prototype.toml`).
+pub const PROTOTYPE_TOML: &str = include_str!("../../../configs/prototype.toml");
+
+/// What is wrong with a description file.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ConfigError {
+    /// The text is not valid TOML.
+    #[error("not valid TOML: {message}")]
+    Syntax {
+        /// The parser's message, with line and column.
+        message: String,
+    },
+    /// A required key is absent.
+    #[error("key `{key}` is missing")]
+    Missing {
+        /// Dotted key.
+        key: String,
+    },
+    /// A key that the format does not know.
+    #[error("unknown key `{key}` (expected one of: {expected})")]
+    Unknown {
+        /// Dotted key.
+        key: String,
+        /// The keys allowed at that place.
+        expected: String,
+    },
+    /// A value of the wrong type or shape.
+    #[error("key `{key}` must be {expected}, found {found}")]
+    Type {
+        /// Dotted key.
+        key: String,
+        /// What was expected.
+        expected: String,
+        /// What was found.
+        found: String,
+    },
+    /// A value outside its valid domain, or a design the model refuses.
+    #[error("key `{key}`: {reason}")]
+    Invalid {
+        /// Dotted key.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+impl ConfigError {
+    /// The dotted key the error is about, if any.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            ConfigError::Syntax { .. } => None,
+            ConfigError::Missing { key }
+            | ConfigError::Unknown { key, .. }
+            | ConfigError::Type { key, .. }
+            | ConfigError::Invalid { key, .. } => Some(key),
+        }
+    }
+}
+
+/// A parsed and validated manipulator description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Description {
+    /// Human-readable name of the manipulator.
+    pub name: String,
+    /// The mechanism parameters.
+    pub design: Design,
+}
+
+impl Description {
+    /// The mechanism model of this description (cannot fail: validated at parse time).
+    pub fn mechanism(&self) -> Mechanism {
+        // Validation in `parse` ran `Mechanism::new` on this very design.
+        Mechanism::new(&self.design)
+            .unwrap_or_else(|e| unreachable!("validated design refused: {e}"))
+    }
+}
+
+/// Parses and validates a description file's text.
+pub fn parse(text: &str) -> Result<Description, ConfigError> {
+    let root: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| ConfigError::Syntax {
+            message: e.to_string().trim().replace('\n', " | "),
+        })?;
+    let mut top = Section::root(&root);
+    let name = top.string("name")?;
+    let mut g = top.table("geometry")?;
+    let a11 = g.number("a11")?;
+    let a12 = g.number("a12")?;
+    let geometry = Geometry {
+        a11,
+        a12,
+        a21: g.opt_number("a21")?.unwrap_or(a11),
+        a22: g.opt_number("a22")?.unwrap_or(a12),
+        b1: g.number("b1")?,
+        b2: g.number("b2")?,
+        actuator_azimuth: g
+            .opt_array::<2>("actuator_azimuth")?
+            .unwrap_or([0.0, std::f64::consts::FRAC_PI_2]),
+    };
+    g.finish()?;
+    let mut f = top.table("flexures")?;
+    let flexures = Flexures {
+        j3: f.array::<2>("J3")?,
+        j1: f.array::<2>("J1")?,
+        j2: f.array::<2>("J2")?,
+    };
+    f.finish()?;
+    let mut acts = top.table("actuators")?;
+    let mut actuator = |name: &str| -> Result<Actuator, ConfigError> {
+        let mut a = acts.table(name)?;
+        let out = Actuator {
+            stiffness: a.opt_number("stiffness")?,
+            travel: a.number("travel")?,
+            push_capacity: a.number("push_capacity")?,
+            torque_limit: a.number("torque_limit")?,
+        };
+        a.finish()?;
+        Ok(out)
+    };
+    let actuators = [actuator("A1")?, actuator("A2")?, actuator("A3")?];
+    acts.finish()?;
+    let mut t = top.table("tension")?;
+    let tension = TensionSpec {
+        preload: t.array::<2>("preload")?,
+        work_shift: t.array::<2>("work_shift")?,
+    };
+    t.finish()?;
+    top.finish()?;
+    let design = Design {
+        geometry,
+        flexures,
+        actuators,
+        tension,
+    };
+    Mechanism::new(&design).map_err(|e| match e {
+        ModelError::InvalidParameter { key, reason, value } => ConfigError::Invalid {
+            key,
+            reason: if value.is_nan() {
+                reason
+            } else {
+                format!("{value} {reason}")
+            },
+        },
+        other => ConfigError::Invalid {
+            key: "geometry".into(),
+            reason: other.to_string(),
+        },
+    })?;
+    Ok(Description { name, design })
+}
+
+/// The embedded prototype description.
+pub fn prototype() -> Description {
+    parse(PROTOTYPE_TOML)
+        .unwrap_or_else(|e| unreachable!("embedded prototype.toml is invalid: {e}"))
+}
+
+/// A table being read: remembers which keys were consumed so that the rest can be
+/// reported as unknown.
+struct Section<'a> {
+    path: String,
+    table: &'a toml::Table,
+    used: BTreeSet<String>,
+}
+
+fn type_name(v: &toml::Value) -> &'static str {
+    match v {
+        toml::Value::String(_) => "a string",
+        toml::Value::Integer(_) => "an integer",
+        toml::Value::Float(_) => "a float",
+        toml::Value::Boolean(_) => "a boolean",
+        toml::Value::Datetime(_) => "a date",
+        toml::Value::Array(_) => "an array",
+        toml::Value::Table(_) => "a table",
+    }
+}
+
+impl<'a> Section<'a> {
+    fn root(table: &'a toml::Table) -> Self {
+        Section {
+            path: String::new(),
+            table,
+            used: BTreeSet::new(),
+        }
+    }
+
+    fn key(&self, k: &str) -> String {
+        if self.path.is_empty() {
+            k.to_string()
+        } else {
+            format!("{}.{k}", self.path)
+        }
+    }
+
+    fn get(&mut self, k: &str) -> Option<&'a toml::Value> {
+        self.used.insert(k.to_string());
+        self.table.get(k)
+    }
+
+    fn require(&mut self, k: &str) -> Result<&'a toml::Value, ConfigError> {
+        self.get(k)
+            .ok_or_else(|| ConfigError::Missing { key: self.key(k) })
+    }
+
+    fn to_number(&self, key: String, v: &toml::Value) -> Result<f64, ConfigError> {
+        match v {
+            toml::Value::Float(x) => Ok(*x),
+            toml::Value::Integer(i) => Ok(*i as f64),
+            other => Err(ConfigError::Type {
+                key,
+                expected: "a number".into(),
+                found: type_name(other).into(),
+            }),
+        }
+    }
+
+    fn number(&mut self, k: &str) -> Result<f64, ConfigError> {
+        let v = self.require(k)?;
+        self.to_number(self.key(k), v)
+    }
+
+    fn opt_number(&mut self, k: &str) -> Result<Option<f64>, ConfigError> {
+        match self.get(k) {
+            None => Ok(None),
+            Some(v) => self.to_number(self.key(k), v).map(Some),
+        }
+    }
+
+    fn to_array<const N: usize>(&self, k: &str, v: &toml::Value) -> Result<[f64; N], ConfigError> {
+        let key = self.key(k);
+        let expected = format!("an array of {N} numbers");
+        let toml::Value::Array(items) = v else {
+            return Err(ConfigError::Type {
+                key,
+                expected,
+                found: type_name(v).into(),
+            });
+        };
+        if items.len() != N {
+            return Err(ConfigError::Type {
+                key,
+                expected,
+                found: format!("{} elements", items.len()),
+            });
+        }
+        let mut out = [0.0; N];
+        for (i, item) in items.iter().enumerate() {
+            out[i] = self.to_number(format!("{key}[{i}]"), item)?;
+        }
+        Ok(out)
+    }
+
+    fn array<const N: usize>(&mut self, k: &str) -> Result<[f64; N], ConfigError> {
+        let v = self.require(k)?;
+        self.to_array(k, v)
+    }
+
+    fn opt_array<const N: usize>(&mut self, k: &str) -> Result<Option<[f64; N]>, ConfigError> {
+        match self.get(k) {
+            None => Ok(None),
+            Some(v) => self.to_array(k, v).map(Some),
+        }
+    }
+
+    fn string(&mut self, k: &str) -> Result<String, ConfigError> {
+        match self.require(k)? {
+            toml::Value::String(s) => Ok(s.clone()),
+            other => Err(ConfigError::Type {
+                key: self.key(k),
+                expected: "a string".into(),
+                found: type_name(other).into(),
+            }),
+        }
+    }
+
+    fn table(&mut self, k: &str) -> Result<Section<'a>, ConfigError> {
+        match self.require(k)? {
+            toml::Value::Table(t) => Ok(Section {
+                path: self.key(k),
+                table: t,
+                used: BTreeSet::new(),
+            }),
+            other => Err(ConfigError::Type {
+                key: self.key(k),
+                expected: "a table".into(),
+                found: type_name(other).into(),
+            }),
+        }
+    }
+
+    /// Refuses keys that were not read.
+    fn finish(self) -> Result<(), ConfigError> {
+        if let Some(unknown) = self.table.keys().find(|k| !self.used.contains(k.as_str())) {
+            return Err(ConfigError::Unknown {
+                key: self.key(unknown),
+                expected: self.used.iter().cloned().collect::<Vec<_>>().join(", "),
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_prototype_equals_the_models_prototype() {
+        let d = prototype();
+        assert_eq!(d.name, "ICINCO-2012 prototype");
+        assert_eq!(d.design, cellinject_model::prototype());
+    }
+
+    fn replace(from: &str, to: &str) -> Result<Description, ConfigError> {
+        assert!(PROTOTYPE_TOML.contains(from), "{from}");
+        parse(&PROTOTYPE_TOML.replacen(from, to, 1))
+    }
+
+    #[test]
+    fn missing_key_is_named() {
+        let e = replace("b1 = 0.030", "").unwrap_err();
+        assert_eq!(
+            e,
+            ConfigError::Missing {
+                key: "geometry.b1".into()
+            }
+        );
+        let e = replace("[tension]", "[tensio]").unwrap_err();
+        assert_eq!(e.key(), Some("tension"));
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let e = replace("b2 = 0.180", "b2 = 0.180\nb3 = 1.0").unwrap_err();
+        assert_eq!(e.key(), Some("geometry.b3"));
+        assert!(e.to_string().contains("b1"), "{e}");
+        let e = replace("name =", "colour = 3\nname =").unwrap_err();
+        assert_eq!(e.key(), Some("colour"));
+    }
+
+    #[test]
+    fn non_positive_and_non_finite_values_are_named() {
+        for (from, to, key) in [
+            ("b1 = 0.030", "b1 = 0.0", "geometry.b1"),
+            ("a12 = 0.066", "a12 = -0.066", "geometry.a12"),
+            ("b2 = 0.180", "b2 = nan", "geometry.b2"),
+            (
+                "stiffness = 27e6        #",
+                "stiffness = inf #",
+                "actuators.A1.stiffness",
+            ),
+            ("J1 = [91.3, 91.3]", "J1 = [91.3, 0]", "flexures.J1[1]"),
+            (
+                "preload = [-100.0, -100.0]",
+                "preload = [-100.0, 5.0]",
+                "tension.preload[1]",
+            ),
+            (
+                "work_shift = [-30e-6, -30e-6]",
+                "work_shift = [-31e-6, -30e-6]",
+                "tension.work_shift[0]",
+            ),
+        ] {
+            let e = replace(from, to).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{from} -> {to}: {e}");
+        }
+    }
+
+    #[test]
+    fn wrong_types_are_named() {
+        let e = replace("b1 = 0.030", "b1 = \"thirty\"").unwrap_err();
+        assert!(
+            matches!(e, ConfigError::Type { ref key, .. } if key == "geometry.b1"),
+            "{e}"
+        );
+        let e = replace("J3 = [340.3, 340.3]", "J3 = [340.3]").unwrap_err();
+        assert_eq!(e.key(), Some("flexures.J3"));
+    }
+
+    #[test]
+    fn singular_geometry_is_refused() {
+        let e = replace(
+            "actuator_azimuth = [0.0, 1.5707963267948966]",
+            "actuator_azimuth = [0.0, 0.0]",
+        )
+        .unwrap_err();
+        assert_eq!(e.key(), Some("geometry"));
+        assert!(e.to_string().contains("singular"), "{e}");
+    }
+
+    #[test]
+    fn syntax_error_is_reported() {
+        let e = parse("name = ").unwrap_err();
+        assert!(matches!(e, ConfigError::Syntax { .. }));
+    }
+}
