@@ -282,15 +282,7 @@ mod tests {
     use approx::assert_relative_eq;
 
     fn prototype() -> Geometry {
-        Geometry {
-            a11: 0.007,
-            a12: 0.066,
-            a21: 0.007,
-            a22: 0.066,
-            b1: 0.030,
-            b2: 0.180,
-            actuator_azimuth: [0.0, std::f64::consts::FRAC_PI_2],
-        }
+        crate::prototype().geometry
     }
 
     #[test]
