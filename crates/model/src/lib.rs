@@ -32,7 +32,7 @@ pub use design::{ACTUATOR_NAMES, Actuator, Design, Flexures, Geometry, TensionSp
 pub use error::ModelError;
 pub use kinematics::{ChainState, Jacobians, Kinematics, Pose};
 pub use nonlinear::{Deviation, Linearisation, NonlinearState};
-pub use tension::{Approach, Margins, Mechanism, State, Tension};
+pub use tension::{Approach, Assembly, Margins, Mechanism, State, Tension};
 
 /// The parameters of the paper's prototype (Sec. 3.1 and eqs. 34-37, 44), for examples
 /// and tests. Applications load `configs/prototype.toml` instead, which holds the same

@@ -181,6 +181,17 @@ impl Tension {
     }
 }
 
+/// How the structure was assembled: the offset that pre-tensions it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Assembly {
+    /// Which approach.
+    pub approach: Approach,
+    /// m, assembly translation Δl0 of A1, A2 (zero for approach 2).
+    pub dl0: Vector2<f64>,
+    /// rad, assembly deflection Δq0 of J3 (zero for approach 1).
+    pub dq0: Vector2<f64>,
+}
+
 /// A validated design with its kinematics and constant Jacobians.
 #[derive(Debug, Clone)]
 pub struct Mechanism {
@@ -249,28 +260,28 @@ impl Mechanism {
     }
 
     /// Tilt block of J.
-    pub(crate) fn jp(&self) -> Matrix2<f64> {
+    pub fn jp(&self) -> Matrix2<f64> {
         self.jacobians.j.fixed_view::<2, 2>(0, 0).into_owned()
     }
     /// Tilt block of L.
-    pub(crate) fn lp(&self) -> Matrix2<f64> {
+    pub fn lp(&self) -> Matrix2<f64> {
         self.jacobians.l.fixed_view::<2, 2>(0, 0).into_owned()
     }
     /// Tilt columns of W.
-    pub(crate) fn wp(&self) -> Matrix4x2<f64> {
+    pub fn wp(&self) -> Matrix4x2<f64> {
         self.jacobians.w.fixed_view::<4, 2>(0, 0).into_owned()
     }
     /// Kq restricted to the tilt axes (eq. 34).
-    pub(crate) fn kq(&self) -> Matrix2<f64> {
+    pub fn kq(&self) -> Matrix2<f64> {
         Matrix2::from_diagonal(&Vector2::from(self.design.flexures.j3))
     }
     /// Kw (eq. 35).
-    pub(crate) fn kw(&self) -> Matrix4<f64> {
+    pub fn kw(&self) -> Matrix4<f64> {
         let f = &self.design.flexures;
         Matrix4::from_diagonal(&Vector4::new(f.j1[0], f.j1[1], f.j2[0], f.j2[1]))
     }
     /// Kl restricted to A1, A2 (eq. 36).
-    pub(crate) fn kl(&self) -> Matrix2<f64> {
+    pub fn kl(&self) -> Matrix2<f64> {
         Matrix2::from_diagonal(&Vector2::from(self.design.drive_stiffness()))
     }
 
@@ -291,7 +302,7 @@ impl Mechanism {
     }
 
     /// `Kq + Wᵀ Kw W`, the joint-space stiffness of the flexures on the tilt axes.
-    fn joint_stiffness(&self) -> Matrix2<f64> {
+    pub fn joint_stiffness(&self) -> Matrix2<f64> {
         self.kq() + self.wp().transpose() * self.kw() * self.wp()
     }
 
@@ -348,23 +359,17 @@ impl Mechanism {
         }
     }
 
-    /// Pre-tension analysis with the design's preload and working shift.
-    pub fn tension(&self, approach: Approach) -> Result<Tension, ModelError> {
-        let t = &self.design.tension;
-        let f10 = Vector2::from(t.preload);
-        let dl2 = Vector2::from(t.work_shift);
+    /// The assembly offset that gives the design's preload F10 with the actuators
+    /// inactive: Δl0 by eq. (22) for approach 1, Δq0 by eq. (31) for approach 2.
+    pub fn assembly(&self, approach: Approach) -> Result<Assembly, ModelError> {
+        let f10 = Vector2::from(self.design.tension.preload);
         let zero = Vector2::zeros();
-        let (dl0, dq0, tensioned, work, dl_total) = match approach {
-            Approach::DriveTranslation => {
-                let b = self.compliance()?;
-                let b_inv = Self::inv(b, "compliance B_l", 24)?;
-                let dl0 = b * f10; // (22) with Δl2 = 0
-                let tensioned = self.state(dl0, f10, zero)?;
-                let dl_total = dl0 + dl2; // (14)
-                let f_work = b_inv * dl_total; // (24)
-                let work = self.state(dl_total, f_work, zero)?; // (25), (26)
-                (Some(dl0), None, tensioned, work, Some(dl_total))
-            }
+        Ok(match approach {
+            Approach::DriveTranslation => Assembly {
+                approach,
+                dl0: self.compliance()? * f10, // (22) with Δl2 = 0
+                dq0: zero,
+            },
             Approach::JointDeflection => {
                 let kq_inv = Self::inv(self.kq(), "J3 stiffness Kq", 31)?;
                 let l_inv = Self::inv(self.lp(), "Jacobian L", 31)?;
@@ -374,27 +379,60 @@ impl Mechanism {
                 // (31) with Δl2 = 0 and F_l = F10.
                 let u = zero - kl_inv * f10;
                 let dq0 = -kq_inv * (wkw * l_inv * u - lt * f10) - l_inv * u;
-                let tensioned = self.state(zero, f10, dq0)?;
-                // (32): the force at the working shift.
-                let k = self.joint_stiffness();
-                let m = Self::inv(k * l_inv * kl_inv + lt, "force matrix", 32)?;
-                let f_work = m * (self.kq() * dq0 + k * l_inv * dl2);
-                let work = self.state(dl2, f_work, dq0)?; // (27), (33)
-                (None, Some(dq0), tensioned, work, None)
+                Assembly {
+                    approach,
+                    dl0: zero,
+                    dq0,
+                }
             }
-        };
+        })
+    }
+
+    /// The static state of an assembled structure for actuator shifts Δl2 of A1, A2:
+    /// eqs. (24)-(26) for approach 1, (32)-(33) for approach 2.
+    pub fn state_at(&self, asm: &Assembly, dl2: Vector2<f64>) -> Result<State, ModelError> {
+        match asm.approach {
+            Approach::DriveTranslation => {
+                let b_inv = Self::inv(self.compliance()?, "compliance B_l", 24)?;
+                let dl = asm.dl0 + dl2; // (14)
+                self.state(dl, b_inv * dl, Vector2::zeros()) // (24), (25), (26)
+            }
+            Approach::JointDeflection => {
+                let l_inv = Self::inv(self.lp(), "Jacobian L", 32)?;
+                let kl_inv = Self::inv(self.kl(), "actuator stiffness Kl", 21)?;
+                let k = self.joint_stiffness();
+                let lhs = k * l_inv * kl_inv + self.lp().transpose();
+                let m = Self::inv(lhs, "force matrix", 32)?;
+                let f = m * (self.kq() * asm.dq0 + k * l_inv * dl2); // (32)
+                self.state(dl2, f, asm.dq0) // (27), (33)
+            }
+        }
+    }
+
+    /// Pre-tension analysis with the design's preload and working shift.
+    pub fn tension(&self, approach: Approach) -> Result<Tension, ModelError> {
+        let dl2 = Vector2::from(self.design.tension.work_shift);
+        let asm = self.assembly(approach)?;
+        let tensioned = self.state_at(&asm, Vector2::zeros())?;
+        let work = self.state_at(&asm, dl2)?;
         let chi = Vector3::new(
             (tensioned.dx[0] - work.dx[0]).abs(),
             (tensioned.dx[1] - work.dx[1]).abs(),
             self.design.actuators[2].travel,
         );
         let margins = self.margins(&tensioned, &work);
+        let (dl0, dq0, dl_total) = match approach {
+            Approach::DriveTranslation => {
+                (Some(embed2(&asm.dl0)), None, Some(embed2(&(asm.dl0 + dl2))))
+            }
+            Approach::JointDeflection => (None, Some(embed2(&asm.dq0)), None),
+        };
         Ok(Tension {
             approach,
-            dl0: dl0.map(|v| embed2(&v)),
-            dq0: dq0.map(|v| embed2(&v)),
+            dl0,
+            dq0,
             dl2: embed2(&dl2),
-            dl_total: dl_total.map(|v| embed2(&v)),
+            dl_total,
             tensioned,
             work,
             chi,
