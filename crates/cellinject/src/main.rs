@@ -3,6 +3,7 @@
 
 mod commands;
 mod output;
+mod sim;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -49,6 +50,9 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
+    /// Run the digital twin: hysteresis loops, step responses, camera frames.
+    #[command(subcommand)]
+    Sim(sim::SimCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     Reproduce {
         /// Directory for the Markdown report (created if needed).
@@ -76,6 +80,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             commands::tension(&description, approach, format)
         }
         Some(Command::Model { format }) => commands::model(&description, format),
+        Some(Command::Sim(cmd)) => sim::run(&description, &cmd),
         Some(Command::Reproduce { out }) => commands::reproduce(&description, &out),
         None => commands::reproduce(&description, std::path::Path::new("reports")),
     }

@@ -8,10 +8,14 @@
 //! **Architecture invariant:** this crate parses text it is given; it never opens a
 //! file. The binary reads files and adds the file name to the error.
 
-use std::collections::BTreeSet;
-
 use cellinject_model::{Actuator, Design, Flexures, Geometry, Mechanism, ModelError, TensionSpec};
+use cellinject_twin::params::{StackParams, TwinParams};
 use thiserror::Error;
+
+mod section;
+mod twin;
+
+use section::Section;
 
 /// The embedded description of the paper's prototype (`configs/prototype.toml`).
 pub const PROTOTYPE_TOML: &str = include_str!("../../../configs/prototype.toml");
@@ -79,6 +83,8 @@ pub struct Description {
     pub name: String,
     /// The mechanism parameters.
     pub design: Design,
+    /// The digital twin's parameters.
+    pub twin: TwinParams,
 }
 
 impl Description {
@@ -122,7 +128,7 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
     };
     f.finish()?;
     let mut acts = top.table("actuators")?;
-    let mut actuator = |name: &str| -> Result<Actuator, ConfigError> {
+    let mut actuator = |name: &str| -> Result<(Actuator, StackParams), ConfigError> {
         let mut a = acts.table(name)?;
         let out = Actuator {
             stiffness: a.opt_number("stiffness")?,
@@ -130,10 +136,14 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
             push_capacity: a.number("push_capacity")?,
             torque_limit: a.number("torque_limit")?,
         };
+        let stack = twin::stack(&mut a)?;
         a.finish()?;
-        Ok(out)
+        Ok((out, stack))
     };
-    let actuators = [actuator("A1")?, actuator("A2")?, actuator("A3")?];
+    let (a1, s1) = actuator("A1")?;
+    let (a2, s2) = actuator("A2")?;
+    let (a3, s3) = actuator("A3")?;
+    let actuators = [a1, a2, a3];
     acts.finish()?;
     let mut t = top.table("tension")?;
     let tension = TensionSpec {
@@ -141,6 +151,7 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
         work_shift: t.array::<2>("work_shift")?,
     };
     t.finish()?;
+    let twin = twin::twin(&mut top, [s1, s2, s3])?;
     top.finish()?;
     let design = Design {
         geometry,
@@ -162,158 +173,13 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
             reason: other.to_string(),
         },
     })?;
-    Ok(Description { name, design })
+    Ok(Description { name, design, twin })
 }
 
 /// The embedded prototype description.
 pub fn prototype() -> Description {
     parse(PROTOTYPE_TOML)
         .unwrap_or_else(|e| unreachable!("embedded prototype.toml is invalid: {e}"))
-}
-
-/// A table being read: remembers which keys were consumed so that the rest can be
-/// reported as unknown.
-struct Section<'a> {
-    path: String,
-    table: &'a toml::Table,
-    used: BTreeSet<String>,
-}
-
-fn type_name(v: &toml::Value) -> &'static str {
-    match v {
-        toml::Value::String(_) => "a string",
-        toml::Value::Integer(_) => "an integer",
-        toml::Value::Float(_) => "a float",
-        toml::Value::Boolean(_) => "a boolean",
-        toml::Value::Datetime(_) => "a date",
-        toml::Value::Array(_) => "an array",
-        toml::Value::Table(_) => "a table",
-    }
-}
-
-impl<'a> Section<'a> {
-    fn root(table: &'a toml::Table) -> Self {
-        Section {
-            path: String::new(),
-            table,
-            used: BTreeSet::new(),
-        }
-    }
-
-    fn key(&self, k: &str) -> String {
-        if self.path.is_empty() {
-            k.to_string()
-        } else {
-            format!("{}.{k}", self.path)
-        }
-    }
-
-    fn get(&mut self, k: &str) -> Option<&'a toml::Value> {
-        self.used.insert(k.to_string());
-        self.table.get(k)
-    }
-
-    fn require(&mut self, k: &str) -> Result<&'a toml::Value, ConfigError> {
-        self.get(k)
-            .ok_or_else(|| ConfigError::Missing { key: self.key(k) })
-    }
-
-    fn to_number(&self, key: String, v: &toml::Value) -> Result<f64, ConfigError> {
-        match v {
-            toml::Value::Float(x) => Ok(*x),
-            toml::Value::Integer(i) => Ok(*i as f64),
-            other => Err(ConfigError::Type {
-                key,
-                expected: "a number".into(),
-                found: type_name(other).into(),
-            }),
-        }
-    }
-
-    fn number(&mut self, k: &str) -> Result<f64, ConfigError> {
-        let v = self.require(k)?;
-        self.to_number(self.key(k), v)
-    }
-
-    fn opt_number(&mut self, k: &str) -> Result<Option<f64>, ConfigError> {
-        match self.get(k) {
-            None => Ok(None),
-            Some(v) => self.to_number(self.key(k), v).map(Some),
-        }
-    }
-
-    fn to_array<const N: usize>(&self, k: &str, v: &toml::Value) -> Result<[f64; N], ConfigError> {
-        let key = self.key(k);
-        let expected = format!("an array of {N} numbers");
-        let toml::Value::Array(items) = v else {
-            return Err(ConfigError::Type {
-                key,
-                expected,
-                found: type_name(v).into(),
-            });
-        };
-        if items.len() != N {
-            return Err(ConfigError::Type {
-                key,
-                expected,
-                found: format!("{} elements", items.len()),
-            });
-        }
-        let mut out = [0.0; N];
-        for (i, item) in items.iter().enumerate() {
-            out[i] = self.to_number(format!("{key}[{i}]"), item)?;
-        }
-        Ok(out)
-    }
-
-    fn array<const N: usize>(&mut self, k: &str) -> Result<[f64; N], ConfigError> {
-        let v = self.require(k)?;
-        self.to_array(k, v)
-    }
-
-    fn opt_array<const N: usize>(&mut self, k: &str) -> Result<Option<[f64; N]>, ConfigError> {
-        match self.get(k) {
-            None => Ok(None),
-            Some(v) => self.to_array(k, v).map(Some),
-        }
-    }
-
-    fn string(&mut self, k: &str) -> Result<String, ConfigError> {
-        match self.require(k)? {
-            toml::Value::String(s) => Ok(s.clone()),
-            other => Err(ConfigError::Type {
-                key: self.key(k),
-                expected: "a string".into(),
-                found: type_name(other).into(),
-            }),
-        }
-    }
-
-    fn table(&mut self, k: &str) -> Result<Section<'a>, ConfigError> {
-        match self.require(k)? {
-            toml::Value::Table(t) => Ok(Section {
-                path: self.key(k),
-                table: t,
-                used: BTreeSet::new(),
-            }),
-            other => Err(ConfigError::Type {
-                key: self.key(k),
-                expected: "a table".into(),
-                found: type_name(other).into(),
-            }),
-        }
-    }
-
-    /// Refuses keys that were not read.
-    fn finish(self) -> Result<(), ConfigError> {
-        if let Some(unknown) = self.table.keys().find(|k| !self.used.contains(k.as_str())) {
-            return Err(ConfigError::Unknown {
-                key: self.key(unknown),
-                expected: self.used.iter().cloned().collect::<Vec<_>>().join(", "),
-            });
-        }
-        Ok(())
-    }
 }
 
 #[cfg(test)]
@@ -325,6 +191,7 @@ mod tests {
         let d = prototype();
         assert_eq!(d.name, "ICINCO-2012 prototype");
         assert_eq!(d.design, cellinject_model::prototype());
+        assert_eq!(d.twin, TwinParams::default());
     }
 
     fn replace(from: &str, to: &str) -> Result<Description, ConfigError> {
@@ -402,6 +269,35 @@ mod tests {
         .unwrap_err();
         assert_eq!(e.key(), Some("geometry"));
         assert!(e.to_string().contains("singular"), "{e}");
+    }
+
+    #[test]
+    fn twin_sections_are_validated_by_key() {
+        for (from, to, key) in [
+            (
+                "slew_rate = 1.0e4",
+                "slew_rate = -1.0",
+                "actuators.A1.amplifier.slew_rate",
+            ),
+            (
+                "fraction = 0.25",
+                "fraction = 1.5",
+                "actuators.A1.hysteresis.fraction",
+            ),
+            ("rate = 20000.0", "rate = 1000.0", "dynamics.rate"),
+            ("bit_depth = 8", "bit_depth = 10", "camera.bit_depth"),
+            ("zoom = 10.0", "zoom = 20.0", "optics.zoom"),
+            ("approach = 2", "approach = 3", "twin.approach"),
+            ("rows = 4", "rows = 4.5", "feeder.rows"),
+            ("gamma = 0.015", "gama = 0.015", "actuators.A1.creep.gama"),
+        ] {
+            let e = replace(from, to).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{from} -> {to}: {e}");
+        }
+        // Sections are optional: a file without them gets the prototype's values.
+        let start = PROTOTYPE_TOML.find("\n[twin]").unwrap();
+        let d = parse(&PROTOTYPE_TOML[..start]).unwrap();
+        assert_eq!(d.twin.dynamics, TwinParams::default().dynamics);
     }
 
     #[test]

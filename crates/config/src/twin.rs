@@ -1,0 +1,206 @@
+//! The twin's sections of the description file. Every key is optional and defaults to
+//! the prototype's value (`TwinParams::default()`); present keys are validated.
+
+use cellinject_model::Approach;
+use cellinject_twin::params::{
+    AmplifierParams, CreepParams, HysteresisParams, StackParams, TwinParams,
+};
+
+use crate::ConfigError;
+use crate::section::{Check, Section};
+
+/// Reads a section if present and applies `f` to it, then refuses unknown keys.
+fn with<'a, T>(
+    parent: &mut Section<'a>,
+    name: &str,
+    default: T,
+    f: impl FnOnce(&mut Section<'a>, T) -> Result<T, ConfigError>,
+) -> Result<T, ConfigError> {
+    match parent.opt_table(name)? {
+        None => Ok(default),
+        Some(mut s) => {
+            let out = f(&mut s, default)?;
+            s.finish()?;
+            Ok(out)
+        }
+    }
+}
+
+/// `[actuators.Ax.amplifier|hysteresis|creep]`.
+pub(crate) fn stack(a: &mut Section<'_>) -> Result<StackParams, ConfigError> {
+    let d = StackParams::default();
+    let amplifier = with(a, "amplifier", d.amplifier, |s, d| {
+        Ok(AmplifierParams {
+            v_max: s.num("v_max", d.v_max, Check::Positive)?,
+            dac_bits: s.int("dac_bits", d.dac_bits as u64, 8, 24)? as u32,
+            slew_rate: s.num("slew_rate", d.slew_rate, Check::Positive)?,
+            bandwidth: s.num("bandwidth", d.bandwidth, Check::Positive)?,
+            noise: s.num("noise", d.noise, Check::NonNegative)?,
+        })
+    })?;
+    let hysteresis = with(a, "hysteresis", d.hysteresis, |s, d| {
+        Ok(HysteresisParams {
+            fraction: s.num("fraction", d.fraction, Check::Between(0.0, 1.0))?,
+            skew: s.num("skew", d.skew, Check::Between(-0.99, 0.99))?,
+        })
+    })?;
+    let creep = with(a, "creep", d.creep, |s, d| {
+        let tau_min = s.num("tau_min", d.tau_min, Check::Positive)?;
+        Ok(CreepParams {
+            gamma: s.num("gamma", d.gamma, Check::Between(0.0, 0.1))?,
+            tau_min,
+            tau_max: s.num("tau_max", d.tau_max, Check::Between(tau_min, 1e9))?,
+        })
+    })?;
+    Ok(StackParams {
+        amplifier,
+        hysteresis,
+        creep,
+    })
+}
+
+/// Every twin section except the per-actuator ones.
+pub(crate) fn twin(
+    top: &mut Section<'_>,
+    stacks: [StackParams; 3],
+) -> Result<TwinParams, ConfigError> {
+    let d = TwinParams::default();
+    let (approach, seed) = with(top, "twin", (d.approach, d.seed), |s, (a, seed)| {
+        let n = s.int("approach", a.number() as u64, 1, 2)?;
+        let approach = Approach::from_number(n as u8).unwrap_or(a);
+        Ok((approach, s.int("seed", seed, 0, u64::MAX)?))
+    })?;
+    let dynamics = with(top, "dynamics", d.dynamics, |s, d| {
+        Ok(cellinject_twin::params::DynamicsParams {
+            inertia: s.arr("inertia", d.inertia, Check::Positive)?,
+            a3_mass: s.num("a3_mass", d.a3_mass, Check::Positive)?,
+            a3_stiffness: s.num("a3_stiffness", d.a3_stiffness, Check::Positive)?,
+            damping_ratio: s.num("damping_ratio", d.damping_ratio, Check::Between(1e-4, 0.99))?,
+            rate: s.num("rate", d.rate, Check::Between(20e3, 1e7))?,
+        })
+    })?;
+    let joints = with(top, "joints", d.joints, |s, d| {
+        Ok(cellinject_twin::params::JointParams {
+            stick_slip_angle: s.num("stick_slip_angle", d.stick_slip_angle, Check::NonNegative)?,
+            slip_rotation: s.num("slip_rotation", d.slip_rotation, Check::Positive)?,
+            ball_radius: s.num("ball_radius", d.ball_radius, Check::Positive)?,
+        })
+    })?;
+    let thermal = with(top, "thermal", d.thermal, |s, d| {
+        Ok(cellinject_twin::params::ThermalParams {
+            drift_rate: s.num("drift_rate", d.drift_rate, Check::Between(-1.0, 1.0))?,
+            expansion: s.num("expansion", d.expansion, Check::Between(-1e-5, 1e-5))?,
+        })
+    })?;
+    let stage = with(top, "stage", d.stage, |s, d| {
+        Ok(cellinject_twin::params::StageParams {
+            travel: s.num("travel", d.travel, Check::Positive)?,
+            max_speed: s.num("max_speed", d.max_speed, Check::Positive)?,
+            max_accel: s.num("max_accel", d.max_accel, Check::Positive)?,
+            encoder_resolution: s.num(
+                "encoder_resolution",
+                d.encoder_resolution,
+                Check::Positive,
+            )?,
+            settling_time: s.num("settling_time", d.settling_time, Check::Positive)?,
+            settling_amplitude: s.num(
+                "settling_amplitude",
+                d.settling_amplitude,
+                Check::NonNegative,
+            )?,
+        })
+    })?;
+    let camera = with(top, "camera", d.camera, |s, d| {
+        let bits = s.int("bit_depth", d.bit_depth as u64, 8, 12)?;
+        if bits != 8 && bits != 12 {
+            return Err(ConfigError::Invalid {
+                key: s.key("bit_depth"),
+                reason: format!("{bits} must be 8 or 12"),
+            });
+        }
+        let fps_full = s.num("fps_full", d.fps_full, Check::Positive)?;
+        let fps_vga = s.num("fps_vga", d.fps_vga, Check::Positive)?;
+        Ok(cellinject_twin::params::CameraParams {
+            width: s.int("width", d.width as u64, 640, 16384)? as u32,
+            height: s.int("height", d.height as u64, 480, 16384)? as u32,
+            pixel_size: s.num("pixel_size", d.pixel_size, Check::Positive)?,
+            bit_depth: bits as u8,
+            full_well: s.num("full_well", d.full_well, Check::Positive)?,
+            read_noise: s.num("read_noise", d.read_noise, Check::NonNegative)?,
+            fps_full,
+            fps_vga,
+            exposure: s.num(
+                "exposure",
+                d.exposure,
+                Check::Between(1e-6, 1.0 / fps_vga.max(fps_full)),
+            )?,
+            reference_exposure: s.num(
+                "reference_exposure",
+                d.reference_exposure,
+                Check::Positive,
+            )?,
+            background_level: s.num(
+                "background_level",
+                d.background_level,
+                Check::Between(0.0, 1.0),
+            )?,
+        })
+    })?;
+    let optics = with(top, "optics", d.optics, |s, d| {
+        let zoom_range = s.arr("zoom_range", d.zoom_range, Check::Positive)?;
+        Ok(cellinject_twin::params::OpticsParams {
+            zoom: s.num("zoom", d.zoom, Check::Between(zoom_range[0], zoom_range[1]))?,
+            zoom_range,
+            focus_blur: s.num("focus_blur", d.focus_blur, Check::NonNegative)?,
+            defocus_rate: s.num("defocus_rate", d.defocus_rate, Check::NonNegative)?,
+        })
+    })?;
+    let feeder = with(top, "feeder", d.feeder, |s, d| {
+        let cell_diameter = s.arr("cell_diameter", d.cell_diameter, Check::Positive)?;
+        if cell_diameter[0] > cell_diameter[1] {
+            return Err(ConfigError::Invalid {
+                key: s.key("cell_diameter"),
+                reason: "the smallest diameter exceeds the largest".into(),
+            });
+        }
+        Ok(cellinject_twin::params::FeederParams {
+            rows: s.int("rows", d.rows as u64, 0, 1000)? as u32,
+            cols: s.int("cols", d.cols as u64, 0, 1000)? as u32,
+            pitch: s.num("pitch", d.pitch, Check::Positive)?,
+            cell_diameter,
+            offset: s.arr("offset", d.offset, Check::Between(-0.1, 0.1))?,
+            empty_fraction: s.num("empty_fraction", d.empty_fraction, Check::Between(0.0, 1.0))?,
+            debris_density: s.num("debris_density", d.debris_density, Check::Between(0.0, 1e5))?,
+        })
+    })?;
+    let injector = with(top, "injector", d.injector, |s, d| {
+        Ok(cellinject_twin::params::InjectorParams {
+            max_pressure: s.num("max_pressure", d.max_pressure, Check::Positive)?,
+            conductance: s.num("conductance", d.conductance, Check::Positive)?,
+        })
+    })?;
+    let safety = with(top, "safety", d.safety, |s, d| {
+        Ok(cellinject_twin::params::SafetyParams {
+            hysteresis_bound: s.num(
+                "hysteresis_bound",
+                d.hysteresis_bound,
+                Check::Between(0.0, 1.0),
+            )?,
+            dynamic_margin: s.num("dynamic_margin", d.dynamic_margin, Check::Between(0.0, 1.0))?,
+        })
+    })?;
+    Ok(TwinParams {
+        approach,
+        seed,
+        stacks,
+        dynamics,
+        joints,
+        thermal,
+        stage,
+        camera,
+        optics,
+        feeder,
+        injector,
+        safety,
+    })
+}

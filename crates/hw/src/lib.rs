@@ -1,0 +1,196 @@
+//! # cellinject-hw
+//!
+//! The small traits through which cellinject talks to hardware, after openrr's `arci`:
+//! a piezo amplifier channel, a camera, a translational stage, an injector and a clock.
+//! The digital twin implements every trait (crate `cellinject-twin`), real drivers will
+//! too, and the controllers see only the traits. Safety limits are wrappers
+//! ([`safety`]) around any implementation: an unsafe command is refused with a typed
+//! error before it reaches the device.
+//!
+//! All traits are object-safe; all quantities are SI (s, V, m, Pa).
+//!
+//! **Architecture invariant:** this crate defines contracts and checks; it does no IO
+//! and knows no particular device.
+
+pub mod safety;
+
+use thiserror::Error;
+
+/// Errors a device can report.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum HwError {
+    /// The command was refused by a safety wrapper.
+    #[error("refused: {0}")]
+    Refused(#[from] safety::SafetyError),
+    /// A parameter outside the device's own range.
+    #[error("{what} = {value} is outside the device range [{min}, {max}]")]
+    OutOfRange {
+        /// Which parameter.
+        what: String,
+        /// Requested value.
+        value: f64,
+        /// Smallest accepted value.
+        min: f64,
+        /// Largest accepted value.
+        max: f64,
+    },
+    /// A parameter that is not a finite number.
+    #[error("{what} must be a finite number, got {value}")]
+    NotFinite {
+        /// Which parameter.
+        what: String,
+        /// Requested value.
+        value: f64,
+    },
+    /// The device did not answer in time.
+    #[error("{device} timed out after {seconds} s")]
+    Timeout {
+        /// Which device.
+        device: String,
+        /// How long we waited.
+        seconds: f64,
+    },
+    /// Any other device failure.
+    #[error("{device}: {message}")]
+    Device {
+        /// Which device.
+        device: String,
+        /// What it said.
+        message: String,
+    },
+}
+
+/// Checks that `value` is finite and in `[min, max]`.
+pub fn check_range(what: &str, value: f64, min: f64, max: f64) -> Result<(), HwError> {
+    if !value.is_finite() {
+        return Err(HwError::NotFinite {
+            what: what.to_string(),
+            value,
+        });
+    }
+    if value < min || value > max {
+        return Err(HwError::OutOfRange {
+            what: what.to_string(),
+            value,
+            min,
+            max,
+        });
+    }
+    Ok(())
+}
+
+/// Time. The twin's clock is simulated: `sleep` advances the simulation, so a run is
+/// as fast as the computer allows while reporting the time the real device would take.
+pub trait Clock {
+    /// Seconds since the clock's epoch.
+    fn now(&self) -> f64;
+    /// Lets `seconds` pass (the twin integrates its dynamics over them).
+    fn sleep(&mut self, seconds: f64) -> Result<(), HwError>;
+}
+
+/// One channel of a piezo amplifier driving one stack.
+///
+/// Contract: `set_voltage` returns once the command is accepted (not once the stack has
+/// moved); the amplifier then follows it with its own slew rate and bandwidth.
+/// `read_voltage` is the amplifier's output monitor.
+pub trait PiezoChannel {
+    /// Channel name (A1, A2, A3).
+    fn name(&self) -> &str;
+    /// Output range of the amplifier, volts.
+    fn voltage_range(&self) -> (f64, f64);
+    /// Commands an output voltage.
+    fn set_voltage(&mut self, volts: f64) -> Result<(), HwError>;
+    /// The last accepted command.
+    fn commanded_voltage(&self) -> f64;
+    /// The output voltage now.
+    fn read_voltage(&mut self) -> Result<f64, HwError>;
+}
+
+/// A region of the sensor, in sensor pixels (before binning).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Roi {
+    /// First column.
+    pub x: u32,
+    /// First row.
+    pub y: u32,
+    /// Columns.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+}
+
+/// Acquisition settings of a camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraSettings {
+    /// Region of interest on the sensor.
+    pub roi: Roi,
+    /// Binning factor (1, 2, 4): `binning x binning` sensor pixels make one output pixel.
+    pub binning: u32,
+    /// Exposure time, s.
+    pub exposure: f64,
+    /// Output bit depth (8 or 12).
+    pub bit_depth: u8,
+}
+
+/// One image from a camera.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Frame {
+    /// Columns.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// Significant bits of each pixel value (8 or 12).
+    pub bit_depth: u8,
+    /// Row-major pixel values.
+    pub pixels: Vec<u16>,
+    /// Start of the exposure, s (on the device's clock).
+    pub timestamp: f64,
+    /// Exposure time, s.
+    pub exposure: f64,
+    /// Size of one output pixel in the object plane, m.
+    pub pixel_size: f64,
+    /// Frame counter since the camera started.
+    pub index: u64,
+}
+
+/// A camera.
+pub trait Camera {
+    /// Sensor size in pixels (columns, rows).
+    fn sensor_size(&self) -> (u32, u32);
+    /// Current acquisition settings.
+    fn settings(&self) -> CameraSettings;
+    /// Changes the acquisition settings (validated by the device).
+    fn configure(&mut self, settings: CameraSettings) -> Result<(), HwError>;
+    /// Frames per second with the current settings.
+    fn frame_rate(&self) -> f64;
+    /// Waits for the next frame and writes it into `frame`, reusing its buffer.
+    fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError>;
+    /// Waits for the next frame.
+    fn grab(&mut self) -> Result<Frame, HwError> {
+        let mut f = Frame::default();
+        self.grab_into(&mut f)?;
+        Ok(f)
+    }
+}
+
+/// A motorised translational stage with position encoders.
+pub trait Stage {
+    /// Number of axes.
+    fn axes(&self) -> usize;
+    /// Travel limits of an axis, m.
+    fn travel(&self, axis: usize) -> (f64, f64);
+    /// Starts a move of one axis to an absolute position (returns at once).
+    fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError>;
+    /// Encoder reading of an axis, m.
+    fn position(&mut self, axis: usize) -> Result<f64, HwError>;
+    /// Whether any axis is still moving or settling.
+    fn is_busy(&mut self) -> Result<bool, HwError>;
+}
+
+/// A pressure injector connected to the pipette.
+pub trait Injector {
+    /// Largest pressure the injector may apply, Pa.
+    fn max_pressure(&self) -> f64;
+    /// Applies a pressure pulse (gauge pressure in Pa, duration in s).
+    fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError>;
+}

@@ -1,0 +1,460 @@
+//! Safety limits as wrappers around any device implementation.
+//!
+//! A [`PiezoEnvelope`] knows the mechanism (its pre-tension and Jacobians) and the
+//! stacks' limits. Before a voltage reaches an amplifier, [`GuardedPiezo`] asks it
+//! whether the three commanded voltages together keep every stack compressed, below its
+//! push capacity, and every J1/J2 bending torque below the stack's torque limit, for
+//! every extension the stacks may actually reach at those voltages (hysteresis and creep
+//! move the extension within a band around the nominal `travel · V / V_max`; a dynamic
+//! margin covers overshoot while the structure rings). All these quantities are affine
+//! in the two drive shifts (eqs. 24-26, 32-33), so their extremes over the band lie at
+//! its four corners, which are checked.
+//!
+//! [`GuardedStage`] and [`GuardedInjector`] refuse stage moves outside the travel and
+//! pressures above the injector's limit.
+
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use cellinject_model::{ACTUATOR_NAMES, Approach, Assembly, Mechanism, ModelError};
+use nalgebra::Vector2;
+use thiserror::Error;
+
+use crate::{HwError, Injector, PiezoChannel, Stage, check_range};
+
+/// Why a command was refused.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum SafetyError {
+    /// Voltage outside the amplifier channel's range (the stack's travel).
+    #[error("{channel}: {volts} V is outside [{min}, {max}] V (the stack's travel)")]
+    Voltage {
+        /// Channel name.
+        channel: String,
+        /// Requested voltage.
+        volts: f64,
+        /// Lowest allowed.
+        min: f64,
+        /// Highest allowed.
+        max: f64,
+    },
+    /// A stack would be pushed beyond its push capacity.
+    #[error("{actuator} force could reach {force:.3} N, beyond its push capacity {capacity} N")]
+    Force {
+        /// Actuator name.
+        actuator: String,
+        /// Worst-case force, N (compression negative).
+        force: f64,
+        /// Push capacity, N.
+        capacity: f64,
+    },
+    /// A stack would lose its compression (backlash, tensile load on the ceramic).
+    #[error("{actuator} force could reach {force:.3} N: the stack would no longer be compressed")]
+    Compression {
+        /// Actuator name.
+        actuator: String,
+        /// Worst-case force, N.
+        force: f64,
+    },
+    /// A flexure would bend its stack beyond the stack's torque limit.
+    #[error(
+        "{flexure} bending torque could reach {torque:.4} N*m, beyond the torque limit {limit} N*m of {actuator}"
+    )]
+    Torque {
+        /// Flexure name (J1, J2).
+        flexure: String,
+        /// Actuator it loads.
+        actuator: String,
+        /// Worst-case torque, N·m.
+        torque: f64,
+        /// Limit, N·m.
+        limit: f64,
+    },
+    /// A stage move beyond the axis travel.
+    #[error("stage axis {axis}: {position} m is outside its travel [{min}, {max}] m")]
+    StageTravel {
+        /// Axis index.
+        axis: usize,
+        /// Requested position.
+        position: f64,
+        /// Lower limit.
+        min: f64,
+        /// Upper limit.
+        max: f64,
+    },
+    /// An injection pressure beyond the limit.
+    #[error("pressure {pressure} Pa exceeds the limit {max} Pa")]
+    Pressure {
+        /// Requested pressure.
+        pressure: f64,
+        /// Limit.
+        max: f64,
+    },
+    /// The model could not evaluate the command.
+    #[error("the mechanism model failed: {0}")]
+    Model(String),
+}
+
+/// Parameters of the envelope besides the mechanism.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnvelopeLimits {
+    /// Output range of each amplifier channel, V.
+    pub voltage_range: [(f64, f64); 3],
+    /// Largest deviation of a stack's extension from `travel · V / V_max`, as a fraction
+    /// of travel (hysteresis plus creep).
+    pub hysteresis_bound: f64,
+    /// Extra extension, as a fraction of travel, for dynamic overshoot.
+    pub dynamic_margin: f64,
+}
+
+/// The safe operating region of the three stacks of one assembled mechanism.
+#[derive(Debug, Clone)]
+pub struct PiezoEnvelope {
+    mechanism: Mechanism,
+    assembly: Assembly,
+    limits: EnvelopeLimits,
+}
+
+/// The worst case found over the extension band of a command.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorstCase {
+    /// N, per actuator: the most compressive and the least compressive force.
+    pub force: [[f64; 2]; 2],
+    /// N·m, per flexure J1, J2: the largest bending torque.
+    pub torque: [f64; 2],
+}
+
+impl PiezoEnvelope {
+    /// The envelope of a mechanism assembled with `approach`.
+    pub fn new(
+        mechanism: Mechanism,
+        approach: Approach,
+        limits: EnvelopeLimits,
+    ) -> Result<Self, ModelError> {
+        let assembly = mechanism.assembly(approach)?;
+        Ok(PiezoEnvelope {
+            mechanism,
+            assembly,
+            limits,
+        })
+    }
+
+    /// The limits.
+    pub fn limits(&self) -> &EnvelopeLimits {
+        &self.limits
+    }
+
+    /// The range of extensions (m) stack `ch` may reach at `volts`, dynamic margin included.
+    pub fn extension_band(&self, ch: usize, volts: f64) -> (f64, f64) {
+        let (lo, hi) = self.limits.voltage_range[ch];
+        let travel = self.mechanism.design().actuators[ch].travel;
+        let u = ((volts - lo) / (hi - lo)).clamp(0.0, 1.0);
+        let h = self.limits.hysteresis_bound;
+        let d = self.limits.dynamic_margin;
+        (
+            travel * (u - h - d).max(-d),
+            travel * (u + h + d).min(1.0 + d),
+        )
+    }
+
+    /// Checks three voltages together; returns the worst case when they are safe.
+    pub fn check(&self, volts: [f64; 3]) -> Result<WorstCase, SafetyError> {
+        for (ch, v) in volts.iter().enumerate() {
+            let (min, max) = self.limits.voltage_range[ch];
+            if !v.is_finite() || *v < min || *v > max {
+                return Err(SafetyError::Voltage {
+                    channel: ACTUATOR_NAMES[ch].to_string(),
+                    volts: *v,
+                    min,
+                    max,
+                });
+            }
+        }
+        let b1 = self.extension_band(0, volts[0]);
+        let b2 = self.extension_band(1, volts[1]);
+        let mut worst = WorstCase {
+            force: [[f64::INFINITY, f64::NEG_INFINITY]; 2],
+            torque: [0.0; 2],
+        };
+        for e1 in [b1.0, b1.1] {
+            for e2 in [b2.0, b2.1] {
+                // A stack's extension pushes the drive: Δl2 = −e (the paper's eq. 44 sign).
+                let s = self
+                    .mechanism
+                    .state_at(&self.assembly, Vector2::new(-e1, -e2))
+                    .map_err(|e| SafetyError::Model(e.to_string()))?;
+                for i in 0..2 {
+                    worst.force[i][0] = worst.force[i][0].min(s.force[i]);
+                    worst.force[i][1] = worst.force[i][1].max(s.force[i]);
+                    let t = s.fw[2 * i].hypot(s.fw[2 * i + 1]);
+                    worst.torque[i] = worst.torque[i].max(t);
+                }
+            }
+        }
+        let design = self.mechanism.design();
+        for i in 0..2 {
+            let a = &design.actuators[i];
+            let name = ACTUATOR_NAMES[i].to_string();
+            if -worst.force[i][0] > a.push_capacity {
+                return Err(SafetyError::Force {
+                    actuator: name,
+                    force: worst.force[i][0],
+                    capacity: a.push_capacity,
+                });
+            }
+            if worst.force[i][1] >= 0.0 {
+                return Err(SafetyError::Compression {
+                    actuator: name,
+                    force: worst.force[i][1],
+                });
+            }
+            if worst.torque[i] > a.torque_limit {
+                return Err(SafetyError::Torque {
+                    flexure: format!("J{}", i + 1),
+                    actuator: name,
+                    torque: worst.torque[i],
+                    limit: a.torque_limit,
+                });
+            }
+        }
+        Ok(worst)
+    }
+
+    /// The highest voltage channel `ch` may take while the others stay at `volts`
+    /// (bisection to 1 mV), or `None` if even the lowest voltage is unsafe.
+    pub fn max_safe_voltage(&self, ch: usize, volts: [f64; 3]) -> Option<f64> {
+        let (lo, hi) = self.limits.voltage_range[ch];
+        let with = |v: f64| {
+            let mut c = volts;
+            c[ch] = v;
+            self.check(c).is_ok()
+        };
+        if !with(lo) {
+            return None;
+        }
+        if with(hi) {
+            return Some(hi);
+        }
+        let (mut a, mut b) = (lo, hi);
+        while b - a > 1e-3 {
+            let m = 0.5 * (a + b);
+            if with(m) { a = m } else { b = m }
+        }
+        Some(a)
+    }
+}
+
+/// The envelope and the voltages last accepted on each channel, shared by the guards
+/// of one manipulator.
+#[derive(Debug)]
+pub struct GuardState {
+    envelope: PiezoEnvelope,
+    commanded: [f64; 3],
+}
+
+/// A shared [`GuardState`].
+pub type SharedGuard = Arc<Mutex<GuardState>>;
+
+/// Creates the shared state for three guarded channels starting at `commanded` volts.
+pub fn shared_guard(envelope: PiezoEnvelope, commanded: [f64; 3]) -> SharedGuard {
+    Arc::new(Mutex::new(GuardState {
+        envelope,
+        commanded,
+    }))
+}
+
+fn lock(g: &SharedGuard) -> MutexGuard<'_, GuardState> {
+    g.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A piezo channel whose commands pass the envelope first.
+pub struct GuardedPiezo<C> {
+    inner: C,
+    channel: usize,
+    guard: SharedGuard,
+}
+
+impl<C: PiezoChannel> GuardedPiezo<C> {
+    /// Guards `inner`, which drives stack `channel` (0 = A1).
+    pub fn new(inner: C, channel: usize, guard: SharedGuard) -> Self {
+        GuardedPiezo {
+            inner,
+            channel,
+            guard,
+        }
+    }
+
+    /// The wrapped channel.
+    pub fn inner(&self) -> &C {
+        &self.inner
+    }
+}
+
+impl<C: PiezoChannel> PiezoChannel for GuardedPiezo<C> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn voltage_range(&self) -> (f64, f64) {
+        lock(&self.guard).envelope.limits.voltage_range[self.channel]
+    }
+    fn set_voltage(&mut self, volts: f64) -> Result<(), HwError> {
+        let mut g = lock(&self.guard);
+        let mut candidate = g.commanded;
+        candidate[self.channel] = volts;
+        g.envelope.check(candidate)?;
+        self.inner.set_voltage(volts)?;
+        g.commanded = candidate;
+        Ok(())
+    }
+    fn commanded_voltage(&self) -> f64 {
+        self.inner.commanded_voltage()
+    }
+    fn read_voltage(&mut self) -> Result<f64, HwError> {
+        self.inner.read_voltage()
+    }
+}
+
+/// A stage whose moves stay within per-axis limits.
+pub struct GuardedStage<S> {
+    inner: S,
+    limits: Vec<(f64, f64)>,
+}
+
+impl<S: Stage> GuardedStage<S> {
+    /// Guards `inner` with its own travel limits narrowed to `limits` where given.
+    pub fn new(inner: S, limits: Option<Vec<(f64, f64)>>) -> Self {
+        let limits = limits.unwrap_or_else(|| (0..inner.axes()).map(|a| inner.travel(a)).collect());
+        GuardedStage { inner, limits }
+    }
+}
+
+impl<S: Stage> Stage for GuardedStage<S> {
+    fn axes(&self) -> usize {
+        self.inner.axes()
+    }
+    fn travel(&self, axis: usize) -> (f64, f64) {
+        self.limits.get(axis).copied().unwrap_or((0.0, 0.0))
+    }
+    fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
+        let (min, max) = self.travel(axis);
+        if axis >= self.limits.len() || !position.is_finite() || position < min || position > max {
+            return Err(SafetyError::StageTravel {
+                axis,
+                position,
+                min,
+                max,
+            }
+            .into());
+        }
+        self.inner.move_to(axis, position)
+    }
+    fn position(&mut self, axis: usize) -> Result<f64, HwError> {
+        self.inner.position(axis)
+    }
+    fn is_busy(&mut self) -> Result<bool, HwError> {
+        self.inner.is_busy()
+    }
+}
+
+/// An injector whose pulses stay below a pressure limit.
+pub struct GuardedInjector<I> {
+    inner: I,
+    max: f64,
+}
+
+impl<I: Injector> GuardedInjector<I> {
+    /// Guards `inner` with the smaller of its own limit and `max`.
+    pub fn new(inner: I, max: f64) -> Self {
+        let max = max.min(inner.max_pressure());
+        GuardedInjector { inner, max }
+    }
+}
+
+impl<I: Injector> Injector for GuardedInjector<I> {
+    fn max_pressure(&self) -> f64 {
+        self.max
+    }
+    fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
+        if !pressure.is_finite() || pressure > self.max || pressure < 0.0 {
+            return Err(SafetyError::Pressure {
+                pressure,
+                max: self.max,
+            }
+            .into());
+        }
+        check_range("pulse duration", duration, 0.0, 10.0)?;
+        self.inner.pulse(pressure, duration)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cellinject_model::prototype;
+
+    fn envelope(approach: Approach) -> PiezoEnvelope {
+        PiezoEnvelope::new(
+            Mechanism::new(&prototype()).unwrap(),
+            approach,
+            EnvelopeLimits {
+                voltage_range: [(0.0, 100.0); 3],
+                hysteresis_bound: 0.0,
+                dynamic_margin: 0.0,
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn approach_1_full_stroke_exceeds_the_torque_limit_and_is_refused() {
+        // Without any margin the band is the nominal extension: 30 µm at 100 V gives
+        // the torque of the paper's working point, 0.3534 N*m > 0.35 N*m.
+        let e = envelope(Approach::DriveTranslation);
+        let err = e.check([100.0, 100.0, 0.0]).unwrap_err();
+        assert!(
+            matches!(err, SafetyError::Torque { ref flexure, torque, .. } if flexure == "J1" && (torque - 0.3534).abs() < 1e-3),
+            "{err}"
+        );
+        assert!(e.check([0.0, 0.0, 0.0]).is_ok());
+        // The limit lies where the torque, affine in the extension, reaches 0.35 N*m.
+        let t0 = 0.316434; // N*m at 0 µm (eq. 43)
+        let t30 = 0.353413; // N*m at 30 µm
+        let v_lim = 100.0 * (0.35 - t0) / (t30 - t0);
+        let v = e.max_safe_voltage(0, [0.0, 0.0, 0.0]).unwrap();
+        assert!((v - v_lim).abs() < 0.05, "{v} vs {v_lim}");
+    }
+
+    #[test]
+    fn approach_2_allows_the_full_stroke() {
+        let e = envelope(Approach::JointDeflection);
+        assert!(e.check([100.0, 100.0, 100.0]).is_ok());
+        assert!(matches!(
+            e.check([100.1, 0.0, 0.0]),
+            Err(SafetyError::Voltage { .. })
+        ));
+        assert!(matches!(
+            e.check([f64::NAN, 0.0, 0.0]),
+            Err(SafetyError::Voltage { .. })
+        ));
+    }
+
+    #[test]
+    fn a_lower_push_capacity_is_enforced() {
+        let mut d = prototype();
+        d.actuators[0].push_capacity = 105.0;
+        let e = PiezoEnvelope::new(
+            Mechanism::new(&d).unwrap(),
+            Approach::JointDeflection,
+            EnvelopeLimits {
+                voltage_range: [(0.0, 100.0); 3],
+                hysteresis_bound: 0.0,
+                dynamic_margin: 0.0,
+            },
+        )
+        .unwrap();
+        // 100 N at 0 V, 111.7 N at 100 V: the limit is crossed near 43 V.
+        assert!(e.check([30.0, 0.0, 0.0]).is_ok());
+        assert!(matches!(
+            e.check([60.0, 0.0, 0.0]),
+            Err(SafetyError::Force { .. })
+        ));
+    }
+}

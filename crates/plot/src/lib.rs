@@ -1,0 +1,193 @@
+//! # cellinject-plot
+//!
+//! Line charts as SVG strings, for the reports and CSV companions of cellinject's
+//! commands. Text is laid out with DejaVu Sans, embedded in the crate, so a fresh
+//! machine needs no font library.
+//!
+//! **Architecture invariant:** plotting returns text; it writes no file.
+
+use std::sync::OnceLock;
+
+use plotters::prelude::*;
+use thiserror::Error;
+
+/// The embedded font (DejaVu Sans, Bitstream Vera licence: assets/fonts/DejaVu-LICENSE.txt).
+const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+
+/// Why a chart could not be drawn.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum PlotError {
+    /// A series holds no finite point.
+    #[error("chart `{chart}` has no finite data")]
+    NoData {
+        /// Chart title.
+        chart: String,
+    },
+    /// The drawing backend failed.
+    #[error("drawing failed: {0}")]
+    Drawing(String),
+}
+
+/// One line of a chart.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// Legend entry.
+    pub name: String,
+    /// (x, y) points in drawing order.
+    pub points: Vec<(f64, f64)>,
+}
+
+/// One panel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chart {
+    /// Title above the panel.
+    pub title: String,
+    /// Label of the horizontal axis (with its unit).
+    pub x_label: String,
+    /// Label of the vertical axis (with its unit).
+    pub y_label: String,
+    /// Lines.
+    pub series: Vec<Series>,
+}
+
+fn register_font() {
+    static DONE: OnceLock<()> = OnceLock::new();
+    DONE.get_or_init(|| {
+        // The font is embedded and known to parse; a failure would only lose text.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+}
+
+const COLORS: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+    RGBColor(255, 127, 14),
+    RGBColor(23, 190, 207),
+];
+
+/// Closed interval (low, high).
+type Range = (f64, f64);
+
+fn bounds(chart: &Chart) -> Result<(Range, Range), PlotError> {
+    let mut xr = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut yr = (f64::INFINITY, f64::NEG_INFINITY);
+    for s in &chart.series {
+        for &(x, y) in &s.points {
+            if x.is_finite() && y.is_finite() {
+                xr = (xr.0.min(x), xr.1.max(x));
+                yr = (yr.0.min(y), yr.1.max(y));
+            }
+        }
+    }
+    if !xr.0.is_finite() {
+        return Err(PlotError::NoData {
+            chart: chart.title.clone(),
+        });
+    }
+    let pad = |r: (f64, f64)| {
+        let span = (r.1 - r.0).abs();
+        let p = if span > 0.0 {
+            0.05 * span
+        } else {
+            1e-12f64.max(r.0.abs() * 0.05)
+        };
+        (r.0 - p, r.1 + p)
+    };
+    Ok(((xr.0, xr.1.max(xr.0 + f64::EPSILON)), pad(yr)))
+}
+
+/// Renders panels side by side (`columns` per row) into one SVG document.
+pub fn svg(charts: &[Chart], columns: usize, panel: (u32, u32)) -> Result<String, PlotError> {
+    register_font();
+    let columns = columns.max(1);
+    let rows = charts.len().div_ceil(columns);
+    let size = (panel.0 * columns as u32, panel.1 * rows.max(1) as u32);
+    let mut out = String::new();
+    {
+        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
+        let err = |e: &dyn std::fmt::Display| PlotError::Drawing(e.to_string());
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let areas = root.split_evenly((rows.max(1), columns));
+        for (chart, area) in charts.iter().zip(areas.iter()) {
+            let ((x0, x1), (y0, y1)) = bounds(chart)?;
+            let mut c = ChartBuilder::on(area)
+                .caption(&chart.title, ("sans-serif", 18))
+                .margin(12)
+                .x_label_area_size(42)
+                .y_label_area_size(72)
+                .build_cartesian_2d(x0..x1, y0..y1)
+                .map_err(|e| err(&e))?;
+            c.configure_mesh()
+                .x_desc(chart.x_label.as_str())
+                .y_desc(chart.y_label.as_str())
+                .label_style(("sans-serif", 13))
+                .draw()
+                .map_err(|e| err(&e))?;
+            for (k, s) in chart.series.iter().enumerate() {
+                let color = COLORS[k % COLORS.len()];
+                c.draw_series(LineSeries::new(
+                    s.points
+                        .iter()
+                        .copied()
+                        .filter(|(x, y)| x.is_finite() && y.is_finite()),
+                    color.stroke_width(2),
+                ))
+                .map_err(|e| err(&e))?
+                .label(s.name.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+                });
+            }
+            if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
+                c.configure_series_labels()
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 13))
+                    .draw()
+                    .map_err(|e| err(&e))?;
+            }
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn draws_an_svg_with_its_labels() {
+        let c = Chart {
+            title: "loop".into(),
+            x_label: "voltage [V]".into(),
+            y_label: "displacement [µm]".into(),
+            series: vec![Series {
+                name: "A1".into(),
+                points: (0..50).map(|i| (i as f64, (i as f64).sqrt())).collect(),
+            }],
+        };
+        let s = svg(&[c.clone(), c], 2, (500, 400)).unwrap();
+        assert!(s.starts_with("<svg"));
+        assert!(s.contains("voltage [V]") && s.contains("polyline"));
+    }
+
+    #[test]
+    fn empty_data_is_an_error() {
+        let c = Chart {
+            title: "empty".into(),
+            x_label: String::new(),
+            y_label: String::new(),
+            series: vec![Series {
+                name: String::new(),
+                points: vec![(f64::NAN, 1.0)],
+            }],
+        };
+        assert!(matches!(
+            svg(&[c], 1, (100, 100)),
+            Err(PlotError::NoData { .. })
+        ));
+    }
+}

@@ -1,0 +1,645 @@
+//! The microscope camera: renders what the sensor sees from the twin's true state.
+//!
+//! Brightfield image formation in the object plane: a vignetted background multiplied by
+//! the transmission of every object (cells, debris, feeder walls, pipette, marker tab,
+//! speckles). Every object has an analytic profile blurred by a Gaussian whose variance
+//! is the optics' blur (focus blur plus defocus for the pipette's distance from the focal
+//! plane), the pixel's box integration (`pitch²/12`) and, for moving objects, the motion
+//! during the exposure (`(v·T)²/12` per axis). Then the sensor: signal electrons
+//! proportional to exposure, shot noise, read noise, saturation at full well, 8- or
+//! 12-bit quantisation. Binning sums `b x b` sensor pixels (read noise `b·σ_read`).
+//!
+//! The static part (background, feeder, cells, debris) depends only on the pixel grid
+//! and is rendered once per camera configuration; each frame copies it and draws the
+//! moving pipette over it, so a frame costs little more than its noise.
+
+use std::sync::OnceLock;
+
+use cellinject_hw::{CameraSettings, Frame, HwError, Roi, check_range};
+
+use crate::params::{CameraParams, OpticsParams};
+use crate::rng::Rng;
+use crate::scene::Scene;
+use crate::world::stream;
+
+/// Object point at the centre of the sensor, relative to the tip's aligned position (x, z), m.
+pub const VIEW_CENTER: [f64; 2] = [0.0, 30e-6];
+
+/// Where the end-effector (pipette tip) is during an exposure, in the object plane.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TipPose {
+    /// m, mean position along the image columns.
+    pub x: f64,
+    /// m, mean position along the image rows.
+    pub z: f64,
+    /// m, distance from the focal plane (along the optical axis).
+    pub depth: f64,
+    /// m/s, velocity along x during the exposure.
+    pub vx: f64,
+    /// m/s, velocity along z during the exposure.
+    pub vz: f64,
+}
+
+/// The output pixel grid in the object plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    /// m, object x of the centre of output pixel (0, 0).
+    pub x0: f64,
+    /// m, object z of the centre of output pixel (0, 0).
+    pub z0: f64,
+    /// m, object-plane size of one output pixel.
+    pub pitch: f64,
+    /// Output columns.
+    pub width: usize,
+    /// Output rows.
+    pub height: usize,
+    /// Binning factor.
+    pub binning: u32,
+}
+
+/// Standard normal CDF Φ, tabulated on [−8, 8].
+fn phi_table() -> &'static [f32] {
+    static T: OnceLock<Vec<f32>> = OnceLock::new();
+    T.get_or_init(|| {
+        (0..=PHI_N)
+            .map(|i| {
+                let u = -PHI_RANGE + 2.0 * PHI_RANGE * i as f64 / PHI_N as f64;
+                (0.5 * erfc(-u / std::f64::consts::SQRT_2)) as f32
+            })
+            .collect()
+    })
+}
+const PHI_N: usize = 8192;
+const PHI_RANGE: f64 = 8.0;
+
+/// Complementary error function (Numerical Recipes' erfcc, relative error < 1.2e-7).
+fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if x >= 0.0 { r } else { 2.0 - r }
+}
+
+/// Φ(u), a smooth step of unit width.
+#[inline]
+fn step(u: f32) -> f32 {
+    let t = phi_table();
+    let s = (u + PHI_RANGE as f32) * (PHI_N as f32 / (2.0 * PHI_RANGE as f32));
+    if s <= 0.0 {
+        return 0.0;
+    }
+    if s >= PHI_N as f32 {
+        return 1.0;
+    }
+    let i = s as usize;
+    let f = s - i as f32;
+    t[i] + (t[i + 1] - t[i]) * f
+}
+
+/// Samples of a 1-D Gaussian `exp(−(c − center)² / 2σ²)` at the pixel centres `c0 + k·pitch`
+/// for k in `[lo, hi)`, written into `out`.
+fn gauss_row(
+    out: &mut Vec<f32>,
+    c0: f64,
+    pitch: f64,
+    lo: usize,
+    hi: usize,
+    center: f64,
+    sigma: f64,
+) {
+    out.clear();
+    let inv = 1.0 / (2.0 * sigma * sigma);
+    for k in lo..hi {
+        let d = c0 + k as f64 * pitch - center;
+        out.push((-d * d * inv).exp() as f32);
+    }
+}
+
+/// Pixel range `[lo, hi)` of the grid axis covering `[a, b]` (object coordinates).
+fn span(c0: f64, pitch: f64, n: usize, a: f64, b: f64) -> (usize, usize) {
+    let lo = ((a - c0) / pitch).floor().max(0.0);
+    let hi = ((b - c0) / pitch).ceil() + 1.0;
+    let lo = (lo as usize).min(n);
+    let hi = (hi.max(0.0) as usize).min(n);
+    (lo, hi.max(lo))
+}
+
+/// The camera behind the zoom lens.
+#[derive(Debug, Clone)]
+pub struct Microscope {
+    params: CameraParams,
+    optics: OpticsParams,
+    scene: Scene,
+    settings: CameraSettings,
+    static_grid: Option<Grid>,
+    static_layer: Vec<f32>,
+    work: Vec<f32>,
+    scratch_x: Vec<f32>,
+    scratch_z: Vec<f32>,
+}
+
+impl Microscope {
+    /// A camera at full resolution with the default exposure.
+    pub fn new(params: CameraParams, optics: OpticsParams, scene: Scene) -> Self {
+        Microscope {
+            settings: CameraSettings {
+                roi: Roi {
+                    x: 0,
+                    y: 0,
+                    width: params.width,
+                    height: params.height,
+                },
+                binning: 1,
+                exposure: params.exposure,
+                bit_depth: params.bit_depth,
+            },
+            params,
+            optics,
+            scene,
+            static_grid: None,
+            static_layer: Vec::new(),
+            work: Vec::new(),
+            scratch_x: Vec::new(),
+            scratch_z: Vec::new(),
+        }
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// Sensor parameters.
+    pub fn params(&self) -> &CameraParams {
+        &self.params
+    }
+
+    /// Current settings.
+    pub fn settings(&self) -> CameraSettings {
+        self.settings
+    }
+
+    /// Current magnification.
+    pub fn zoom(&self) -> f64 {
+        self.optics.zoom
+    }
+
+    /// Sets the magnification (within the lens's range).
+    pub fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
+        let [lo, hi] = self.optics.zoom_range;
+        check_range("zoom", zoom, lo, hi)?;
+        self.optics.zoom = zoom;
+        self.static_grid = None;
+        Ok(())
+    }
+
+    /// The VGA settings: 640x480 output, by 4x4 binning of the centre of the sensor
+    /// (`binned`) or by cropping it at full resolution.
+    pub fn vga_settings(&self, binned: bool) -> CameraSettings {
+        let (w, h) = (640u32, 480u32);
+        let b = if binned { 4 } else { 1 };
+        let (sw, sh) = (w * b, h * b);
+        let sw = sw.min(self.params.width);
+        let sh = sh.min(self.params.height);
+        CameraSettings {
+            roi: Roi {
+                x: (self.params.width - sw) / 2,
+                y: (self.params.height - sh) / 2,
+                width: sw,
+                height: sh,
+            },
+            binning: b,
+            ..self.settings
+        }
+    }
+
+    /// Frames per second: the full-frame rate, or the VGA rate once the output has no
+    /// more pixels than VGA.
+    pub fn frame_rate_for(&self, s: &CameraSettings) -> f64 {
+        let out = (s.roi.width / s.binning) as u64 * (s.roi.height / s.binning) as u64;
+        if out <= 640 * 480 {
+            self.params.fps_vga
+        } else {
+            self.params.fps_full
+        }
+    }
+
+    /// Validates and applies settings.
+    pub fn configure(&mut self, s: CameraSettings) -> Result<(), HwError> {
+        if ![1, 2, 4].contains(&s.binning) {
+            return Err(HwError::OutOfRange {
+                what: "binning".into(),
+                value: s.binning as f64,
+                min: 1.0,
+                max: 4.0,
+            });
+        }
+        if s.bit_depth != 8 && s.bit_depth != 12 {
+            return Err(HwError::OutOfRange {
+                what: "bit depth".into(),
+                value: s.bit_depth as f64,
+                min: 8.0,
+                max: 12.0,
+            });
+        }
+        let r = s.roi;
+        check_range(
+            "roi width",
+            r.width as f64,
+            s.binning as f64,
+            self.params.width as f64,
+        )?;
+        check_range(
+            "roi height",
+            r.height as f64,
+            s.binning as f64,
+            self.params.height as f64,
+        )?;
+        check_range(
+            "roi x",
+            r.x as f64,
+            0.0,
+            (self.params.width - r.width) as f64,
+        )?;
+        check_range(
+            "roi y",
+            r.y as f64,
+            0.0,
+            (self.params.height - r.height) as f64,
+        )?;
+        let period = 1.0 / self.frame_rate_for(&s);
+        check_range("exposure", s.exposure, 1e-6, period)?;
+        if s.roi != self.settings.roi || s.binning != self.settings.binning {
+            self.static_grid = None;
+        }
+        self.settings = s;
+        Ok(())
+    }
+
+    /// The output pixel grid of the current settings and zoom.
+    pub fn grid(&self) -> Grid {
+        let s = &self.settings;
+        let b = s.binning as usize;
+        let p = self.params.pixel_size / self.optics.zoom;
+        let (w, h) = ((s.roi.width as usize) / b, (s.roi.height as usize) / b);
+        // Centre of output pixel (0, 0) in sensor pixel units, relative to the sensor centre.
+        let cx = s.roi.x as f64 + 0.5 * b as f64 - 0.5 * self.params.width as f64;
+        let cy = s.roi.y as f64 + 0.5 * b as f64 - 0.5 * self.params.height as f64;
+        Grid {
+            x0: VIEW_CENTER[0] + cx * p,
+            z0: VIEW_CENTER[1] + cy * p,
+            pitch: p * b as f64,
+            width: w,
+            height: h,
+            binning: s.binning,
+        }
+    }
+
+    fn render_static(&mut self, g: &Grid) {
+        let n = g.width * g.height;
+        self.static_layer.clear();
+        self.static_layer.resize(n, 0.0);
+        // Background with vignetting, separable, normalised to the full sensor.
+        let half_w = 0.5 * self.params.width as f64 * self.params.pixel_size / self.optics.zoom;
+        let half_h = 0.5 * self.params.height as f64 * self.params.pixel_size / self.optics.zoom;
+        let level = self.params.background_level as f32;
+        let gx: Vec<f32> = (0..g.width)
+            .map(|i| {
+                let u = (g.x0 + i as f64 * g.pitch - VIEW_CENTER[0]) / half_w;
+                (1.0 - 0.18 * u * u + 0.03 * u) as f32
+            })
+            .collect();
+        for j in 0..g.height {
+            let v = (g.z0 + j as f64 * g.pitch - VIEW_CENTER[1]) / half_h;
+            let gz = level * (1.0 - 0.18 * v * v) as f32;
+            let row = &mut self.static_layer[j * g.width..(j + 1) * g.width];
+            for (o, x) in row.iter_mut().zip(&gx) {
+                *o = gz * x;
+            }
+        }
+        let blur2 = self.optics.focus_blur.powi(2) + g.pitch * g.pitch / 12.0;
+        let sigma = blur2.sqrt();
+        let f = self.scene.feeder;
+        // Feeder walls: faint lines between the wells.
+        let wall_sigma = (0.6e-6f64.powi(2) + blur2).sqrt();
+        let (zx0, zx1) = (
+            f.offset[1] - 0.5 * f.pitch,
+            f.offset[1] + (f.rows as f64 - 0.5) * f.pitch,
+        );
+        let (xx0, xx1) = (
+            f.offset[0] - 0.5 * f.pitch,
+            f.offset[0] + (f.cols as f64 - 0.5) * f.pitch,
+        );
+        for k in 0..=f.cols {
+            let xk = xx0 + k as f64 * f.pitch;
+            self.multiply_line(g, true, xk, wall_sigma, 0.10, zx0, zx1);
+        }
+        for k in 0..=f.rows {
+            let zk = zx0 + k as f64 * f.pitch;
+            self.multiply_line(g, false, zk, wall_sigma, 0.10, xx0, xx1);
+        }
+        // Cells: cytoplasm, membrane ring, nucleus.
+        let cells = self.scene.cells.clone();
+        for c in &cells {
+            let reach = c.radius + 4.0 * sigma + 2e-6;
+            let (i0, i1) = span(g.x0, g.pitch, g.width, c.x - reach, c.x + reach);
+            let (j0, j1) = span(g.z0, g.pitch, g.height, c.z - reach, c.z + reach);
+            let ring_w2 = 2.0 * (0.5e-6f64.powi(2) + blur2);
+            let s = sigma as f32;
+            for j in j0..j1 {
+                let dz = g.z0 + j as f64 * g.pitch - c.z;
+                let row = &mut self.static_layer[j * g.width..(j + 1) * g.width];
+                for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
+                    let dx = g.x0 + i as f64 * g.pitch - c.x;
+                    let rho = (dx * dx + dz * dz).sqrt();
+                    let nx = dx - c.nucleus[0];
+                    let nz = dz - c.nucleus[1];
+                    let rn = (nx * nx + nz * nz).sqrt();
+                    let inside = step(((c.radius - rho) / sigma) as f32);
+                    let ring = (-(rho - c.radius).powi(2) / ring_w2).exp() as f32;
+                    let nucleus = step(((c.nucleus_radius - rn) as f32) / s);
+                    *px *= 1.0 - 0.10 * inside - 0.32 * ring - 0.22 * nucleus;
+                }
+            }
+        }
+        // Debris: small dark Gaussian spots.
+        let debris = self.scene.debris.clone();
+        for d in &debris {
+            let sd = (d.sigma * d.sigma + blur2).sqrt();
+            let amp = (d.depth * d.sigma * d.sigma / (sd * sd)) as f32;
+            self.splat(g, d.x, d.z, sd, sd, amp, true);
+        }
+        self.static_grid = Some(*g);
+    }
+
+    /// Multiplies a straight dark line (vertical at x = `pos` if `vertical`) between
+    /// `from` and `to` along it.
+    #[allow(clippy::too_many_arguments)]
+    fn multiply_line(
+        &mut self,
+        g: &Grid,
+        vertical: bool,
+        pos: f64,
+        sigma: f64,
+        depth: f32,
+        from: f64,
+        to: f64,
+    ) {
+        let reach = 4.0 * sigma;
+        if vertical {
+            let (i0, i1) = span(g.x0, g.pitch, g.width, pos - reach, pos + reach);
+            let (j0, j1) = span(g.z0, g.pitch, g.height, from, to);
+            gauss_row(&mut self.scratch_x, g.x0, g.pitch, i0, i1, pos, sigma);
+            for j in j0..j1 {
+                let row = &mut self.static_layer[j * g.width + i0..j * g.width + i1];
+                for (p, w) in row.iter_mut().zip(&self.scratch_x) {
+                    *p *= 1.0 - depth * w;
+                }
+            }
+        } else {
+            let (j0, j1) = span(g.z0, g.pitch, g.height, pos - reach, pos + reach);
+            let (i0, i1) = span(g.x0, g.pitch, g.width, from, to);
+            gauss_row(&mut self.scratch_z, g.z0, g.pitch, j0, j1, pos, sigma);
+            for (k, j) in (j0..j1).enumerate() {
+                let a = depth * self.scratch_z[k];
+                for p in &mut self.static_layer[j * g.width + i0..j * g.width + i1] {
+                    *p *= 1.0 - a;
+                }
+            }
+        }
+    }
+
+    /// Multiplies a separable dark Gaussian spot into the static layer or the work buffer.
+    #[allow(clippy::too_many_arguments)]
+    fn splat(&mut self, g: &Grid, x: f64, z: f64, sx: f64, sz: f64, amp: f32, into_static: bool) {
+        let (i0, i1) = span(g.x0, g.pitch, g.width, x - 3.5 * sx, x + 3.5 * sx);
+        let (j0, j1) = span(g.z0, g.pitch, g.height, z - 3.5 * sz, z + 3.5 * sz);
+        if i0 >= i1 || j0 >= j1 {
+            return;
+        }
+        gauss_row(&mut self.scratch_x, g.x0, g.pitch, i0, i1, x, sx);
+        gauss_row(&mut self.scratch_z, g.z0, g.pitch, j0, j1, z, sz);
+        let buf = if into_static {
+            &mut self.static_layer
+        } else {
+            &mut self.work
+        };
+        for (k, j) in (j0..j1).enumerate() {
+            let a = amp * self.scratch_z[k];
+            let row = &mut buf[j * g.width + i0..j * g.width + i1];
+            for (p, w) in row.iter_mut().zip(&self.scratch_x) {
+                *p *= 1.0 - a * w;
+            }
+        }
+    }
+
+    /// Draws the pipette and its speckled marker tab into the work buffer.
+    fn render_pipette(&mut self, g: &Grid, pose: &TipPose, exposure: f64) {
+        let shape = self.scene.pipette;
+        let blur = self.optics.focus_blur + self.optics.defocus_rate * pose.depth.abs();
+        let base2 = blur * blur + g.pitch * g.pitch / 12.0;
+        let sx = (base2 + (pose.vx * exposure).powi(2) / 12.0).sqrt();
+        let sz = (base2 + (pose.vz * exposure).powi(2) / 12.0).sqrt();
+        let (sxf, szf) = (sx as f32, sz as f32);
+        // Tube: outer radius grows behind the tip up to the shank; the tip is rounded
+        // by fading along z.
+        let (j0, j1) = span(
+            g.z0,
+            g.pitch,
+            g.height,
+            f64::NEG_INFINITY,
+            pose.z + 4.0 * sz,
+        );
+        let j0 = j0.min(j1);
+        for j in j0..j1 {
+            let z = g.z0 + j as f64 * g.pitch;
+            let behind = (pose.z - z).max(0.0);
+            let r = (shape.tip_radius + shape.taper * behind).min(shape.shank_radius);
+            let ri = shape.bore * r;
+            let fade = step(((pose.z - z) / sz) as f32);
+            let (i0, i1) = span(
+                g.x0,
+                g.pitch,
+                g.width,
+                pose.x - r - 4.0 * sx,
+                pose.x + r + 4.0 * sx,
+            );
+            let (rf, rif) = (r as f32, ri as f32);
+            let row = &mut self.work[j * g.width..(j + 1) * g.width];
+            for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
+                let d = (g.x0 + i as f64 * g.pitch - pose.x).abs() as f32;
+                let outer = step((rf - d) / sxf);
+                let inner = step((rif - d) / sxf);
+                *px *= 1.0 - fade * (0.12 * outer + 0.45 * (outer - inner));
+            }
+        }
+        // Marker tab: a translucent film with speckles, rigidly attached to the pipette.
+        let cx = pose.x + shape.marker_center[0];
+        let cz = pose.z + shape.marker_center[1];
+        let [hx, hz] = shape.marker_half;
+        let (i0, i1) = span(
+            g.x0,
+            g.pitch,
+            g.width,
+            cx - hx - 4.0 * sx,
+            cx + hx + 4.0 * sx,
+        );
+        let (j0, j1) = span(
+            g.z0,
+            g.pitch,
+            g.height,
+            cz - hz - 4.0 * sz,
+            cz + hz + 4.0 * sz,
+        );
+        for j in j0..j1 {
+            let dz = (g.z0 + j as f64 * g.pitch - cz).abs() as f32;
+            let fz = step((hz as f32 - dz) / szf);
+            let row = &mut self.work[j * g.width..(j + 1) * g.width];
+            for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
+                let dx = (g.x0 + i as f64 * g.pitch - cx).abs() as f32;
+                *px *= 1.0 - 0.15 * fz * step((hx as f32 - dx) / sxf);
+            }
+        }
+        let speckles = std::mem::take(&mut self.scene.speckles);
+        for s in &speckles {
+            let ssx = (s.sigma * s.sigma + sx * sx).sqrt();
+            let ssz = (s.sigma * s.sigma + sz * sz).sqrt();
+            let amp = (s.depth * s.sigma * s.sigma / (ssx * ssz)) as f32;
+            self.splat(g, cx + s.x, cz + s.z, ssx, ssz, amp, false);
+        }
+        self.scene.speckles = speckles;
+    }
+
+    /// Renders one frame of the tip at `pose` into `out` (reusing its buffer).
+    pub fn render(
+        &mut self,
+        pose: &TipPose,
+        timestamp: f64,
+        index: u64,
+        seed: u64,
+        out: &mut Frame,
+    ) {
+        let g = self.grid();
+        if self.static_grid != Some(g) {
+            self.render_static(&g);
+        }
+        self.work.clear();
+        self.work.extend_from_slice(&self.static_layer);
+        let exposure = self.settings.exposure;
+        self.render_pipette(&g, pose, exposure);
+        // Sensor.
+        let b2 = (g.binning * g.binning) as f32;
+        let full = self.params.full_well as f32 * b2;
+        let gain = full * (exposure / self.params.reference_exposure) as f32;
+        let read2 = (self.params.read_noise as f32).powi(2) * b2;
+        let max_dn = ((1u32 << self.settings.bit_depth) - 1) as f32;
+        let to_dn = max_dn / full;
+        let mut rng = Rng::new(
+            seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15),
+            stream::CAMERA,
+        );
+        out.width = g.width as u32;
+        out.height = g.height as u32;
+        out.bit_depth = self.settings.bit_depth;
+        out.timestamp = timestamp;
+        out.exposure = exposure;
+        out.pixel_size = g.pitch;
+        out.index = index;
+        out.pixels.clear();
+        out.pixels.resize(self.work.len(), 0);
+        for (o, w) in out.pixels.chunks_mut(4).zip(self.work.chunks(4)) {
+            let n = rng.gaussian4();
+            for k in 0..o.len() {
+                let e = w[k] * gain;
+                let v = e + (e.max(0.0) + read2).sqrt() * n[k];
+                o[k] = (v * to_dn).round().clamp(0.0, max_dn) as u16;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::FeederParams;
+
+    #[test]
+    fn phi_table_is_the_normal_cdf() {
+        assert!((step(0.0) - 0.5).abs() < 1e-6);
+        assert!((step(1.0) - 0.841_344_7).abs() < 1e-5);
+        assert!((step(-2.0) - 0.022_750_13).abs() < 1e-5);
+        assert_eq!(step(-9.0), 0.0);
+        assert_eq!(step(9.0), 1.0);
+    }
+
+    fn camera() -> Microscope {
+        Microscope::new(
+            CameraParams::default(),
+            OpticsParams::default(),
+            Scene::generate(&FeederParams::default(), 1),
+        )
+    }
+
+    #[test]
+    fn grid_scales_with_zoom_and_binning() {
+        let mut c = camera();
+        let g = c.grid();
+        assert_eq!((g.width, g.height), (2592, 1944));
+        assert!((g.pitch - 0.22e-6).abs() < 1e-15);
+        c.set_zoom(2.5).unwrap();
+        assert!((c.grid().pitch - 0.88e-6).abs() < 1e-15);
+        let vga = c.vga_settings(true);
+        c.configure(vga).unwrap();
+        let g = c.grid();
+        assert_eq!((g.width, g.height), (640, 480));
+        assert!((g.pitch - 4.0 * 0.88e-6).abs() < 1e-15);
+        assert_eq!(c.frame_rate_for(&c.settings()), 30.0);
+        assert!(c.set_zoom(12.0).is_err());
+        let mut bad = c.settings();
+        bad.exposure = 0.1; // longer than the 33 ms frame period
+        assert!(c.configure(bad).is_err());
+    }
+
+    #[test]
+    fn noise_statistics_follow_shot_and_read_noise() {
+        // A flat 50 % field: the variance in electrons is signal + read².
+        let mut c = camera();
+        let vga = c.vga_settings(false);
+        c.configure(CameraSettings {
+            bit_depth: 12,
+            ..vga
+        })
+        .unwrap();
+        let g = c.grid();
+        c.render_static(&g);
+        let p = *c.params();
+        let n = c.static_layer.len();
+        c.static_layer.iter_mut().for_each(|v| *v = 0.5);
+        let mut f = Frame::default();
+        // Render without the pipette: move it far away.
+        let pose = TipPose {
+            x: 1.0,
+            z: -1.0,
+            ..TipPose::default()
+        };
+        c.render(&pose, 0.0, 0, 1, &mut f);
+        let to_e = p.full_well / 4095.0;
+        let vals: Vec<f64> = f.pixels.iter().map(|&v| v as f64 * to_e).collect();
+        let mean = vals.iter().sum::<f64>() / n as f64;
+        let var = vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64;
+        let signal = 0.5 * p.full_well;
+        let expected = signal + p.read_noise.powi(2) + to_e * to_e / 12.0;
+        assert!((mean / signal - 1.0).abs() < 1e-3, "{mean}");
+        assert!((var / expected - 1.0).abs() < 0.02, "{var} vs {expected}");
+    }
+}

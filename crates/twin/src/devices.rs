@@ -1,0 +1,311 @@
+//! The twin behind the hardware traits of `cellinject-hw`: three amplifier channels, a
+//! camera, a stage, an injector and a clock sharing one simulated world.
+//!
+//! Commands take effect at once and cost no simulated time; time passes only through
+//! [`Clock::sleep`], [`Camera::grab_into`] (which waits for the next frame and its
+//! exposure) and [`Injector::pulse`] (which lasts its duration).
+
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use cellinject_hw::safety::{
+    EnvelopeLimits, GuardedInjector, GuardedPiezo, GuardedStage, PiezoEnvelope, SharedGuard,
+    shared_guard,
+};
+use cellinject_hw::{
+    Camera, CameraSettings, Clock, Frame, HwError, Injector, PiezoChannel, Stage, check_range,
+};
+use cellinject_model::{ACTUATOR_NAMES, Design};
+
+use crate::camera::{Microscope, TipPose};
+use crate::params::TwinParams;
+use crate::scene::Scene;
+use crate::world::{TwinError, World};
+
+/// The world and its camera.
+#[derive(Debug, Clone)]
+pub struct Twin {
+    /// Mechanism, stacks, stage, injector.
+    pub world: World,
+    /// The microscope camera.
+    pub camera: Microscope,
+    /// End-effector displacement at which the optics were aligned and focused.
+    origin: [f64; 3],
+    last_frame: Option<u64>,
+}
+
+/// A twin shared by its device handles.
+pub type SharedTwin = Arc<Mutex<Twin>>;
+
+fn lock(t: &SharedTwin) -> MutexGuard<'_, Twin> {
+    t.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Twin {
+    /// A twin of `design` at rest, assembled with `params.approach`.
+    pub fn new(design: &Design, params: TwinParams) -> Result<Self, TwinError> {
+        let world = World::new(design, params)?;
+        let scene = Scene::generate(&params.feeder, params.seed);
+        let mut camera = Microscope::new(params.camera, params.optics, scene);
+        camera
+            .set_zoom(params.optics.zoom)
+            .map_err(|e| TwinError::Invalid {
+                key: "optics.zoom".into(),
+                reason: e.to_string(),
+            })?;
+        let x = world.snapshot().x;
+        Ok(Twin {
+            world,
+            camera,
+            origin: [x[0], x[1], x[2]],
+            last_frame: None,
+        })
+    }
+
+    /// Where the pipette tip is in the object plane now (stage plus end-effector,
+    /// relative to where the optics were aligned and focused after assembly).
+    pub fn tip(&self) -> TipPose {
+        let s = self.world.snapshot();
+        let o = self.origin;
+        TipPose {
+            x: self.world.stage.true_position(0) + s.x[0] - o[0],
+            z: self.world.stage.true_position(2) + s.x[2] - o[2],
+            depth: self.world.stage.true_position(1) + s.x[1] - o[1],
+            vx: 0.0,
+            vz: 0.0,
+        }
+    }
+
+    /// Waits for the next frame, integrating the world through its exposure, and renders it.
+    pub fn grab_into(&mut self, frame: &mut Frame) {
+        let settings = self.camera.settings();
+        let period = 1.0 / self.camera.frame_rate_for(&settings);
+        let now = self.world.time();
+        let mut k = (now / period - 1e-9).ceil().max(0.0) as u64;
+        if let Some(last) = self.last_frame {
+            k = k.max(last + 1);
+        }
+        let start = k as f64 * period;
+        self.world.advance_to(start);
+        let a = self.tip();
+        self.world.advance(settings.exposure);
+        let b = self.tip();
+        let t = settings.exposure;
+        let pose = TipPose {
+            x: 0.5 * (a.x + b.x),
+            z: 0.5 * (a.z + b.z),
+            depth: 0.5 * (a.depth + b.depth),
+            vx: (b.x - a.x) / t,
+            vz: (b.z - a.z) / t,
+        };
+        let seed = self.world.params().seed;
+        self.camera.render(&pose, start, k, seed, frame);
+        self.last_frame = Some(k);
+    }
+
+    /// Puts the twin behind shared device handles.
+    pub fn into_shared(self) -> SharedTwin {
+        Arc::new(Mutex::new(self))
+    }
+}
+
+/// One amplifier channel of the twin.
+pub struct TwinPiezo {
+    twin: SharedTwin,
+    channel: usize,
+}
+
+impl PiezoChannel for TwinPiezo {
+    fn name(&self) -> &str {
+        ACTUATOR_NAMES[self.channel]
+    }
+    fn voltage_range(&self) -> (f64, f64) {
+        (
+            0.0,
+            lock(&self.twin).world.params().stacks[self.channel]
+                .amplifier
+                .v_max,
+        )
+    }
+    fn set_voltage(&mut self, volts: f64) -> Result<(), HwError> {
+        let (lo, hi) = self.voltage_range();
+        check_range(&format!("{} voltage", self.name()), volts, lo, hi)?;
+        lock(&self.twin).world.set_voltage(self.channel, volts);
+        Ok(())
+    }
+    fn commanded_voltage(&self) -> f64 {
+        lock(&self.twin).world.commanded_voltage(self.channel)
+    }
+    fn read_voltage(&mut self) -> Result<f64, HwError> {
+        Ok(lock(&self.twin).world.output_voltage(self.channel))
+    }
+}
+
+/// The twin's camera.
+pub struct TwinCamera {
+    twin: SharedTwin,
+}
+
+impl Camera for TwinCamera {
+    fn sensor_size(&self) -> (u32, u32) {
+        let t = lock(&self.twin);
+        (t.camera.params().width, t.camera.params().height)
+    }
+    fn settings(&self) -> CameraSettings {
+        lock(&self.twin).camera.settings()
+    }
+    fn configure(&mut self, settings: CameraSettings) -> Result<(), HwError> {
+        lock(&self.twin).camera.configure(settings)
+    }
+    fn frame_rate(&self) -> f64 {
+        let t = lock(&self.twin);
+        t.camera.frame_rate_for(&t.camera.settings())
+    }
+    fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
+        lock(&self.twin).grab_into(frame);
+        Ok(())
+    }
+}
+
+/// The twin's macro stage.
+pub struct TwinStage {
+    twin: SharedTwin,
+}
+
+impl Stage for TwinStage {
+    fn axes(&self) -> usize {
+        3
+    }
+    fn travel(&self, _axis: usize) -> (f64, f64) {
+        lock(&self.twin).world.stage.travel()
+    }
+    fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
+        let (lo, hi) = self.travel(axis);
+        check_range(&format!("stage axis {axis}"), axis as f64, 0.0, 2.0)?;
+        check_range(&format!("stage axis {axis} position"), position, lo, hi)?;
+        lock(&self.twin).world.stage.move_to(axis, position);
+        Ok(())
+    }
+    fn position(&mut self, axis: usize) -> Result<f64, HwError> {
+        check_range("stage axis", axis as f64, 0.0, 2.0)?;
+        Ok(lock(&self.twin).world.stage.encoder(axis))
+    }
+    fn is_busy(&mut self) -> Result<bool, HwError> {
+        Ok(lock(&self.twin).world.stage.busy())
+    }
+}
+
+/// The twin's injector.
+pub struct TwinInjector {
+    twin: SharedTwin,
+}
+
+impl Injector for TwinInjector {
+    fn max_pressure(&self) -> f64 {
+        lock(&self.twin).world.params().injector.max_pressure
+    }
+    fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
+        check_range("pressure", pressure, 0.0, self.max_pressure())?;
+        check_range("pulse duration", duration, 0.0, 10.0)?;
+        lock(&self.twin).world.pulse(pressure, duration);
+        Ok(())
+    }
+}
+
+/// The twin's clock.
+pub struct TwinClock {
+    twin: SharedTwin,
+}
+
+impl Clock for TwinClock {
+    fn now(&self) -> f64 {
+        lock(&self.twin).world.time()
+    }
+    fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
+        check_range("sleep", seconds, 0.0, 1.0e6)?;
+        lock(&self.twin).world.advance(seconds);
+        Ok(())
+    }
+}
+
+/// Every device of the twin, unguarded.
+pub struct Devices {
+    /// A1, A2, A3.
+    pub piezo: [TwinPiezo; 3],
+    /// Camera.
+    pub camera: TwinCamera,
+    /// Stage.
+    pub stage: TwinStage,
+    /// Injector.
+    pub injector: TwinInjector,
+    /// Clock.
+    pub clock: TwinClock,
+}
+
+/// Handles to every device of a shared twin.
+pub fn devices(twin: &SharedTwin) -> Devices {
+    let piezo = [0, 1, 2].map(|channel| TwinPiezo {
+        twin: twin.clone(),
+        channel,
+    });
+    Devices {
+        piezo,
+        camera: TwinCamera { twin: twin.clone() },
+        stage: TwinStage { twin: twin.clone() },
+        injector: TwinInjector { twin: twin.clone() },
+        clock: TwinClock { twin: twin.clone() },
+    }
+}
+
+/// The devices of a twin behind the safety wrappers, as a controller should see them.
+pub struct GuardedDevices {
+    /// A1, A2, A3 behind the shared piezo envelope.
+    pub piezo: [GuardedPiezo<TwinPiezo>; 3],
+    /// The envelope's shared state.
+    pub guard: SharedGuard,
+    /// Camera (nothing to guard).
+    pub camera: TwinCamera,
+    /// Stage within its travel.
+    pub stage: GuardedStage<TwinStage>,
+    /// Injector below its pressure limit.
+    pub injector: GuardedInjector<TwinInjector>,
+    /// Clock.
+    pub clock: TwinClock,
+}
+
+/// The safety envelope of a twin's mechanism and stacks.
+pub fn envelope(twin: &SharedTwin) -> Result<PiezoEnvelope, TwinError> {
+    let t = lock(twin);
+    let p = t.world.params();
+    let limits = EnvelopeLimits {
+        voltage_range: [0, 1, 2].map(|i| (0.0, p.stacks[i].amplifier.v_max)),
+        hysteresis_bound: p.safety.hysteresis_bound,
+        dynamic_margin: p.safety.dynamic_margin,
+    };
+    Ok(PiezoEnvelope::new(
+        t.world.mechanism().clone(),
+        p.approach,
+        limits,
+    )?)
+}
+
+/// Guarded handles to every device of a shared twin.
+pub fn guarded_devices(twin: &SharedTwin) -> Result<GuardedDevices, TwinError> {
+    let env = envelope(twin)?;
+    let d = devices(twin);
+    let commanded = [0, 1, 2].map(|i| d.piezo[i].commanded_voltage());
+    let guard = shared_guard(env, commanded);
+    let [a1, a2, a3] = d.piezo;
+    let max_p = d.injector.max_pressure();
+    Ok(GuardedDevices {
+        piezo: [
+            GuardedPiezo::new(a1, 0, guard.clone()),
+            GuardedPiezo::new(a2, 1, guard.clone()),
+            GuardedPiezo::new(a3, 2, guard.clone()),
+        ],
+        guard,
+        camera: d.camera,
+        stage: GuardedStage::new(d.stage, None),
+        injector: GuardedInjector::new(d.injector, max_p),
+        clock: d.clock,
+    })
+}

@@ -1,0 +1,370 @@
+//! Parameters of the twin, with the prototype's defaults. The description file's
+//! `[twin]`, `[actuators.*.amplifier|hysteresis|creep]`, `[dynamics]`, `[joints]`,
+//! `[thermal]`, `[stage]`, `[camera]`, `[optics]`, `[feeder]`, `[injector]` and
+//! `[safety]` sections fill these structures (crate `cellinject-config`).
+
+use cellinject_model::Approach;
+
+/// Piezo amplifier channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AmplifierParams {
+    /// V, highest output (the lowest is 0 V).
+    pub v_max: f64,
+    /// Resolution of the DAC, bits.
+    pub dac_bits: u32,
+    /// V/s, largest output slew rate (current limit into the stack's capacitance).
+    pub slew_rate: f64,
+    /// Hz, small-signal bandwidth (first-order).
+    pub bandwidth: f64,
+    /// V rms, output noise.
+    pub noise: f64,
+}
+
+impl Default for AmplifierParams {
+    fn default() -> Self {
+        AmplifierParams {
+            v_max: 100.0,
+            dac_bits: 16,
+            slew_rate: 1.0e4,
+            bandwidth: 2.0e3,
+            noise: 1.0e-3,
+        }
+    }
+}
+
+/// Rate-independent hysteresis of a stack: a Preisach operator with the continuous
+/// density `μ(α, β) = 2·(1 + skew·(α + β − 1))` on the normalised input triangle
+/// `0 ≤ β ≤ α ≤ 1`, mixed with a reversible part: `y = (1 − fraction)·u + fraction·P[u]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HysteresisParams {
+    /// Share of the stroke that is hysteretic (0..1). A full loop is about
+    /// `fraction / 2` of the stroke wide at mid-input.
+    pub fraction: f64,
+    /// Asymmetry of the density (−1..1): positive puts more switching at high voltages.
+    pub skew: f64,
+}
+
+impl Default for HysteresisParams {
+    fn default() -> Self {
+        HysteresisParams {
+            fraction: 0.25,
+            skew: 0.3,
+        }
+    }
+}
+
+/// Logarithmic creep, `ΔL(t) ≈ ΔL(t0)·[1 + γ·log10(t/t0)]`, realised by first-order
+/// lags with time constants spaced two per decade from `tau_min` to `tau_max`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CreepParams {
+    /// Creep per decade of time, as a fraction of the extension (0.01-0.02 typical).
+    pub gamma: f64,
+    /// s, shortest time constant.
+    pub tau_min: f64,
+    /// s, longest time constant.
+    pub tau_max: f64,
+}
+
+impl Default for CreepParams {
+    fn default() -> Self {
+        CreepParams {
+            gamma: 0.015,
+            tau_min: 0.01,
+            tau_max: 1.0e4,
+        }
+    }
+}
+
+/// One piezo stack with its amplifier.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StackParams {
+    /// Amplifier.
+    pub amplifier: AmplifierParams,
+    /// Hysteresis.
+    pub hysteresis: HysteresisParams,
+    /// Creep.
+    pub creep: CreepParams,
+}
+
+/// Rigid-body dynamics of body 1 with the pipette on its flexures.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DynamicsParams {
+    /// kg·m², moments of inertia of body 1 (with A3 and the pipette) about J3's two axes.
+    pub inertia: [f64; 2],
+    /// kg, moving mass of the injection axis (pipette holder and pipette) on A3.
+    pub a3_mass: f64,
+    /// N/m, axial stiffness of A3 (used by the dynamics only).
+    pub a3_stiffness: f64,
+    /// Modal damping ratio.
+    pub damping_ratio: f64,
+    /// Hz, integration rate (at least 20 kHz).
+    pub rate: f64,
+}
+
+impl Default for DynamicsParams {
+    fn default() -> Self {
+        DynamicsParams {
+            inertia: [1.2e-3, 1.2e-3],
+            a3_mass: 0.02,
+            a3_stiffness: 20.0e6,
+            damping_ratio: 0.02,
+            rate: 20.0e3,
+        }
+    }
+}
+
+/// Stick-slip of the spherical joints between the stacks and body 1: the imperfection
+/// that explains the paper's open-loop repeatability (Sec. 4).
+///
+/// The bending torque that flexure J_i passes to its stack (eq. 43) seats the stack's
+/// ball eccentrically in its socket, at `ε = |Fw_i| / |F_i|` from the axis (torque over
+/// axial force, capped at the ball radius). Whenever body 1 moves, the ball slips in its
+/// socket; it re-sticks at an angle that varies from one slip to the next within
+/// `±stick_slip_angle` (surface roughness). With the eccentric seat, that angle changes
+/// the effective drive length by `ε·φ`: 3.2 mm × 0.15 mrad ≈ 0.5 µm under approach 1
+/// (0.316 N·m / 100 N), about 7 nm under approach 2 (0.005 N·m / 100 N).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointParams {
+    /// rad, half-width of the re-stick angle.
+    pub stick_slip_angle: f64,
+    /// rad, relative rotation in the joint that breaks it free.
+    pub slip_rotation: f64,
+    /// m, radius of the ball (caps the eccentricity).
+    pub ball_radius: f64,
+}
+
+impl Default for JointParams {
+    fn default() -> Self {
+        JointParams {
+            stick_slip_angle: 1.25e-4,
+            slip_rotation: 2.0e-5,
+            ball_radius: 4.0e-3,
+        }
+    }
+}
+
+/// Temperature drift (off by default).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ThermalParams {
+    /// K/s, rate of change of the ambient temperature.
+    pub drift_rate: f64,
+    /// m/K, change of each drive's length per kelvin (stack and frame together).
+    pub expansion: f64,
+}
+
+/// The macro stage M1-M3.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StageParams {
+    /// m, travel of each axis, centred on 0.
+    pub travel: f64,
+    /// m/s, top speed.
+    pub max_speed: f64,
+    /// m/s², acceleration.
+    pub max_accel: f64,
+    /// m, encoder resolution.
+    pub encoder_resolution: f64,
+    /// s, settling time after a move.
+    pub settling_time: f64,
+    /// m, amplitude of the residual vibration at the end of a move.
+    pub settling_amplitude: f64,
+}
+
+impl Default for StageParams {
+    fn default() -> Self {
+        StageParams {
+            travel: 0.025,
+            max_speed: 2.0e-3,
+            max_accel: 2.0e-2,
+            encoder_resolution: 0.1e-6,
+            settling_time: 0.05,
+            settling_amplitude: 0.2e-6,
+        }
+    }
+}
+
+/// The microscope camera's sensor (paper Sec. 4).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraParams {
+    /// Sensor columns.
+    pub width: u32,
+    /// Sensor rows.
+    pub height: u32,
+    /// m, pixel pitch on the sensor.
+    pub pixel_size: f64,
+    /// Output bits (8 or 12).
+    pub bit_depth: u8,
+    /// Electrons at saturation.
+    pub full_well: f64,
+    /// Electrons rms.
+    pub read_noise: f64,
+    /// Frames per second at full resolution.
+    pub fps_full: f64,
+    /// Frames per second at VGA.
+    pub fps_vga: f64,
+    /// s, default exposure.
+    pub exposure: f64,
+    /// s, exposure at which the background reaches `background_level` of full well.
+    pub reference_exposure: f64,
+    /// Background brightness at the reference exposure, fraction of full well.
+    pub background_level: f64,
+}
+
+impl Default for CameraParams {
+    fn default() -> Self {
+        CameraParams {
+            width: 2592,
+            height: 1944,
+            pixel_size: 2.2e-6,
+            bit_depth: 8,
+            full_well: 10_000.0,
+            read_noise: 8.0,
+            fps_full: 3.0,
+            fps_vga: 30.0,
+            exposure: 5.0e-3,
+            reference_exposure: 5.0e-3,
+            background_level: 0.7,
+        }
+    }
+}
+
+/// The zoom lens.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OpticsParams {
+    /// Current magnification.
+    pub zoom: f64,
+    /// Smallest and largest magnification.
+    pub zoom_range: [f64; 2],
+    /// m, blur (Gaussian sigma, object plane) at best focus.
+    pub focus_blur: f64,
+    /// Blur sigma added per metre of distance from the focal plane (m/m).
+    pub defocus_rate: f64,
+}
+
+impl Default for OpticsParams {
+    fn default() -> Self {
+        OpticsParams {
+            zoom: 10.0,
+            zoom_range: [2.5, 10.0],
+            focus_blur: 0.35e-6,
+            defocus_rate: 0.05,
+        }
+    }
+}
+
+/// The matrix feeder holding the cells, and the scene around the pipette.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeederParams {
+    /// Rows of wells.
+    pub rows: u32,
+    /// Columns of wells.
+    pub cols: u32,
+    /// m, well pitch.
+    pub pitch: f64,
+    /// m, smallest and largest cell diameter.
+    pub cell_diameter: [f64; 2],
+    /// m, position of the first well relative to the pipette tip at home (x, z).
+    pub offset: [f64; 2],
+    /// Probability that a well is empty.
+    pub empty_fraction: f64,
+    /// Debris particles per square millimetre.
+    pub debris_density: f64,
+}
+
+impl Default for FeederParams {
+    fn default() -> Self {
+        FeederParams {
+            rows: 4,
+            cols: 16,
+            pitch: 40.0e-6,
+            cell_diameter: [10.0e-6, 30.0e-6],
+            offset: [-300.0e-6, 60.0e-6],
+            empty_fraction: 0.1,
+            debris_density: 150.0,
+        }
+    }
+}
+
+/// The pressure injector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InjectorParams {
+    /// Pa, largest gauge pressure.
+    pub max_pressure: f64,
+    /// m³/(s·Pa), hydraulic conductance of the pipette tip.
+    pub conductance: f64,
+}
+
+impl Default for InjectorParams {
+    fn default() -> Self {
+        InjectorParams {
+            max_pressure: 2.0e5,
+            conductance: 5.0e-20,
+        }
+    }
+}
+
+/// Margins of the safety envelope (see `cellinject_hw::safety`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SafetyParams {
+    /// Fraction of travel by which hysteresis and creep may move a stack's extension
+    /// away from `travel · V / V_max`.
+    pub hysteresis_bound: f64,
+    /// Fraction of travel allowed for dynamic overshoot.
+    pub dynamic_margin: f64,
+}
+
+impl Default for SafetyParams {
+    fn default() -> Self {
+        SafetyParams {
+            hysteresis_bound: 0.2,
+            dynamic_margin: 0.03,
+        }
+    }
+}
+
+/// Everything the twin needs besides the mechanism design.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TwinParams {
+    /// How the twin's structure was pre-tensioned.
+    pub approach: Approach,
+    /// Seed of every random process (noise, stick-slip, scene).
+    pub seed: u64,
+    /// A1, A2, A3.
+    pub stacks: [StackParams; 3],
+    /// Rigid-body dynamics.
+    pub dynamics: DynamicsParams,
+    /// Spherical-joint stick-slip.
+    pub joints: JointParams,
+    /// Temperature drift.
+    pub thermal: ThermalParams,
+    /// Macro stage.
+    pub stage: StageParams,
+    /// Camera sensor.
+    pub camera: CameraParams,
+    /// Zoom lens.
+    pub optics: OpticsParams,
+    /// Cells and scene.
+    pub feeder: FeederParams,
+    /// Injector.
+    pub injector: InjectorParams,
+    /// Safety envelope margins.
+    pub safety: SafetyParams,
+}
+
+impl Default for TwinParams {
+    fn default() -> Self {
+        TwinParams {
+            approach: Approach::JointDeflection,
+            seed: 1,
+            stacks: [StackParams::default(); 3],
+            dynamics: DynamicsParams::default(),
+            joints: JointParams::default(),
+            thermal: ThermalParams::default(),
+            stage: StageParams::default(),
+            camera: CameraParams::default(),
+            optics: OpticsParams::default(),
+            feeder: FeederParams::default(),
+            injector: InjectorParams::default(),
+            safety: SafetyParams::default(),
+        }
+    }
+}
