@@ -35,7 +35,7 @@ pub enum SimCommand {
         #[arg(long, default_value = "A1")]
         actuator: String,
         /// Largest voltage of the loop, V (default: the amplifier's full range).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         amplitude: Option<f64>,
         /// CSV output (`time_s,voltage_v,displacement_m`); an SVG plot is written beside it.
         #[arg(long, default_value = "loop.csv")]
@@ -46,7 +46,7 @@ pub enum SimCommand {
     /// Render one camera frame of the prototype's scene.
     Frame {
         /// Magnification (2.5 to 10).
-        #[arg(long, default_value_t = 10.0)]
+        #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
         zoom: f64,
         /// 640x480 by 4x4 binning of the sensor centre (30 fps).
         #[arg(long, conflicts_with = "crop")]
@@ -72,10 +72,10 @@ pub enum SimCommand {
         #[arg(long, default_value = "A1")]
         actuator: String,
         /// Step voltage, V.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         voltage: f64,
         /// Simulated duration, s.
-        #[arg(long, default_value_t = 2.0)]
+        #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
         duration: f64,
         /// CSV output; an SVG plot is written beside it.
         #[arg(long, default_value = "step.csv")]
@@ -167,6 +167,23 @@ fn run_loop(
             InputError(format!("--amplitude must lie in (0, {v_max}] V, got {amp}")).into(),
         );
     }
+    let env = cellinject_twin::devices::envelope(&twin).map_err(|e| InputError(e.to_string()))?;
+    let safe = env.max_safe_voltage(ch, [0.0; 3]).unwrap_or(0.0);
+    if amp > safe {
+        let mut volts = [0.0; 3];
+        volts[ch] = amp;
+        let why = env
+            .check(volts)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        return Err(InputError(format!(
+            "--amplitude {amp} V is beyond the safety envelope of {} under approach {} ({why}); at most {safe:.1} V is allowed",
+            ACTUATOR_NAMES[ch],
+            lock(&twin).world.params().approach.number()
+        ))
+        .into());
+    }
     // A full loop, then nested minor loops closing towards the middle, then back to 0.
     let turning = [1.0, 0.0, 0.8, 0.2, 0.7, 0.3, 0.6, 0.4, 0.0];
     let ramp = amp; // V/s: one second per full leg
@@ -181,7 +198,9 @@ fn run_loop(
         let from = v;
         for k in 1..=n {
             v = from + (target - from) * k as f64 / n as f64;
-            dev.piezo[ch].set_voltage(v).map_err(refused)?;
+            dev.piezo[ch]
+                .set_voltage(v)
+                .map_err(|e| InputError(format!("{} at {v:.3} V: {e}", ACTUATOR_NAMES[ch])))?;
             dev.clock.sleep(dt).map_err(refused)?;
             let out_v = dev.piezo[ch].read_voltage().map_err(refused)?;
             let x = displacement(&twin, ch) - start;
@@ -284,7 +303,8 @@ fn run_step(
             y_label: "actuator displacement [µm]".into(),
             series: vec![Series {
                 name: name.into(),
-                points: slow.clone(),
+                // After the ringing, so that the vertical axis shows the creep.
+                points: slow.iter().copied().filter(|p| p.0 >= 0.05).collect(),
             }],
         },
     ];

@@ -304,3 +304,124 @@ fn another_design_gives_its_own_answer() {
     );
     fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn sim_loop_writes_csv_and_plot() {
+    let dir = tempdir("simloop");
+    let csv = dir.join("loop.csv");
+    let o = run(&[
+        "sim",
+        "loop",
+        "--actuator",
+        "A2",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("time_s,voltage_v,displacement_m"));
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() > 1000);
+    // Full loop to 100 V: the displacement at the top is a large part of the 30 µm stroke.
+    let top = rows.iter().map(|r| r[2]).fold(f64::NEG_INFINITY, f64::max);
+    assert!(top > 20e-6 && top < 30e-6, "{top}");
+    let svg = fs::read_to_string(dir.join("loop.svg")).unwrap();
+    assert!(svg.contains("<svg") && svg.contains("hysteresis"));
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn sim_step_shows_ringing_and_creep() {
+    let dir = tempdir("simstep");
+    let csv = dir.join("step.csv");
+    let o = run(&[
+        "sim",
+        "step",
+        "--actuator",
+        "A1",
+        "--voltage",
+        "50",
+        "--duration",
+        "1",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = fs::read_to_string(&csv).unwrap();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    let at = |t: f64| rows.iter().find(|r| r[0] >= t).unwrap()[2];
+    let peak = rows
+        .iter()
+        .filter(|r| r[0] < 0.02)
+        .map(|r| r[2])
+        .fold(f64::NEG_INFINITY, f64::max);
+    // Overshoot above the settled value (ringing), then a slow rise (creep).
+    assert!(peak > at(0.1), "{peak} vs {}", at(0.1));
+    assert!(at(0.99) > at(0.1), "no creep: {} vs {}", at(0.99), at(0.1));
+    assert!(dir.join("step.svg").exists());
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn sim_frame_writes_8_and_16_bit_pngs() {
+    let dir = tempdir("simframe");
+    for (args, w, h) in [
+        (vec!["--vga"], 640u32, 480u32),
+        (vec!["--crop", "--bits", "16"], 640, 480),
+        (vec!["--zoom", "2.5"], 2592, 1944),
+    ] {
+        let out = dir.join("f.png");
+        let mut a = vec!["sim", "frame", "--out", out.to_str().unwrap()];
+        a.extend(args.iter().copied());
+        let o = run(&a);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        let bytes = fs::read(&out).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        // IHDR: width, height, bit depth.
+        let be =
+            |i: usize| u32::from_be_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
+        assert_eq!((be(16), be(20)), (w, h), "{args:?}");
+        let depth = bytes[24];
+        assert_eq!(depth, if args.contains(&"16") { 16 } else { 8 });
+    }
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn sim_refuses_unsafe_or_bad_requests_with_exit_2() {
+    for (args, msg) in [
+        (
+            vec!["sim", "loop", "--approach", "1", "--out", "/tmp/never.csv"],
+            "safety envelope",
+        ),
+        (vec!["sim", "loop", "--actuator", "A4"], "--actuator"),
+        (
+            vec!["sim", "step", "--voltage", "150"],
+            "outside [0, 100] V",
+        ),
+        (
+            vec!["sim", "step", "--voltage", "20", "--duration", "-1"],
+            "--duration",
+        ),
+        (vec!["sim", "frame", "--zoom", "20"], "zoom"),
+        (vec!["sim", "frame", "--bits", "12"], "8 or 16"),
+        (vec!["sim", "frame", "--volts", "1,2"], "three voltages"),
+        (
+            vec!["sim", "frame", "--volts", "100,100,0", "--approach", "1"],
+            "refused",
+        ),
+    ] {
+        let o = run(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(msg), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"));
+    }
+    assert!(!Path::new("/tmp/never.csv").exists());
+}
