@@ -7,7 +7,7 @@
 //! actuators A1, A2), after checking that A3 is kinematically decoupled from them; A3
 //! carries no force and its coordinate passes straight through (`l3 = q3 = X3`).
 
-use nalgebra::{Matrix2, Matrix3, Matrix4, Matrix4x2, Matrix4x3, Vector2, Vector3, Vector4};
+use nalgebra::{Matrix2, Matrix4, Matrix4x2, Vector2, Vector3, Vector4};
 
 use crate::design::{ACTUATOR_NAMES, Design};
 use crate::error::ModelError;
@@ -346,16 +346,24 @@ impl Mechanism {
 
     /// Relative residual of the static equilibrium `Fq + Wᵀ Fw = Lᵀ F_l` (eq. 19) in a state.
     pub fn equilibrium_residual(&self, s: &State) -> f64 {
-        let wt: Matrix4x3<f64> = self.jacobians.w;
-        let lt: Matrix3<f64> = self.jacobians.l;
-        let a = s.fq;
-        let b = wt.transpose() * s.fw;
-        let c = lt.transpose() * s.force;
-        let scale = a.norm() + b.norm() + c.norm();
+        self.equilibrium_residual_of(&s.fq, &s.fw, &s.force)
+    }
+
+    /// Relative residual of eq. (19), `|Fq + Wᵀ Fw − Lᵀ F| / (|Fq| + |Wᵀ Fw| + |Lᵀ F|)`,
+    /// for any torques and forces (J3 torques, J1/J2 torques, actuator forces).
+    pub fn equilibrium_residual_of(
+        &self,
+        fq: &Vector3<f64>,
+        fw: &Vector4<f64>,
+        force: &Vector3<f64>,
+    ) -> f64 {
+        let b = self.jacobians.w.transpose() * fw;
+        let c = self.jacobians.l.transpose() * force;
+        let scale = fq.norm() + b.norm() + c.norm();
         if scale == 0.0 {
             0.0
         } else {
-            (a + b - c).norm() / scale
+            (fq + b - c).norm() / scale
         }
     }
 

@@ -367,17 +367,12 @@ impl World {
         }
     }
 
-    /// Relative residual of the equilibrium (19), `|Fq + Wᵀ Fw − Lᵀ F| / scale`, in a snapshot.
+    /// Relative residual of the equilibrium (19) in a snapshot (see
+    /// [`Mechanism::equilibrium_residual_of`]).
     pub fn equilibrium_residual(&self, s: &Snapshot) -> f64 {
-        let a = s.fq;
-        let b = self.wp.transpose() * s.fw;
-        let c = self.lp.transpose() * s.force;
-        let scale = a.norm() + b.norm() + c.norm();
-        if scale == 0.0 {
-            0.0
-        } else {
-            (a + b - c).norm() / scale
-        }
+        let v3 = |v: &Vector2<f64>| Vector3::new(v[0], v[1], 0.0);
+        self.mechanism
+            .equilibrium_residual_of(&v3(&s.fq), &s.fw, &v3(&s.force))
     }
 
     /// Records an injector pulse and lets its duration pass.
