@@ -116,6 +116,10 @@ pub struct World {
     /// Lᵀ Kl, maps imposed drive displacements to generalised forces.
     lt_kl: Matrix2<f64>,
     joints: [Joint; 2],
+    /// Stick-slip drive errors in use (see `step`).
+    joint_cache: Vector2<f64>,
+    joint_pose: Vector2<f64>,
+    joint_dirty: bool,
     q_static: Vector2<f64>,
     noise: Rng,
     joint_rng: Rng,
@@ -191,6 +195,9 @@ impl World {
             l_base,
             lt_kl,
             joints: [Joint::default(); 2],
+            joint_cache: Vector2::zeros(),
+            joint_pose: k_inv * f0,
+            joint_dirty: false,
             q_static: k_inv * f0,
             noise: Rng::new(params.seed, stream::AMPLIFIER),
             joint_rng: Rng::new(params.seed, stream::JOINTS),
@@ -261,7 +268,7 @@ impl World {
         )
     }
 
-    /// The stick-slip error of each drive at pose `q`: the eccentricity of the ball's
+    /// The stick-slip error of each drive at the static pose `q`: the eccentricity of the ball's
     /// seat (bending torque over axial force, capped at the ball radius) times its
     /// re-stick angle.
     #[inline]
@@ -299,11 +306,6 @@ impl World {
         }
         self.steps += 1;
         let drives = self.imposed_by_drives();
-        let q = self.tilt.q();
-        let imposed = drives + self.joint_errors(&q, &drives);
-        let f = self.f_rest + self.lt_kl * imposed;
-        self.tilt.step(&f);
-        self.a3.step(self.a3_omega2 * self.stacks[2].extension());
         // Stick-slip: the joints break free when the commanded (static) pose has turned
         // them by `slip_rotation` since they last stuck, and re-stick at a new angle.
         let q_static = self.q_static0 + self.static_gain * drives;
@@ -320,9 +322,23 @@ impl World {
                     j.phi = self
                         .joint_rng
                         .range(-jp.stick_slip_angle, jp.stick_slip_angle);
+                    self.joint_dirty = true;
                 }
             }
         }
+        // The seat's eccentricity follows the quasi-static torque and force (not the
+        // vibration): re-evaluated when a joint re-sticks or the static pose has moved
+        // by more than 1e-7 rad since the last evaluation.
+        let moved = (q_static - self.joint_pose).abs().max() > 1e-7;
+        if self.joint_dirty || moved {
+            self.joint_cache = self.joint_errors(&q_static, &drives);
+            self.joint_pose = q_static;
+            self.joint_dirty = false;
+        }
+        let imposed = drives + self.joint_cache;
+        let f = self.f_rest + self.lt_kl * imposed;
+        self.tilt.step(&f);
+        self.a3.step(self.a3_omega2 * self.stacks[2].extension());
         self.stage.advance_to(self.time());
     }
 
@@ -344,7 +360,7 @@ impl World {
         let q2 = self.tilt.q();
         let qd2 = self.tilt.q_dot();
         let drives = self.imposed_by_drives();
-        let joint = self.joint_errors(&q2, &drives);
+        let joint = self.joint_cache;
         let imposed = drives + joint;
         let dl = self.lp * q2;
         let force = self.kl * (imposed - dl);
