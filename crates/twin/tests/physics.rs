@@ -309,6 +309,31 @@ fn open_loop_repeatability_lands_in_the_papers_ranges() {
 }
 
 #[test]
+fn temperature_drift_moves_the_end_effector_as_the_drives_lengthen() {
+    let mut p = quiet(Approach::JointDeflection);
+    // 10 mK/s for 100 s on drives that shrink 50 nm per kelvin: 50 nm less push.
+    p.thermal.drift_rate = 0.01;
+    p.thermal.expansion = 50e-9;
+    let mut w = World::new(&prototype(), p).unwrap();
+    let x0 = w.snapshot().x;
+    w.advance(100.0);
+    let x1 = w.snapshot().x;
+    let m = w.mechanism();
+    let dl = 50e-9 * 0.01 * 100.0;
+    // Independent expectation: the model's quasi-static response to Δl2 = −dl on both drives.
+    let a = m.state_at(w.assembly(), Vector2::zeros()).unwrap();
+    let b = m.state_at(w.assembly(), Vector2::new(-dl, -dl)).unwrap();
+    for i in 0..2 {
+        let expected = b.dx[i] - a.dx[i];
+        assert!(
+            ((x1[i] - x0[i]) / expected - 1.0).abs() < 1e-3,
+            "{} vs {expected}",
+            x1[i] - x0[i]
+        );
+    }
+}
+
+#[test]
 fn same_seed_same_trajectory_bit_for_bit() {
     let run = |seed: u64| {
         let p = TwinParams {
