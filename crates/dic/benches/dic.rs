@@ -1,0 +1,91 @@
+//! DIC speed. Targets (issue 4): at least 20,000 points per second for 33x33 IC-GN in the
+//! full-field mode on this 2-core machine; tracking one region in a VGA frame under 1 ms.
+
+#![allow(missing_docs, clippy::unwrap_used)]
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use cellinject_dic::field::{FieldOptions, field};
+use cellinject_dic::icgn::{IcgnOptions, refine};
+use cellinject_dic::synth::{Speckle, SpeckleParams};
+use cellinject_dic::track::{Roi, Tracker};
+use cellinject_dic::{BSpline, Reference, Shape, Subset};
+use criterion::{Criterion, criterion_group, criterion_main};
+
+fn point(c: &mut Criterion) {
+    let sp = Speckle::new(&SpeckleParams::default_for(256, 256), 1);
+    let r = Reference::new(sp.render_shifted(0.0, 0.0, 0.0, 1));
+    let s = BSpline::new(&sp.render_shifted(0.3, -0.2, 0.0, 2));
+    let opts = IcgnOptions::default();
+    c.bench_function("icgn: one 33x33 affine point", |b| {
+        b.iter(|| {
+            refine(
+                &r,
+                &s,
+                128,
+                128,
+                Subset::square(33),
+                Shape::Affine,
+                [0.0; 6],
+                &opts,
+            )
+            .map(|p| black_box(p.u))
+        })
+    });
+}
+
+fn full_field(c: &mut Criterion) {
+    let sp = Speckle::new(&SpeckleParams::default_for(512, 512), 2);
+    let r = sp.render_shifted(0.0, 0.0, 0.0, 1);
+    let cur = sp.render_shifted(2.3, -1.4, 0.002, 2);
+    let opts = FieldOptions {
+        step: 2,
+        subset: 33,
+        ..FieldOptions::default()
+    };
+    let t = Instant::now();
+    let f = field(&r, &cur, &opts).unwrap();
+    let n = f.points.iter().flatten().count();
+    println!(
+        "field 512x512 step 2: {n} points in {:.3} s ({:.0} points/s, {} threads)",
+        t.elapsed().as_secs_f64(),
+        n as f64 / t.elapsed().as_secs_f64(),
+        rayon::current_num_threads()
+    );
+    let mut g = c.benchmark_group("field");
+    g.sample_size(10);
+    g.bench_function("field: 512x512 at step 2, 33x33 subsets", |b| {
+        b.iter(|| black_box(field(&r, &cur, &opts).unwrap().points.len()))
+    });
+    g.finish();
+}
+
+fn tracking(c: &mut Criterion) {
+    let sp = Speckle::new(&SpeckleParams::default_for(640, 480), 3);
+    let first = sp.render_shifted(0.0, 0.0, 0.0, 1);
+    let frames: Vec<_> = (0..8)
+        .map(|k| sp.render_shifted(0.3 * k as f64, -0.1 * k as f64, 0.0, 10 + k))
+        .collect();
+    let roi = Roi {
+        x: 288,
+        y: 208,
+        width: 65,
+        height: 65,
+    };
+    let mut t = Tracker::new(&first, roi, Shape::Rigid, 0.8).unwrap();
+    let mut k = 0;
+    c.bench_function("track: one 64x64 region in a VGA frame", |b| {
+        b.iter(|| {
+            k = (k + 1) % frames.len();
+            black_box(t.track(&frames[k]).unwrap().u)
+        })
+    });
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(30);
+    targets = point, full_field, tracking
+}
+criterion_main!(benches);

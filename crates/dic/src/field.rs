@@ -1,0 +1,240 @@
+//! Full-field DIC on a regular grid with reliability-guided propagation (Pan, Appl. Opt.
+//! 48, 2009): from a seed found by the FFT search, the most reliable computed point
+//! (highest ZNCC) hands its deformation to its uncomputed neighbours as their initial
+//! guess, so IC-GN converges in a few iterations and no point needs its own search. The
+//! grid is cut into tiles, each grown from its own seed, in parallel with rayon; the
+//! tiling does not depend on the number of threads, so results are reproducible.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+use rayon::prelude::*;
+
+use crate::icgn::{self, IcgnOptions, PointResult, Reference, Shape};
+use crate::search;
+use crate::{BSpline, DicError, Image, check_subset};
+
+/// Options of a full-field run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FieldOptions {
+    /// Grid step, pixels.
+    pub step: usize,
+    /// Odd subset size, pixels.
+    pub subset: usize,
+    /// Shape function.
+    pub shape: Shape,
+    /// Largest displacement the seeds search for, pixels.
+    pub search_radius: usize,
+    /// Points below this ZNCC do not propagate their guess.
+    pub min_zncc: f64,
+    /// Grid points per tile side (each tile grows from its own seed).
+    pub tile: usize,
+    /// Iteration control.
+    pub icgn: IcgnOptions,
+}
+
+impl Default for FieldOptions {
+    fn default() -> Self {
+        FieldOptions {
+            step: 5,
+            subset: 31,
+            shape: Shape::Affine,
+            search_radius: 64,
+            min_zncc: 0.8,
+            tile: 32,
+            // Neighbours start close to their solution, and the iteration contracts
+            // fast: stopping at a 5e-4 px update leaves the result unchanged to 1e-5 px
+            // (measured against 1e-4) and saves a third of the iterations.
+            icgn: IcgnOptions {
+                tolerance: 5e-4,
+                ..IcgnOptions::default()
+            },
+        }
+    }
+}
+
+/// The result on the grid.
+#[derive(Debug, Clone)]
+pub struct Field {
+    /// Grid columns.
+    pub nx: usize,
+    /// Grid rows.
+    pub ny: usize,
+    /// Column of the first grid point.
+    pub x0: usize,
+    /// Row of the first grid point.
+    pub y0: usize,
+    /// Grid step.
+    pub step: usize,
+    /// Row-major results (`None`: not computed or no match).
+    pub points: Vec<Option<PointResult>>,
+}
+
+#[derive(PartialEq)]
+struct Candidate {
+    zncc: f64,
+    index: usize,
+}
+
+impl Eq for Candidate {}
+
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Candidate {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.zncc
+            .total_cmp(&other.zncc)
+            .then_with(|| other.index.cmp(&self.index))
+    }
+}
+
+/// Computes the displacement field between two images.
+pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<Field, DicError> {
+    let subset = check_subset(opts.subset)?;
+    if (reference.width(), reference.height()) != (current.width(), current.height()) {
+        return Err(DicError::SizeMismatch {
+            a: (reference.width(), reference.height()),
+            b: (current.width(), current.height()),
+        });
+    }
+    let m = opts.subset / 2;
+    let step = opts.step.max(1);
+    let (w, h) = (reference.width(), reference.height());
+    if w < opts.subset + 4 || h < opts.subset + 4 {
+        return Err(DicError::SubsetOutside {
+            x: 0.5 * w as f64,
+            y: 0.5 * h as f64,
+            size: opts.subset,
+            width: w,
+            height: h,
+        });
+    }
+    // Keep one pixel more than the subset from the border for the spline.
+    let x0 = m + 1;
+    let y0 = m + 1;
+    let nx = (w - 2 * m - 2 - 1) / step + 1;
+    let ny = (h - 2 * m - 2 - 1) / step + 1;
+    let r = Reference::new(reference.clone());
+    let s = BSpline::new(current);
+    let levels = (opts.search_radius as f64 / 8.0)
+        .log2()
+        .ceil()
+        .clamp(0.0, 5.0) as usize;
+    let pr = search::pyramid(reference, levels);
+    let pc = search::pyramid(current, levels);
+    let tile = opts.tile.max(4);
+    let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(tile))
+        .flat_map(|ty| (0..nx.div_ceil(tile)).map(move |tx| (tx, ty)))
+        .collect();
+    let grid = |gx: usize, gy: usize| (x0 + gx * step, y0 + gy * step);
+    let results: Vec<Vec<(usize, Option<PointResult>)>> = tiles
+        .par_iter()
+        .map(|&(tx, ty)| {
+            let (gx0, gy0) = (tx * tile, ty * tile);
+            let (gx1, gy1) = ((gx0 + tile).min(nx), (gy0 + tile).min(ny));
+            let (tw, th) = (gx1 - gx0, gy1 - gy0);
+            let mut out: Vec<Option<PointResult>> = vec![None; tw * th];
+            let mut done = vec![false; tw * th];
+            let mut heap = BinaryHeap::new();
+            // Seed: the tile centre, then spiralling candidates until one correlates.
+            let centre = (tw / 2, th / 2);
+            let mut order: Vec<(usize, usize)> =
+                (0..th).flat_map(|j| (0..tw).map(move |i| (i, j))).collect();
+            order.sort_by_key(|&(i, j)| {
+                (i as i64 - centre.0 as i64).abs() + (j as i64 - centre.1 as i64).abs()
+            });
+            for &(i, j) in order.iter().take(8) {
+                let (px, py) = grid(gx0 + i, gy0 + j);
+                let hit = search::search_pyramid(
+                    &pr,
+                    &pc,
+                    px as i64,
+                    py as i64,
+                    m as i64,
+                    opts.search_radius as i64,
+                );
+                let Some(hit) = hit else { continue };
+                let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
+                let res = icgn::refine(&r, &s, px, py, subset, opts.shape, init, &opts.icgn);
+                let k = j * tw + i;
+                done[k] = true;
+                if let Some(p) = res {
+                    out[k] = Some(p);
+                    if p.zncc >= opts.min_zncc {
+                        heap.push(Candidate {
+                            zncc: p.zncc,
+                            index: k,
+                        });
+                        break;
+                    }
+                }
+            }
+            while let Some(Candidate { index, .. }) = heap.pop() {
+                let Some(parent) = out[index] else { continue };
+                let (i, j) = (index % tw, index / tw);
+                let neighbours = [
+                    (i as i64 - 1, j as i64),
+                    (i as i64 + 1, j as i64),
+                    (i as i64, j as i64 - 1),
+                    (i as i64, j as i64 + 1),
+                ];
+                for (ni, nj) in neighbours {
+                    if ni < 0 || nj < 0 || ni >= tw as i64 || nj >= th as i64 {
+                        continue;
+                    }
+                    let k = nj as usize * tw + ni as usize;
+                    if done[k] {
+                        continue;
+                    }
+                    done[k] = true;
+                    let (px, py) = grid(gx0 + ni as usize, gy0 + nj as usize);
+                    let (dx, dy) = (px as f64 - parent.x, py as f64 - parent.y);
+                    let [ux, uy, vx, vy] = parent.gradients;
+                    let init = [
+                        parent.u + ux * dx + uy * dy,
+                        ux,
+                        uy,
+                        parent.v + vx * dx + vy * dy,
+                        vx,
+                        vy,
+                    ];
+                    if let Some(p) =
+                        icgn::refine(&r, &s, px, py, subset, opts.shape, init, &opts.icgn)
+                    {
+                        out[k] = Some(p);
+                        if p.zncc >= opts.min_zncc && p.converged {
+                            heap.push(Candidate {
+                                zncc: p.zncc,
+                                index: k,
+                            });
+                        }
+                    }
+                }
+            }
+            (0..tw * th)
+                .map(|k| {
+                    let (i, j) = (k % tw, k / tw);
+                    ((gy0 + j) * nx + gx0 + i, out[k])
+                })
+                .collect()
+        })
+        .collect();
+    let mut points = vec![None; nx * ny];
+    for tile in results {
+        for (k, p) in tile {
+            points[k] = p;
+        }
+    }
+    Ok(Field {
+        nx,
+        ny,
+        x0,
+        y0,
+        step,
+        points,
+    })
+}

@@ -1,0 +1,148 @@
+//! Greyscale images as the DIC sees them: `f64` grey levels in the source's own units
+//! (0-255 for 8-bit, 0-65535 for 16-bit), row-major.
+
+use crate::DicError;
+
+/// A greyscale image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    width: usize,
+    height: usize,
+    data: Vec<f64>,
+}
+
+impl Image {
+    /// An image from row-major grey levels.
+    pub fn new(width: usize, height: usize, data: Vec<f64>) -> Result<Self, DicError> {
+        if width == 0 || height == 0 || data.len() != width * height {
+            return Err(DicError::BadImage {
+                reason: format!(
+                    "{width}x{height} needs {} values, got {}",
+                    width * height,
+                    data.len()
+                ),
+            });
+        }
+        if data.iter().any(|v| !v.is_finite()) {
+            return Err(DicError::BadImage {
+                reason: "contains a value that is not finite".into(),
+            });
+        }
+        Ok(Image {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// An image from 16-bit pixels.
+    pub fn from_u16(width: usize, height: usize, px: &[u16]) -> Result<Self, DicError> {
+        Image::new(width, height, px.iter().map(|&v| v as f64).collect())
+    }
+
+    /// Columns.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Rows.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Row-major grey levels.
+    pub fn data(&self) -> &[f64] {
+        &self.data
+    }
+
+    /// Grey level at column `x`, row `y`.
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> f64 {
+        self.data[y * self.width + x]
+    }
+
+    /// A copy of the rectangle `[x0, x0 + w) x [y0, y0 + h)`, clamped to the image.
+    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Image {
+        let x1 = (x0 + w).min(self.width);
+        let y1 = (y0 + h).min(self.height);
+        let (x0, y0) = (x0.min(x1), y0.min(y1));
+        let mut data = Vec::with_capacity((x1 - x0) * (y1 - y0));
+        for y in y0..y1 {
+            data.extend_from_slice(&self.data[y * self.width + x0..y * self.width + x1]);
+        }
+        Image {
+            width: x1 - x0,
+            height: y1 - y0,
+            data,
+        }
+    }
+
+    /// Half-resolution image by 2x2 averaging (for coarse-to-fine search).
+    pub fn downsample(&self) -> Image {
+        let (w, h) = (self.width / 2, self.height / 2);
+        let mut data = Vec::with_capacity(w * h);
+        for y in 0..h {
+            for x in 0..w {
+                let s = self.at(2 * x, 2 * y)
+                    + self.at(2 * x + 1, 2 * y)
+                    + self.at(2 * x, 2 * y + 1)
+                    + self.at(2 * x + 1, 2 * y + 1);
+                data.push(0.25 * s);
+            }
+        }
+        Image {
+            width: w.max(1),
+            height: h.max(1),
+            data: if data.is_empty() { vec![0.0] } else { data },
+        }
+    }
+
+    /// Separable Gaussian low-pass (optional prefilter against aliasing), sigma in pixels.
+    pub fn gaussian_blur(&self, sigma: f64) -> Image {
+        if sigma <= 0.0 {
+            return self.clone();
+        }
+        let r = (3.0 * sigma).ceil() as isize;
+        let k: Vec<f64> = (-r..=r)
+            .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+            .collect();
+        let s: f64 = k.iter().sum();
+        let k: Vec<f64> = k.iter().map(|v| v / s).collect();
+        let (w, h) = (self.width as isize, self.height as isize);
+        let mirror = |i: isize, n: isize| -> usize {
+            let m = if i < 0 {
+                -i
+            } else if i >= n {
+                2 * n - 2 - i
+            } else {
+                i
+            };
+            m.clamp(0, n - 1) as usize
+        };
+        let mut tmp = vec![0.0; self.data.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0;
+                for (j, kv) in k.iter().enumerate() {
+                    acc += kv * self.data[y as usize * self.width + mirror(x + j as isize - r, w)];
+                }
+                tmp[y as usize * self.width + x as usize] = acc;
+            }
+        }
+        let mut out = vec![0.0; self.data.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0;
+                for (j, kv) in k.iter().enumerate() {
+                    acc += kv * tmp[mirror(y + j as isize - r, h) * self.width + x as usize];
+                }
+                out[y as usize * self.width + x as usize] = acc;
+            }
+        }
+        Image {
+            width: self.width,
+            height: self.height,
+            data: out,
+        }
+    }
+}

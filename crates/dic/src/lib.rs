@@ -1,0 +1,191 @@
+//! # cellinject-dic
+//!
+//! Digital image correlation: nanometre measurement of the end-effector from microscope
+//! frames (paper Sec. 4), fast enough to close a loop at camera rate.
+//!
+//! Pipeline (the one of the best open tools): integer search by FFT-based ZNCC, coarse
+//! to fine ([`search`]); sub-pixel refinement by IC-GN with the ZNSSD criterion and a
+//! first-order or translation shape function ([`icgn`]); cubic B-spline interpolation
+//! with the recursive prefilter ([`bspline`]). On top: points ([`correlate_points`]),
+//! full fields with reliability-guided propagation in parallel ([`field`]), tracking of a
+//! region through a sequence ([`track`]), and the image-to-stage calibration
+//! ([`calib`]). [`synth`] makes exact synthetic speckle images for tests and benchmarks.
+//!
+//! Coordinates are pixels, x = column, y = row, origin at the centre of the top-left
+//! pixel; a point (x, y) of the reference is found at (x + u, y + v) in the current image.
+//!
+//! **Architecture invariant:** pure computation: images in, numbers out. No file, no
+//! clock, no device.
+
+pub mod bspline;
+pub mod calib;
+pub mod field;
+pub mod icgn;
+pub mod image;
+pub mod search;
+pub mod synth;
+pub mod track;
+
+use thiserror::Error;
+
+pub use bspline::BSpline;
+pub use icgn::{IcgnOptions, PointResult, Reference, Shape, Subset};
+pub use image::Image;
+
+/// Smallest and largest subset size, pixels.
+pub const SUBSET_RANGE: (usize, usize) = (7, 401);
+
+/// What the DIC refuses.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum DicError {
+    /// The image is empty, of the wrong size, or holds non-finite values.
+    #[error("bad image: {reason}")]
+    BadImage {
+        /// What is wrong.
+        reason: String,
+    },
+    /// Reference and current images differ in size.
+    #[error("the images differ in size: {a:?} and {b:?}")]
+    SizeMismatch {
+        /// Reference (width, height).
+        a: (usize, usize),
+        /// Current (width, height).
+        b: (usize, usize),
+    },
+    /// A subset size outside the allowed range, or even.
+    #[error("subset {size} must be an odd number of pixels in [{min}, {max}]")]
+    SubsetSize {
+        /// Requested size.
+        size: usize,
+        /// Smallest allowed.
+        min: usize,
+        /// Largest allowed.
+        max: usize,
+    },
+    /// The subset around a point leaves the image.
+    #[error("the {size}x{size} subset at ({x}, {y}) leaves the {width}x{height} image")]
+    SubsetOutside {
+        /// Point.
+        x: f64,
+        /// Point.
+        y: f64,
+        /// Subset size.
+        size: usize,
+        /// Image width.
+        width: usize,
+        /// Image height.
+        height: usize,
+    },
+    /// A fit needs more or better-conditioned data.
+    #[error("calibration: {reason}")]
+    Calibration {
+        /// What is missing.
+        reason: String,
+    },
+}
+
+/// Checks a subset size.
+pub fn check_subset(size: usize) -> Result<Subset, DicError> {
+    let (min, max) = SUBSET_RANGE;
+    if size % 2 == 0 || size < min || size > max {
+        return Err(DicError::SubsetSize { size, min, max });
+    }
+    Ok(Subset::square(size))
+}
+
+/// Options of [`correlate_points`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointOptions {
+    /// Odd subset size, pixels.
+    pub subset: usize,
+    /// Shape function.
+    pub shape: Shape,
+    /// Largest displacement searched for, pixels.
+    pub search_radius: usize,
+    /// Iteration control.
+    pub icgn: IcgnOptions,
+}
+
+impl Default for PointOptions {
+    fn default() -> Self {
+        PointOptions {
+            subset: 31,
+            shape: Shape::Affine,
+            search_radius: 64,
+            icgn: IcgnOptions::default(),
+        }
+    }
+}
+
+/// The outcome at one requested point: `None` when no match was found.
+pub type PointOutcome = Option<PointResult>;
+
+/// Correlates each point of `points` (pixel coordinates in the reference): integer
+/// search, then IC-GN. A point at a fractional position uses the subset centred at the
+/// nearest pixel, its displacement carried to the point by the shape function.
+pub fn correlate_points(
+    reference: &Image,
+    current: &Image,
+    points: &[(f64, f64)],
+    opts: &PointOptions,
+) -> Result<Vec<PointOutcome>, DicError> {
+    let subset = check_subset(opts.subset)?;
+    if (reference.width(), reference.height()) != (current.width(), current.height()) {
+        return Err(DicError::SizeMismatch {
+            a: (reference.width(), reference.height()),
+            b: (current.width(), current.height()),
+        });
+    }
+    let (w, h) = (reference.width(), reference.height());
+    for &(x, y) in points {
+        let (xi, yi) = (x.round(), y.round());
+        if !x.is_finite()
+            || !y.is_finite()
+            || xi < 0.0
+            || yi < 0.0
+            || !subset.fits(xi as usize, yi as usize, w, h)
+        {
+            return Err(DicError::SubsetOutside {
+                x,
+                y,
+                size: opts.subset,
+                width: w,
+                height: h,
+            });
+        }
+    }
+    let levels = (opts.search_radius as f64 / 8.0)
+        .log2()
+        .ceil()
+        .clamp(0.0, 5.0) as usize;
+    let pr = search::pyramid(reference, levels);
+    let pc = search::pyramid(current, levels);
+    let r = Reference::new(reference.clone());
+    let s = BSpline::new(current);
+    Ok(points
+        .iter()
+        .map(|&(x, y)| {
+            let (xi, yi) = (x.round() as i64, y.round() as i64);
+            let m = (opts.subset / 2) as i64;
+            let hit = search::search_pyramid(&pr, &pc, xi, yi, m, opts.search_radius as i64)?;
+            let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
+            let mut res = icgn::refine(
+                &r,
+                &s,
+                xi as usize,
+                yi as usize,
+                subset,
+                opts.shape,
+                init,
+                &opts.icgn,
+            )?;
+            let (dx, dy) = (x - xi as f64, y - yi as f64);
+            let [ux, uy, vx, vy] = res.gradients;
+            res.u += ux * dx + uy * dy;
+            res.v += vx * dx + vy * dy;
+            res.x = x;
+            res.y = y;
+            Some(res)
+        })
+        .collect())
+}

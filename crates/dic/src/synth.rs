@@ -1,0 +1,215 @@
+//! Exact synthetic speckle images for tests and benchmarks: a sum of Gaussian speckles
+//! integrated over each pixel (through the error function), moved by moving their
+//! centres (never by interpolating an image), then Gaussian noise and quantisation.
+
+use crate::image::Image;
+
+/// How the speckle pattern looks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpeckleParams {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Speckles per pixel of image area.
+    pub density: f64,
+    /// Gaussian sigma of a speckle, pixels (range).
+    pub sigma: [f64; 2],
+    /// Peak grey level of a speckle (range).
+    pub amplitude: [f64; 2],
+    /// Background grey level.
+    pub background: f64,
+    /// Noise sigma, grey levels.
+    pub noise: f64,
+    /// Bits of the output (8 or 16); 0 keeps the exact, unquantised values.
+    pub bits: u32,
+}
+
+impl SpeckleParams {
+    /// A well-conditioned 8-bit pattern with 2 grey levels of noise.
+    pub fn default_for(width: usize, height: usize) -> Self {
+        SpeckleParams {
+            width,
+            height,
+            density: 0.04,
+            sigma: [1.6, 2.4],
+            amplitude: [50.0, 90.0],
+            background: 40.0,
+            noise: 2.0,
+            bits: 8,
+        }
+    }
+}
+
+/// A small deterministic generator (SplitMix64) with Gaussian samples by Box-Muller.
+struct Gen(u64);
+
+impl Gen {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self) -> f64 {
+        ((self.next() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    fn gaussian(&mut self) -> f64 {
+        let (a, b) = (self.uniform(), self.uniform());
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+    }
+}
+
+/// One speckle pattern.
+#[derive(Debug, Clone)]
+pub struct Speckle {
+    params: SpeckleParams,
+    /// (x, y, sigma, amplitude), in pixel coordinates of the reference image.
+    dots: Vec<[f64; 4]>,
+}
+
+/// ∫ exp(−(s − c)²/2σ²) ds over [a, b].
+fn gauss_integral(a: f64, b: f64, c: f64, sigma: f64) -> f64 {
+    let k = sigma * std::f64::consts::FRAC_PI_2.sqrt();
+    let r = std::f64::consts::SQRT_2 * sigma;
+    k * (libm::erf((b - c) / r) - libm::erf((a - c) / r))
+}
+
+impl Speckle {
+    /// A random pattern (speckles scattered a little beyond the borders).
+    pub fn new(p: &SpeckleParams, seed: u64) -> Self {
+        let mut g = Gen(seed ^ 0x005E_ED0F_5BEC);
+        let margin = 40.0;
+        let area = (p.width as f64 + 2.0 * margin) * (p.height as f64 + 2.0 * margin);
+        let n = (p.density * area).round() as usize;
+        let dots = (0..n)
+            .map(|_| {
+                [
+                    -margin + g.uniform() * (p.width as f64 + 2.0 * margin),
+                    -margin + g.uniform() * (p.height as f64 + 2.0 * margin),
+                    p.sigma[0] + g.uniform() * (p.sigma[1] - p.sigma[0]),
+                    p.amplitude[0] + g.uniform() * (p.amplitude[1] - p.amplitude[0]),
+                ]
+            })
+            .collect();
+        Speckle { params: *p, dots }
+    }
+
+    /// Renders the pattern with every speckle centre moved by `map` (reference pixel
+    /// coordinates to current ones), exactly integrated over the pixels.
+    pub fn render_mapped(&self, map: impl Fn(f64, f64) -> (f64, f64), noise_seed: u64) -> Image {
+        let p = &self.params;
+        let (w, h) = (p.width, p.height);
+        let mut data = vec![p.background; w * h];
+        let mut gx = Vec::new();
+        for d in &self.dots {
+            let (cx, cy) = map(d[0], d[1]);
+            let (s, a) = (d[2], d[3]);
+            let reach = 5.0 * s;
+            let i0 = ((cx - reach).floor().max(0.0)) as usize;
+            let i1 = ((cx + reach).ceil().min(w as f64 - 1.0)).max(0.0) as usize;
+            let j0 = ((cy - reach).floor().max(0.0)) as usize;
+            let j1 = ((cy + reach).ceil().min(h as f64 - 1.0)).max(0.0) as usize;
+            if cx + reach < 0.0 || cy + reach < 0.0 || i0 > i1 || j0 > j1 {
+                continue;
+            }
+            gx.clear();
+            for i in i0..=i1 {
+                gx.push(gauss_integral(i as f64 - 0.5, i as f64 + 0.5, cx, s));
+            }
+            for j in j0..=j1 {
+                let gy = a * gauss_integral(j as f64 - 0.5, j as f64 + 0.5, cy, s);
+                let row = &mut data[j * w + i0..=j * w + i1];
+                for (px, g) in row.iter_mut().zip(&gx) {
+                    *px += gy * g;
+                }
+            }
+        }
+        let mut g = Gen(noise_seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0xA5A5);
+        let max = if p.bits == 0 {
+            f64::INFINITY
+        } else {
+            ((1u64 << p.bits) - 1) as f64
+        };
+        for v in &mut data {
+            if p.noise > 0.0 {
+                *v += p.noise * g.gaussian();
+            }
+            if p.bits > 0 {
+                *v = v.round().clamp(0.0, max);
+            }
+        }
+        Image::new(w, h, data).unwrap_or_else(|e| unreachable!("synthetic image: {e}"))
+    }
+
+    /// Renders the pattern shifted by (u, v) and rotated by `theta` (rad) about the image centre.
+    pub fn render_shifted(&self, u: f64, v: f64, theta: f64, noise_seed: u64) -> Image {
+        let (cx, cy) = (
+            0.5 * (self.params.width as f64 - 1.0),
+            0.5 * (self.params.height as f64 - 1.0),
+        );
+        let (s, c) = theta.sin_cos();
+        self.render_mapped(
+            |x, y| {
+                let (dx, dy) = (x - cx, y - cy);
+                (cx + c * dx - s * dy + u, cy + s * dx + c * dy + v)
+            },
+            noise_seed,
+        )
+    }
+
+    /// The exact derivatives (∂f/∂x, ∂f/∂y) of the noise-free, pixel-integrated pattern
+    /// with respect to a shift of the pixel grid, from the Gaussians themselves
+    /// (independent of any interpolation): for the error bounds of tests.
+    pub fn gradient_exact(&self) -> (Image, Image) {
+        let p = &self.params;
+        let (w, h) = (p.width, p.height);
+        let mut gx = vec![0.0; w * h];
+        let mut gy = vec![0.0; w * h];
+        for d in &self.dots {
+            let (cx, cy, s, a) = (d[0], d[1], d[2], d[3]);
+            let reach = 5.0 * s;
+            if cx + reach < 0.0
+                || cy + reach < 0.0
+                || cx - reach > w as f64
+                || cy - reach > h as f64
+            {
+                continue;
+            }
+            let i0 = (cx - reach).floor().max(0.0) as usize;
+            let i1 = (cx + reach).ceil().clamp(0.0, w as f64 - 1.0) as usize;
+            let j0 = (cy - reach).floor().max(0.0) as usize;
+            let j1 = (cy + reach).ceil().clamp(0.0, h as f64 - 1.0) as usize;
+            let e = |t: f64| (-t * t / (2.0 * s * s)).exp();
+            for j in j0..=j1 {
+                let yj = j as f64;
+                let iy = gauss_integral(yj - 0.5, yj + 0.5, cy, s);
+                let dy = e(yj + 0.5 - cy) - e(yj - 0.5 - cy);
+                for i in i0..=i1 {
+                    let xi = i as f64;
+                    let ix = gauss_integral(xi - 0.5, xi + 0.5, cx, s);
+                    let dx = e(xi + 0.5 - cx) - e(xi - 0.5 - cx);
+                    gx[j * w + i] += a * dx * iy;
+                    gy[j * w + i] += a * ix * dy;
+                }
+            }
+        }
+        let img = |v| Image::new(w, h, v).unwrap_or_else(|e| unreachable!("gradient image: {e}"));
+        (img(gx), img(gy))
+    }
+
+    /// The noise-free pattern (for gradients in error bounds).
+    pub fn render_exact(&self) -> Image {
+        let p = SpeckleParams {
+            noise: 0.0,
+            bits: 0,
+            ..self.params
+        };
+        Speckle {
+            params: p,
+            dots: self.dots.clone(),
+        }
+        .render_mapped(|x, y| (x, y), 0)
+    }
+}
