@@ -2,6 +2,7 @@
 //! prints; every computation lives in the library crates.
 
 mod commands;
+mod dic;
 mod output;
 mod sim;
 
@@ -50,6 +51,8 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
+    /// Digital image correlation: points, fields, tracking, synthetic test images.
+    Dic(dic::DicArgs),
     /// Run the digital twin: hysteresis loops, step responses, camera frames.
     #[command(subcommand)]
     Sim(sim::SimCommand),
@@ -81,6 +84,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Some(Command::Model { format }) => commands::model(&description, format),
         Some(Command::Sim(cmd)) => sim::run(&description, &cmd),
+        Some(Command::Dic(args)) => dic::run(&args),
         Some(Command::Reproduce { out }) => commands::reproduce(&description, &out),
         None => commands::reproduce(&description, std::path::Path::new("reports")),
     }

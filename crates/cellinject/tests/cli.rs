@@ -425,3 +425,351 @@ fn sim_refuses_unsafe_or_bad_requests_with_exit_2() {
     }
     assert!(!Path::new("/tmp/never.csv").exists());
 }
+
+/// Writes a synthetic pair with `dic synth` and returns the paths.
+fn synth_pair(dir: &Path, shift: &str) -> (String, String) {
+    let r = dir.join("r.png");
+    let c = dir.join("c.png");
+    let o = run(&[
+        "dic",
+        "synth",
+        "--size",
+        "256,200",
+        "--shift",
+        shift,
+        "--reference",
+        r.to_str().unwrap(),
+        "--current",
+        c.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (
+        r.to_str().unwrap().to_string(),
+        c.to_str().unwrap().to_string(),
+    )
+}
+
+#[test]
+fn dic_points_json_lists_every_point_in_order() {
+    let dir = tempdir("dicjson");
+    let (r, c) = synth_pair(&dir, "0.4,-0.3");
+    let v = json(&[
+        "dic",
+        "--reference",
+        &r,
+        "--current",
+        &c,
+        "--at",
+        "100,80",
+        "--at",
+        "150.5,120",
+        "--subset",
+        "33",
+        "--format",
+        "json",
+    ]);
+    let list = v.as_array().unwrap();
+    assert_eq!(list.len(), 2);
+    for (p, (x, y)) in list.iter().zip([(100.0, 80.0), (150.5, 120.0)]) {
+        assert_eq!(p["x"].as_f64(), Some(x));
+        assert_eq!(p["y"].as_f64(), Some(y));
+        assert!((p["u"].as_f64().unwrap() - 0.4).abs() < 0.03, "{p}");
+        assert!((p["v"].as_f64().unwrap() + 0.3).abs() < 0.03, "{p}");
+        assert!(p["zncc"].as_f64().unwrap() > 0.99);
+        assert!(p["iterations"].as_u64().unwrap() >= 1);
+        assert!(p["sigma_u"].as_f64().unwrap() > 0.0);
+    }
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn dic_reads_16_bit_tiff_and_colour_png() {
+    let dir = tempdir("dictiff");
+    let (r, c) = synth_pair(&dir, "1.5,0.5");
+    // The same images as a 16-bit TIFF (×257) and an RGB PNG: same answer.
+    let load = |p: &str| image::open(p).unwrap().into_luma8();
+    let (ri, ci) = (load(&r), load(&c));
+    let to16 = |img: &image::GrayImage, path: &Path| {
+        let data: Vec<u16> = img.as_raw().iter().map(|&v| v as u16 * 257).collect();
+        image::ImageBuffer::<image::Luma<u16>, _>::from_raw(img.width(), img.height(), data)
+            .unwrap()
+            .save(path)
+            .unwrap();
+    };
+    let (rt, ct) = (dir.join("r.tif"), dir.join("c.tif"));
+    to16(&ri, &rt);
+    to16(&ci, &ct);
+    let crgb = dir.join("c_rgb.png");
+    image::DynamicImage::ImageLuma8(ci)
+        .to_rgb8()
+        .save(&crgb)
+        .unwrap();
+    let u = |a: &str, b: &str| {
+        let v = json(&[
+            "dic",
+            "--reference",
+            a,
+            "--current",
+            b,
+            "--at",
+            "128,100",
+            "--format",
+            "json",
+        ]);
+        v[0]["u"].as_f64().unwrap()
+    };
+    let base = u(&r, &c);
+    assert!((base - 1.5).abs() < 0.03);
+    assert!((u(rt.to_str().unwrap(), ct.to_str().unwrap()) - base).abs() < 1e-6);
+    assert!((u(&r, crgb.to_str().unwrap()) - base).abs() < 1e-6);
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn dic_field_and_track_write_their_outputs() {
+    let dir = tempdir("dicfield");
+    let (r, c) = synth_pair(&dir, "2.0,1.0");
+    let out = dir.join("field.csv");
+    let o = run(&[
+        "dic",
+        "field",
+        "--reference",
+        &r,
+        "--current",
+        &c,
+        "--step",
+        "8",
+        "--subset",
+        "21",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = fs::read_to_string(&out).unwrap();
+    assert!(text.starts_with("x,y,u,v,"));
+    assert!(text.lines().count() > 100);
+    assert!(dir.join("field.png").exists());
+    // A sequence: frames moving 0.5 px per frame along x.
+    let frames = dir.join("frames");
+    fs::create_dir_all(&frames).unwrap();
+    for k in 0..5 {
+        let shift = format!("{},0", 0.5 * k as f64);
+        let f = frames.join(format!("f{k:03}.png"));
+        let junk = dir.join("junk.png");
+        let o = run(&[
+            "dic",
+            "synth",
+            "--size",
+            "256,200",
+            "--shift",
+            &shift,
+            "--reference",
+            junk.to_str().unwrap(),
+            "--current",
+            f.to_str().unwrap(),
+        ]);
+        assert!(o.status.success());
+    }
+    let track = dir.join("track.csv");
+    let o = run(&[
+        "dic",
+        "track",
+        "--frames",
+        frames.join("f*.png").to_str().unwrap(),
+        "--roi",
+        "96,68,65,65",
+        "--um-per-px",
+        "0.22",
+        "--out",
+        track.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows: Vec<String> = fs::read_to_string(&track)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(String::from)
+        .collect();
+    assert_eq!(rows.len(), 5);
+    let last: Vec<&str> = rows[4].split(',').collect();
+    assert!(
+        (last[2].parse::<f64>().unwrap() - 2.0).abs() < 0.02,
+        "{}",
+        rows[4]
+    );
+    assert!(
+        (last[4].parse::<f64>().unwrap() - 2.0 * 0.22e-6).abs() < 0.01e-6,
+        "{}",
+        rows[4]
+    );
+    assert_eq!(last[9], "tracked");
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn dic_bad_inputs_exit_2_with_a_named_cause() {
+    let dir = tempdir("dicbad");
+    let (r, c) = synth_pair(&dir, "0.5,0");
+    let notimg = dir.join("text.png");
+    fs::write(&notimg, "not an image").unwrap();
+    let small = dir.join("small.png");
+    image::GrayImage::from_pixel(64, 64, image::Luma([100]))
+        .save(&small)
+        .unwrap();
+    let out = dir.join("x.csv");
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec![
+                "dic",
+                "--reference",
+                "/nonexistent.png",
+                "--current",
+                &c,
+                "--at",
+                "100,100",
+            ],
+            "/nonexistent.png",
+        ),
+        (
+            vec![
+                "dic",
+                "--reference",
+                &r,
+                "--current",
+                notimg.to_str().unwrap(),
+                "--at",
+                "100,100",
+            ],
+            "text.png",
+        ),
+        (
+            vec![
+                "dic",
+                "--reference",
+                &r,
+                "--current",
+                small.to_str().unwrap(),
+                "--at",
+                "100,100",
+            ],
+            "same size",
+        ),
+        (
+            vec!["dic", "--reference", &r, "--current", &c, "--at", "3,100"],
+            "--at",
+        ),
+        (
+            vec!["dic", "--reference", &r, "--current", &c, "--at", "250,100"],
+            "leaves",
+        ),
+        (
+            vec![
+                "dic",
+                "--reference",
+                &r,
+                "--current",
+                &c,
+                "--at",
+                "100,100",
+                "--subset",
+                "5",
+            ],
+            "--subset",
+        ),
+        (
+            vec![
+                "dic",
+                "--reference",
+                &r,
+                "--current",
+                &c,
+                "--at",
+                "100,100",
+                "--subset",
+                "32",
+            ],
+            "odd",
+        ),
+        (
+            vec![
+                "dic",
+                "--reference",
+                &r,
+                "--current",
+                &c,
+                "--at",
+                "100,100",
+                "--subset",
+                "999",
+            ],
+            "--subset",
+        ),
+        (
+            vec!["dic", "--reference", &r, "--current", &c, "--at", "100"],
+            "X,Y",
+        ),
+        (vec!["dic", "--reference", &r, "--current", &c], "--at"),
+        (
+            vec![
+                "dic",
+                "field",
+                "--reference",
+                &r,
+                "--current",
+                &c,
+                "--subset",
+                "4",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            "--subset",
+        ),
+        (
+            vec![
+                "dic",
+                "track",
+                "--frames",
+                "/nonexistent/*.png",
+                "--roi",
+                "1,1,20,20",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            "--frames",
+        ),
+        (
+            vec![
+                "dic",
+                "track",
+                "--frames",
+                dir.to_str().unwrap(),
+                "--roi",
+                "240,190,40,40",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            "--roi",
+        ),
+        (
+            vec![
+                "dic",
+                "track",
+                "--frames",
+                dir.to_str().unwrap(),
+                "--roi",
+                "1,2,3",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            "X,Y,W,H",
+        ),
+    ];
+    for (args, msg) in cases {
+        let o = run(&args);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains(msg), "{args:?}: expected `{msg}` in {e}");
+        assert!(!e.contains("panicked"), "{args:?}: {e}");
+    }
+    fs::remove_dir_all(&dir).unwrap();
+}
