@@ -159,23 +159,17 @@ pub fn load_grey(path: &Path) -> Result<Image> {
     let img = image::open(path)
         .map_err(|e| InputError(format!("cannot read image `{}`: {e}", path.display())))?;
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let sixteen = matches!(
+    // 16-bit and floating-point sources keep 16 bits; everything else is read as 8-bit.
+    let deep = matches!(
         img.color(),
         image::ColorType::L16
             | image::ColorType::La16
             | image::ColorType::Rgb16
             | image::ColorType::Rgba16
+            | image::ColorType::Rgb32F
+            | image::ColorType::Rgba32F
     );
-    let data: Vec<f64> = if sixteen {
-        img.into_luma16()
-            .into_raw()
-            .into_iter()
-            .map(f64::from)
-            .collect()
-    } else if matches!(
-        img.color(),
-        image::ColorType::Rgb32F | image::ColorType::Rgba32F
-    ) {
+    let data: Vec<f64> = if deep {
         img.into_luma16()
             .into_raw()
             .into_iter()
