@@ -43,8 +43,8 @@ import numpy as np
 import imageio.v3 as iio
 from pyvale import dic
 ref, cur, shift, work = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
-r = iio.imread(ref).astype(np.float64)
-c = iio.imread(cur).astype(np.float64)
+r = iio.imread(ref).astype(np.float32)
+c = iio.imread(cur).astype(np.float32)
 mask = np.zeros(r.shape, dtype=bool)
 mask[17:-17, 17:-17] = True
 out = os.path.join(work, f"pv_{shift}")
@@ -55,12 +55,12 @@ dic.calculate_2d(r, c, mask, [256, 256], subset_size=33, subset_step=10,
                  interpolation_routine="BSPLINE", num_threads=2,
                  method="SINGLEWINDOW_RG", output_basepath=out, print_level=0)
 dt = time.perf_counter() - t
-files = sorted(glob.glob(os.path.join(out, "*")))
-data = np.genfromtxt(files[-1], delimiter=",", names=True)
-names = data.dtype.names
-ucol = [n for n in names if n.lower() in ("u", "disp_u", "u_disp", "displacement_u")][0]
-u = data[ucol] - shift
-u = u[np.isfinite(u)]
+files = sorted(glob.glob(os.path.join(out, "*.csv")))
+import csv
+rows = [r for r in csv.reader(open(files[-1])) if r]
+hdr = [h for h in rows[0] if h]
+iu, ic = hdr.index("disp_u"), hdr.index("converged")
+u = np.array([float(r[iu]) for r in rows[1:] if float(r[ic]) == 1.0]) - shift
 print(f"{'pyvale':<10} {shift:<7} {u.mean():10.5f} {u.std(ddof=1):10.5f} {len(u)/dt:12.0f} {len(u):10d}")
 PY
 done
