@@ -12,14 +12,27 @@ use cellinject_twin::{Twin, TwinParams, guarded_devices};
 
 #[test]
 fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
-    let twin = Twin::new(&prototype(), TwinParams::default()).unwrap().into_shared();
+    let twin = Twin::new(&prototype(), TwinParams::default())
+        .unwrap()
+        .into_shared();
     let mut dev = guarded_devices(&twin).unwrap();
     // A 480x480 window of the sensor on the marker tab (10x: 0.22 µm per pixel).
-    let roi = cellinject_hw::Roi { x: 1728 - 240, y: 267 - 240, width: 480, height: 480 };
-    let s = CameraSettings { roi, binning: 1, bit_depth: 12, ..dev.camera.settings() };
+    let roi = cellinject_hw::Roi {
+        x: 1728 - 240,
+        y: 267 - 240,
+        width: 480,
+        height: 480,
+    };
+    let s = CameraSettings {
+        roi,
+        binning: 1,
+        bit_depth: 12,
+        ..dev.camera.settings()
+    };
     dev.camera.configure(s).unwrap();
     let mut f = Frame::default();
-    let to_image = |f: &Frame| Image::from_u16(f.width as usize, f.height as usize, &f.pixels).unwrap();
+    let to_image =
+        |f: &Frame| Image::from_u16(f.width as usize, f.height as usize, &f.pixels).unwrap();
     let tip_z = || twin.lock().unwrap().tip().z;
     // A3 is pre-set so that the step works on a settled, crept stack.
     dev.piezo[2].set_voltage(10.0).unwrap();
@@ -28,7 +41,12 @@ fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
         dev.camera.grab_into(&mut f).unwrap();
     }
     let first = to_image(&f);
-    let region = Roi { x: 240 - 100, y: 240 - 100, width: 201, height: 201 };
+    let region = Roi {
+        x: 240 - 100,
+        y: 240 - 100,
+        width: 201,
+        height: 201,
+    };
     let mut tracker = Tracker::new(&first, region, Shape::Rigid, 0.9).unwrap();
     let z0 = tip_z();
     // The stack creeps (1.5 % per decade): compare with the true position of each frame.
@@ -41,7 +59,9 @@ fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
         true_before.push(tip_z() - z0);
     }
     // 50 nm of A3: 60 µm of travel over 100 V.
-    dev.piezo[2].set_voltage(10.0 + 50e-9 / 60e-6 * 100.0).unwrap();
+    dev.piezo[2]
+        .set_voltage(10.0 + 50e-9 / 60e-6 * 100.0)
+        .unwrap();
     for _ in 0..3 {
         dev.camera.grab_into(&mut f).unwrap();
     }
@@ -76,6 +96,9 @@ fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
     );
     assert!(truth > 30e-9 && truth < 70e-9, "{truth}");
     // The difference of two 10-frame means has a standard error of sigma·√(2/10).
-    assert!((measured - truth).abs() < 3.0 * sigma * (0.2f64).sqrt(), "{measured} vs {truth}");
+    assert!(
+        (measured - truth).abs() < 3.0 * sigma * (0.2f64).sqrt(),
+        "{measured} vs {truth}"
+    );
     assert!(measured / sigma > 3.0);
 }
