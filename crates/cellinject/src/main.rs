@@ -3,6 +3,7 @@
 
 mod commands;
 mod dic;
+mod hinge;
 mod output;
 mod sim;
 
@@ -51,6 +52,8 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
+    /// Stiffness, compliance and stress of one flexure hinge.
+    Hinge(hinge::HingeArgs),
     /// Digital image correlation: points, fields, tracking, synthetic test images.
     Dic(dic::DicArgs),
     /// Run the digital twin: hysteresis loops, step responses, camera frames.
@@ -85,6 +88,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Model { format }) => commands::model(&description, format),
         Some(Command::Sim(cmd)) => sim::run(&description, &cmd),
         Some(Command::Dic(args)) => dic::run(&args),
+        Some(Command::Hinge(args)) => hinge::run(&args),
         Some(Command::Reproduce { out }) => commands::reproduce(&description, &out),
         None => commands::reproduce(&description, std::path::Path::new("reports")),
     }

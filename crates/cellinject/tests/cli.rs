@@ -773,3 +773,172 @@ fn dic_bad_inputs_exit_2_with_a_named_cause() {
     }
     fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn hinge_json_reports_the_stiffnesses_and_stress() {
+    let v = json(&[
+        "hinge",
+        "--profile",
+        "circular",
+        "--thickness",
+        "1.2e-3",
+        "--radius",
+        "2.7e-3",
+        "--width",
+        "6.7e-3",
+        "--format",
+        "json",
+    ]);
+    for k in ["k_bend", "k_bend_off", "k_axial", "max_stress_per_rad"] {
+        assert!(v[k].as_f64().unwrap() > 0.0, "{k}");
+    }
+    let k = v["k_bend"].as_f64().unwrap();
+    // Thin-notch limit check against the simplified Paros-Weisbord formula (independent
+    // closed form): within 15 % at t/R = 0.44, where the two are known to part.
+    let pw = json(&[
+        "hinge",
+        "--profile",
+        "circular",
+        "--thickness",
+        "1.2e-3",
+        "--radius",
+        "2.7e-3",
+        "--width",
+        "6.7e-3",
+        "--method",
+        "pw-simple",
+        "--format",
+        "json",
+    ])["k_bend"]
+        .as_f64()
+        .unwrap();
+    let expected_pw = 2.0 * 190e9 * 6.7e-3 * 1.2e-3f64.powf(2.5)
+        / (9.0 * std::f64::consts::PI * 2.7e-3f64.sqrt());
+    assert!((pw / expected_pw - 1.0).abs() < 1e-12);
+    assert!((k / pw - 1.0).abs() < 0.15, "{k} vs {pw}");
+    assert_eq!(v["compliance"].as_array().unwrap().len(), 6);
+    // Leaf: E b t³ / 12 L exactly.
+    let leaf = json(&[
+        "hinge",
+        "--profile",
+        "leaf",
+        "--thickness",
+        "0.3e-3",
+        "--length",
+        "5e-3",
+        "--width",
+        "4e-3",
+        "--format",
+        "json",
+    ]);
+    let exact = 190e9 * 4e-3 * 0.3e-3f64.powi(3) / (12.0 * 5e-3);
+    assert!((leaf["k_bend"].as_f64().unwrap() / exact - 1.0).abs() < 1e-9);
+}
+
+#[test]
+fn hinge_bad_inputs_exit_2() {
+    for (args, msg) in [
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "circular",
+                "--thickness",
+                "-1e-3",
+                "--radius",
+                "1e-3",
+                "--width",
+                "1e-3",
+            ],
+            "--thickness",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "circular",
+                "--thickness",
+                "1e-3",
+                "--width",
+                "1e-3",
+            ],
+            "--radius",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "leaf",
+                "--thickness",
+                "1e-3",
+                "--width",
+                "1e-3",
+            ],
+            "--length",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "corner",
+                "--thickness",
+                "1e-3",
+                "--radius",
+                "2e-3",
+                "--length",
+                "3e-3",
+                "--width",
+                "1e-3",
+            ],
+            "twice the fillet",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "leaf",
+                "--thickness",
+                "1e-3",
+                "--length",
+                "3e-3",
+                "--width",
+                "1e-3",
+                "--method",
+                "pw-simple",
+            ],
+            "circular",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "circular",
+                "--thickness",
+                "1e-3",
+                "--radius",
+                "1e-3",
+                "--width",
+                "1e-3",
+                "--poisson",
+                "0.7",
+            ],
+            "--poisson",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "hexagon",
+                "--thickness",
+                "1e-3",
+                "--width",
+                "1e-3",
+            ],
+            "hexagon",
+        ),
+    ] {
+        let o = run(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(msg), "{args:?}: {}", stderr(&o));
+    }
+}

@@ -1,0 +1,210 @@
+//! `cellinject hinge`: stiffness and stress of one flexure hinge.
+
+use anyhow::Result;
+use cellinject_flexure::{FlexureError, Hinge, Material, Profile, paros_weisbord_simplified};
+use clap::{Args, ValueEnum};
+use serde_json::json;
+
+use crate::output::Table;
+use crate::{Format, InputError};
+
+/// Notch profiles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ProfileArg {
+    /// Circular notch (radius R, length 2R).
+    Circular,
+    /// Corner-filleted leaf (fillet radius R, total length L).
+    Corner,
+    /// Elliptic notch (depth R across, total length L along).
+    Elliptic,
+    /// Straight leaf (length L).
+    Leaf,
+}
+
+/// How the compliant stiffness is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// Exact beam integral of the profile (equal to the full Paros-Weisbord and Wu-Zhou forms).
+    Beam,
+    /// Simplified Paros-Weisbord formula 2·E·b·t^2.5 / (9π√R), circular notches only.
+    PwSimple,
+}
+
+/// `cellinject hinge` arguments.
+#[derive(Debug, Args)]
+pub struct HingeArgs {
+    /// Notch profile.
+    #[arg(long, value_enum)]
+    profile: ProfileArg,
+    /// Thickness at the throat, m.
+    #[arg(long)]
+    thickness: f64,
+    /// Notch radius (circular), fillet radius (corner) or notch depth (elliptic), m.
+    #[arg(long)]
+    radius: Option<f64>,
+    /// Width of the hinge (out of the bending plane), m.
+    #[arg(long)]
+    width: f64,
+    /// Total length, m (corner, elliptic, leaf).
+    #[arg(long)]
+    length: Option<f64>,
+    /// Young's modulus, Pa (default: X2CrNi18-9, 190 GPa).
+    #[arg(long, default_value_t = 190e9)]
+    youngs: f64,
+    /// Poisson's ratio.
+    #[arg(long, default_value_t = 0.3)]
+    poisson: f64,
+    /// Yield strength, Pa (default: X2CrNi18-9, 465 MPa).
+    #[arg(long = "yield", default_value_t = 465e6)]
+    yield_strength: f64,
+    /// Method for the compliant bending stiffness.
+    #[arg(long, value_enum, default_value_t = MethodArg::Beam)]
+    method: MethodArg,
+    /// A working rotation, rad: report its stress and safety factor.
+    #[arg(long, allow_negative_numbers = true)]
+    angle: Option<f64>,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    format: Format,
+}
+
+fn need(v: Option<f64>, flag: &str, profile: &str) -> Result<f64> {
+    v.ok_or_else(|| InputError(format!("--{flag} is required for a {profile} hinge")).into())
+}
+
+fn flex_error(e: FlexureError) -> anyhow::Error {
+    match e {
+        FlexureError::Invalid {
+            name,
+            value,
+            reason,
+        } => InputError(format!("--{name} {value}: {reason}")).into(),
+        other => InputError(format!("--method: {other}")).into(),
+    }
+}
+
+/// Runs `cellinject hinge`.
+pub fn run(a: &HingeArgs) -> Result<()> {
+    let profile = match a.profile {
+        ProfileArg::Circular => Profile::Circular {
+            radius: need(a.radius, "radius", "circular")?,
+        },
+        ProfileArg::Corner => Profile::CornerFilleted {
+            radius: need(a.radius, "radius", "corner-filleted")?,
+            length: need(a.length, "length", "corner-filleted")?,
+        },
+        ProfileArg::Elliptic => Profile::Elliptic {
+            half_length: 0.5 * need(a.length, "length", "elliptic")?,
+            depth: need(a.radius, "radius", "elliptic")?,
+        },
+        ProfileArg::Leaf => Profile::Leaf {
+            length: need(a.length, "length", "leaf")?,
+        },
+    };
+    let hinge = Hinge {
+        profile,
+        thickness: a.thickness,
+        width: a.width,
+    };
+    hinge.validate().map_err(flex_error)?;
+    for (flag, v, ok) in [
+        ("youngs", a.youngs, a.youngs > 0.0),
+        ("poisson", a.poisson, a.poisson > -1.0 && a.poisson < 0.5),
+        ("yield", a.yield_strength, a.yield_strength > 0.0),
+    ] {
+        if !(v.is_finite() && ok) {
+            return Err(InputError(format!("--{flag} {v} is out of range")).into());
+        }
+    }
+    let m = Material {
+        youngs: a.youngs,
+        poisson: a.poisson,
+        yield_strength: a.yield_strength,
+    };
+    let k_bend = match a.method {
+        MethodArg::Beam => hinge.k_bend(&m),
+        MethodArg::PwSimple => paros_weisbord_simplified(&hinge, &m).map_err(flex_error)?,
+    };
+    let kt = hinge.stress_concentration();
+    let stress_per_rad = kt * 6.0 * k_bend / (hinge.width * hinge.thickness.powi(2));
+    let max_rotation = m.yield_strength / stress_per_rad;
+    let c = hinge.compliance(&m);
+    let (k_off, k_axial, k_torsion) =
+        (hinge.k_bend_off(&m), hinge.k_axial(&m), hinge.k_torsion(&m));
+    let at_angle = a.angle.map(|th| {
+        let s = stress_per_rad * th.abs();
+        (th, s, m.yield_strength / s)
+    });
+    match a.format {
+        Format::Json => {
+            let rows: Vec<Vec<f64>> = (0..6)
+                .map(|r| (0..6).map(|k| c[(r, k)]).collect())
+                .collect();
+            let mut v = json!({
+                "profile": format!("{:?}", a.profile).to_lowercase(),
+                "method": match a.method { MethodArg::Beam => "beam", MethodArg::PwSimple => "pw-simple" },
+                "thickness": a.thickness, "width": a.width, "length": hinge.length(),
+                "k_bend": k_bend, "k_bend_off": k_off, "k_axial": k_axial, "k_torsion": k_torsion,
+                "stress_concentration": kt,
+                "max_stress_per_rad": stress_per_rad,
+                "max_rotation": max_rotation,
+                "compliance": rows,
+                "compliance_order": ["ux", "uy", "uz", "rx", "ry", "rz"],
+            });
+            if let Some((th, s, sf)) = at_angle {
+                v["angle"] = json!(th);
+                v["stress"] = json!(s);
+                v["safety_factor"] = json!(sf);
+            }
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        }
+        Format::Text => {
+            let mut t = Table::new(&["quantity", "value", "unit"], &[false, true, false]);
+            let mut row = |q: &str, v: String, u: &str| t.row(vec![q.into(), v, u.into()]);
+            row(
+                "compliant bending stiffness k_bend",
+                format!("{k_bend:.4}"),
+                "N·m/rad",
+            );
+            row(
+                "off-axis bending stiffness",
+                format!("{k_off:.4}"),
+                "N·m/rad",
+            );
+            row("torsional stiffness", format!("{k_torsion:.4}"), "N·m/rad");
+            row("axial stiffness", format!("{:.4e}", k_axial), "N/m");
+            row("stress concentration K_t", format!("{kt:.4}"), "");
+            row(
+                "throat stress per radian",
+                format!("{:.2}", stress_per_rad * 1e-6),
+                "MPa/rad",
+            );
+            row(
+                "rotation at yield",
+                format!("{:.4}", max_rotation * 1e3),
+                "mrad",
+            );
+            if let Some((th, s, sf)) = at_angle {
+                row(
+                    "stress at --angle",
+                    format!("{:.2} at {:.3} mrad", s * 1e-6, th * 1e3),
+                    "MPa",
+                );
+                row("safety factor against yield", format!("{sf:.2}"), "");
+            }
+            println!(
+                "{:?} hinge, t = {} mm, b = {} mm, L = {} mm ({})",
+                a.profile,
+                a.thickness * 1e3,
+                a.width * 1e3,
+                hinge.length() * 1e3,
+                match a.method {
+                    MethodArg::Beam => "beam integral",
+                    MethodArg::PwSimple => "simplified Paros-Weisbord",
+                }
+            );
+            print!("{}", t.text());
+        }
+    }
+    Ok(())
+}
