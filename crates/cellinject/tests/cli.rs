@@ -31,6 +31,14 @@ fn tempdir(tag: &str) -> PathBuf {
     d
 }
 
+/// The numeric rows of a CSV text (header skipped).
+fn csv_rows(text: &str) -> Vec<Vec<f64>> {
+    text.lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect()
+}
+
 const PROTOTYPE: &str = include_str!("../../../configs/prototype.toml");
 
 fn json(args: &[&str]) -> Value {
@@ -319,11 +327,8 @@ fn sim_loop_writes_csv_and_plot() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = fs::read_to_string(&csv).unwrap();
-    let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("time_s,voltage_v,displacement_m"));
-    let rows: Vec<Vec<f64>> = lines
-        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
-        .collect();
+    assert_eq!(text.lines().next(), Some("time_s,voltage_v,displacement_m"));
+    let rows = csv_rows(&text);
     assert!(rows.len() > 1000);
     // Full loop to 100 V: the displacement at the top is a large part of the 30 µm stroke.
     let top = rows.iter().map(|r| r[2]).fold(f64::NEG_INFINITY, f64::max);
@@ -350,12 +355,7 @@ fn sim_step_shows_ringing_and_creep() {
         csv.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let text = fs::read_to_string(&csv).unwrap();
-    let rows: Vec<Vec<f64>> = text
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
-        .collect();
+    let rows = csv_rows(&fs::read_to_string(&csv).unwrap());
     let at = |t: f64| rows.iter().find(|r| r[0] >= t).unwrap()[2];
     let peak = rows
         .iter()

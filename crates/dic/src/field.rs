@@ -10,9 +10,9 @@ use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
-use crate::icgn::{self, IcgnOptions, PointResult, Reference, Shape};
+use crate::icgn::{self, IcgnOptions, PointResult, Shape};
 use crate::search;
-use crate::{BSpline, DicError, Image, check_subset};
+use crate::{DicError, Image, check_subset};
 
 /// Options of a full-field run.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -118,14 +118,8 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
     let y0 = m + 1;
     let nx = (w - 2 * m - 2 - 1) / step + 1;
     let ny = (h - 2 * m - 2 - 1) / step + 1;
-    let r = Reference::new(reference.clone());
-    let s = BSpline::new(current);
-    let levels = (opts.search_radius as f64 / 8.0)
-        .log2()
-        .ceil()
-        .clamp(0.0, 5.0) as usize;
-    let pr = search::pyramid(reference, levels);
-    let pc = search::pyramid(current, levels);
+    let crate::Prepared { r, s, pr, pc } =
+        crate::Prepared::new(reference, current, opts.search_radius);
     let tile = opts.tile.max(4);
     let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(tile))
         .flat_map(|ty| (0..nx.div_ceil(tile)).map(move |tx| (tx, ty)))

@@ -117,6 +117,28 @@ impl Default for PointOptions {
     }
 }
 
+/// A pair of images made ready for correlation: the reference with its gradients, the
+/// current image's spline, and both pyramids for the integer search.
+pub(crate) struct Prepared {
+    pub(crate) r: Reference,
+    pub(crate) s: BSpline,
+    pub(crate) pr: Vec<Image>,
+    pub(crate) pc: Vec<Image>,
+}
+
+impl Prepared {
+    /// Pyramid depth: enough levels that a `search_radius` jump is ~8 px at the top.
+    pub(crate) fn new(reference: &Image, current: &Image, search_radius: usize) -> Self {
+        let levels = (search_radius as f64 / 8.0).log2().ceil().clamp(0.0, 5.0) as usize;
+        Prepared {
+            r: Reference::new(reference.clone()),
+            s: BSpline::new(current),
+            pr: search::pyramid(reference, levels),
+            pc: search::pyramid(current, levels),
+        }
+    }
+}
+
 /// The outcome at one requested point: `None` when no match was found.
 pub type PointOutcome = Option<PointResult>;
 
@@ -154,14 +176,7 @@ pub fn correlate_points(
             });
         }
     }
-    let levels = (opts.search_radius as f64 / 8.0)
-        .log2()
-        .ceil()
-        .clamp(0.0, 5.0) as usize;
-    let pr = search::pyramid(reference, levels);
-    let pc = search::pyramid(current, levels);
-    let r = Reference::new(reference.clone());
-    let s = BSpline::new(current);
+    let Prepared { r, s, pr, pc } = Prepared::new(reference, current, opts.search_radius);
     Ok(points
         .iter()
         .map(|&(x, y)| {
