@@ -1,6 +1,7 @@
 //! `cellinject hinge`: stiffness and stress of one flexure hinge.
 
 use anyhow::Result;
+use cellinject_fem::hinge2d::{MeshDensity, Plane, converge};
 use cellinject_flexure::{FlexureError, Hinge, Material, Profile, paros_weisbord_simplified};
 use clap::{Args, ValueEnum};
 use serde_json::json;
@@ -28,6 +29,17 @@ pub enum MethodArg {
     Beam,
     /// Simplified Paros-Weisbord formula 2·E·b·t^2.5 / (9π√R), circular notches only.
     PwSimple,
+    /// 2-D finite elements (9-node quadrilaterals, three refinements, sparse Cholesky).
+    Fem,
+}
+
+/// In-plane assumption of the FEM.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PlaneArg {
+    /// Plane stress (thin hinge).
+    Stress,
+    /// Plane strain (thick hinge).
+    Strain,
 }
 
 /// `cellinject hinge` arguments.
@@ -60,6 +72,9 @@ pub struct HingeArgs {
     /// Method for the compliant bending stiffness.
     #[arg(long, value_enum, default_value_t = MethodArg::Beam)]
     method: MethodArg,
+    /// In-plane assumption for `--method fem`.
+    #[arg(long, value_enum, default_value_t = PlaneArg::Stress)]
+    plane: PlaneArg,
     /// A working rotation, rad: report its stress and safety factor.
     #[arg(long, allow_negative_numbers = true)]
     angle: Option<f64>,
@@ -121,9 +136,20 @@ pub fn run(a: &HingeArgs) -> Result<()> {
         poisson: a.poisson,
         yield_strength: a.yield_strength,
     };
+    let mut fem_info = None;
     let k_bend = match a.method {
         MethodArg::Beam => hinge.k_bend(&m),
         MethodArg::PwSimple => paros_weisbord_simplified(&hinge, &m).map_err(flex_error)?,
+        MethodArg::Fem => {
+            let plane = match a.plane {
+                PlaneArg::Stress => Plane::Stress,
+                PlaneArg::Strain => Plane::Strain,
+            };
+            let c = converge(&hinge, &m, plane, &MeshDensity::default())
+                .map_err(|e| anyhow::anyhow!("hinge FEM: {e}"))?;
+            fem_info = Some(c.clone());
+            c.k_bend
+        }
     };
     let kt = hinge.stress_concentration();
     let stress_per_rad = kt * 6.0 * k_bend / (hinge.width * hinge.thickness.powi(2));
@@ -142,7 +168,7 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                 .collect();
             let mut v = json!({
                 "profile": format!("{:?}", a.profile).to_lowercase(),
-                "method": match a.method { MethodArg::Beam => "beam", MethodArg::PwSimple => "pw-simple" },
+                "method": match a.method { MethodArg::Beam => "beam", MethodArg::PwSimple => "pw-simple", MethodArg::Fem => "fem" },
                 "thickness": a.thickness, "width": a.width, "length": hinge.length(),
                 "k_bend": k_bend, "k_bend_off": k_off, "k_axial": k_axial, "k_torsion": k_torsion,
                 "stress_concentration": kt,
@@ -151,6 +177,15 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                 "compliance": rows,
                 "compliance_order": ["ux", "uy", "uz", "rx", "ry", "rz"],
             });
+            if let Some(c) = &fem_info {
+                v["fem"] = json!({
+                    "k_bend_levels": c.levels.iter().map(|l| l.k_bend).collect::<Vec<_>>(),
+                    "unknowns": c.levels.iter().map(|l| l.dofs).collect::<Vec<_>>(),
+                    "backward_error": c.levels.iter().map(|l| l.residual).collect::<Vec<_>>(),
+                    "mesh_error": c.error_estimate,
+                    "beam_over_fem": hinge.k_bend(&m) / c.k_bend,
+                });
+            }
             if let Some((th, s, sf)) = at_angle {
                 v["angle"] = json!(th);
                 v["stress"] = json!(s);
@@ -184,6 +219,25 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                 format!("{:.4}", max_rotation * 1e3),
                 "mrad",
             );
+            if let Some(c) = &fem_info {
+                let levels: Vec<String> = c
+                    .levels
+                    .iter()
+                    .map(|l| format!("{:.4}", l.k_bend))
+                    .collect();
+                row("FEM k_bend at levels 1, 2, 4", levels.join(", "), "N·m/rad");
+                row(
+                    "FEM mesh error (last refinement)",
+                    format!("{:.2e}", c.error_estimate),
+                    "",
+                );
+                row("FEM unknowns (finest)", format!("{}", c.levels[2].dofs), "");
+                row(
+                    "beam / FEM",
+                    format!("{:.4}", hinge.k_bend(&m) / c.k_bend),
+                    "",
+                );
+            }
             if let Some((th, s, sf)) = at_angle {
                 row(
                     "stress at --angle",
@@ -201,6 +255,7 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                 match a.method {
                     MethodArg::Beam => "beam integral",
                     MethodArg::PwSimple => "simplified Paros-Weisbord",
+                    MethodArg::Fem => "2-D FEM for k_bend, beam integrals for the rest",
                 }
             );
             print!("{}", t.text());
