@@ -63,6 +63,9 @@ pub struct PointArgs {
     /// Largest displacement searched for, pixels.
     #[arg(long, default_value_t = 64)]
     search: usize,
+    /// Sigma of a Gaussian prefilter applied to both images, pixels (0 = none).
+    #[arg(long, default_value_t = 0.0)]
+    prefilter: f64,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
@@ -88,6 +91,9 @@ pub enum DicCommand {
         /// Shape function.
         #[arg(long, value_enum, default_value_t = ShapeArg::Affine)]
         shape: ShapeArg,
+        /// Sigma of a Gaussian prefilter applied to both images, pixels (0 = none).
+        #[arg(long, default_value_t = 0.0)]
+        prefilter: f64,
         /// CSV output; a displacement-map PNG is written beside it.
         #[arg(long, value_name = "FILE")]
         out: PathBuf,
@@ -218,11 +224,13 @@ fn run_points(a: &PointArgs) -> Result<()> {
     if a.at.is_empty() {
         return Err(InputError("dic needs at least one --at X,Y".into()).into());
     }
+    check_prefilter(a.prefilter)?;
     let (r, c) = pair(reference, current)?;
     let opts = PointOptions {
         subset: a.subset,
         shape: a.shape.into(),
         search_radius: a.search,
+        prefilter: a.prefilter,
         ..PointOptions::default()
     };
     let res = correlate_points(&r, &c, &a.at, &opts).map_err(|e| match e {
@@ -311,22 +319,36 @@ fn ramp(t: f64) -> [u8; 3] {
     [c(0), c(1), c(2)]
 }
 
+fn check_prefilter(sigma: f64) -> Result<()> {
+    if !(0.0..=20.0).contains(&sigma) {
+        return Err(InputError(format!(
+            "--prefilter must lie in [0, 20] pixels, got {sigma}"
+        ))
+        .into());
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
 fn run_field(
     reference: &Path,
     current: &Path,
     step: usize,
     subset: usize,
     shape: ShapeArg,
+    prefilter: f64,
     out: &Path,
 ) -> Result<()> {
     if step == 0 {
         return Err(InputError("--step must be at least 1".into()).into());
     }
+    check_prefilter(prefilter)?;
     let (r, c) = pair(reference, current)?;
     let opts = FieldOptions {
         step,
         subset,
         shape: shape.into(),
+        prefilter,
         ..FieldOptions::default()
     };
     let t0 = std::time::Instant::now();
@@ -652,8 +674,9 @@ pub fn run(a: &DicArgs) -> Result<()> {
             step,
             subset,
             shape,
+            prefilter,
             out,
-        }) => run_field(reference, current, *step, *subset, *shape, out),
+        }) => run_field(reference, current, *step, *subset, *shape, *prefilter, out),
         Some(DicCommand::Synth {
             size,
             shift,

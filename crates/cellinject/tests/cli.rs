@@ -712,6 +712,19 @@ fn dic_bad_inputs_exit_2_with_a_named_cause() {
         (
             vec![
                 "dic",
+                "--reference",
+                &r,
+                "--current",
+                &c,
+                "--at",
+                "100,100",
+                "--prefilter=50",
+            ],
+            "--prefilter",
+        ),
+        (
+            vec![
+                "dic",
                 "field",
                 "--reference",
                 &r,

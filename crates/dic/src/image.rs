@@ -97,7 +97,8 @@ impl Image {
         }
     }
 
-    /// Separable Gaussian low-pass (optional prefilter against aliasing), sigma in pixels.
+    /// Separable Gaussian low-pass (optional prefilter against aliasing), sigma in
+    /// pixels, kernel truncated at 3σ and normalised, mirror boundaries.
     pub fn gaussian_blur(&self, sigma: f64) -> Image {
         if sigma <= 0.0 {
             return self.clone();
@@ -144,5 +145,31 @@ impl Image {
             height: self.height,
             data: out,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blur_keeps_constants_and_the_mean() {
+        let flat = Image::new(20, 10, vec![7.0; 200]).unwrap();
+        assert!(
+            flat.gaussian_blur(1.5)
+                .data()
+                .iter()
+                .all(|v| (v - 7.0).abs() < 1e-12)
+        );
+        let data: Vec<f64> = (0..400).map(|k| ((k * 37) % 11) as f64).collect();
+        let img = Image::new(20, 20, data).unwrap();
+        let b = img.gaussian_blur(1.0);
+        // Smoother: the variance drops.
+        let var = |v: &[f64]| {
+            let m = v.iter().sum::<f64>() / v.len() as f64;
+            v.iter().map(|x| (x - m).powi(2)).sum::<f64>()
+        };
+        assert!(var(b.data()) < 0.5 * var(img.data()));
+        assert_eq!(img.gaussian_blur(0.0), img);
     }
 }

@@ -102,6 +102,8 @@ pub struct PointOptions {
     pub shape: Shape,
     /// Largest displacement searched for, pixels.
     pub search_radius: usize,
+    /// Sigma of an optional Gaussian prefilter of both images, pixels (0 = none).
+    pub prefilter: f64,
     /// Iteration control.
     pub icgn: IcgnOptions,
 }
@@ -112,6 +114,7 @@ impl Default for PointOptions {
             subset: 31,
             shape: Shape::Affine,
             search_radius: 64,
+            prefilter: 0.0,
             icgn: IcgnOptions::default(),
         }
     }
@@ -128,13 +131,28 @@ pub(crate) struct Prepared {
 
 impl Prepared {
     /// Pyramid depth: enough levels that a `search_radius` jump is ~8 px at the top.
-    pub(crate) fn new(reference: &Image, current: &Image, search_radius: usize) -> Self {
+    /// A `prefilter` sigma > 0 low-passes both images first (against aliasing of
+    /// undersampled speckles, at the cost of some noise averaging).
+    pub(crate) fn new(
+        reference: &Image,
+        current: &Image,
+        search_radius: usize,
+        prefilter: f64,
+    ) -> Self {
+        let (reference, current) = if prefilter > 0.0 {
+            (
+                reference.gaussian_blur(prefilter),
+                current.gaussian_blur(prefilter),
+            )
+        } else {
+            (reference.clone(), current.clone())
+        };
         let levels = (search_radius as f64 / 8.0).log2().ceil().clamp(0.0, 5.0) as usize;
         Prepared {
-            r: Reference::new(reference.clone()),
-            s: BSpline::new(current),
-            pr: search::pyramid(reference, levels),
-            pc: search::pyramid(current, levels),
+            pr: search::pyramid(&reference, levels),
+            pc: search::pyramid(&current, levels),
+            s: BSpline::new(&current),
+            r: Reference::new(reference),
         }
     }
 }
@@ -176,7 +194,8 @@ pub fn correlate_points(
             });
         }
     }
-    let Prepared { r, s, pr, pc } = Prepared::new(reference, current, opts.search_radius);
+    let Prepared { r, s, pr, pc } =
+        Prepared::new(reference, current, opts.search_radius, opts.prefilter);
     Ok(points
         .iter()
         .map(|&(x, y)| {

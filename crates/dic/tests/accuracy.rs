@@ -305,6 +305,26 @@ fn field_mode_keeps_the_accuracy_of_point_mode() {
 }
 
 #[test]
+fn the_gaussian_prefilter_keeps_the_measurement_unbiased() {
+    let p = SpeckleParams::default_for(256, 256);
+    let sp = Speckle::new(&p, 81);
+    let r = sp.render_shifted(0.0, 0.0, 0.0, 1);
+    let c = sp.render_shifted(0.3, -0.45, 0.0, 2);
+    let pts = grid(256, 256, 24);
+    let o = PointOptions {
+        prefilter: 0.8,
+        ..opts(Shape::Affine)
+    };
+    let res = correlate_points(&r, &c, &pts, &o).unwrap();
+    for p in res.iter().flatten() {
+        assert!(
+            (p.u - 0.3).abs() < 0.02 && (p.v + 0.45).abs() < 0.02,
+            "{p:?}"
+        );
+    }
+}
+
+#[test]
 fn tracking_rejects_a_frame_that_does_not_match() {
     let p = SpeckleParams::default_for(200, 200);
     let sp = Speckle::new(&p, 61);
