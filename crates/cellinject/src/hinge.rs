@@ -263,3 +263,105 @@ pub fn run(a: &HingeArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// `cellinject hinge-table` arguments.
+#[derive(Debug, Args)]
+pub struct TableArgs {
+    /// Notch radius, m.
+    #[arg(long, default_value_t = 2e-3)]
+    radius: f64,
+    /// Width, m.
+    #[arg(long, default_value_t = 5e-3)]
+    width: f64,
+    /// Young's modulus, Pa.
+    #[arg(long, default_value_t = 190e9)]
+    youngs: f64,
+    /// Poisson's ratio.
+    #[arg(long, default_value_t = 0.3)]
+    poisson: f64,
+    /// In-plane assumption of the FEM.
+    #[arg(long, value_enum, default_value_t = PlaneArg::Stress)]
+    plane: PlaneArg,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    format: Format,
+}
+
+/// `cellinject hinge-table`: circular notches from thin to thick, beam integral,
+/// simplified Paros-Weisbord and FEM side by side.
+pub fn table(a: &TableArgs) -> Result<()> {
+    if !(a.radius > 0.0 && a.width > 0.0 && a.youngs > 0.0 && a.poisson > -1.0 && a.poisson < 0.5) {
+        return Err(InputError(
+            "--radius, --width and --youngs must be positive and --poisson in (-1, 0.5)".into(),
+        )
+        .into());
+    }
+    let m = Material {
+        youngs: a.youngs,
+        poisson: a.poisson,
+        yield_strength: 465e6,
+    };
+    let plane = match a.plane {
+        PlaneArg::Stress => Plane::Stress,
+        PlaneArg::Strain => Plane::Strain,
+    };
+    let mut rows = Vec::new();
+    for tr in [0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0] {
+        let h = Hinge {
+            profile: Profile::Circular { radius: a.radius },
+            thickness: tr * a.radius,
+            width: a.width,
+        };
+        let beam = h.k_bend(&m);
+        let pw = paros_weisbord_simplified(&h, &m).map_err(flex_error)?;
+        let c = converge(&h, &m, plane, &MeshDensity::default())
+            .map_err(|e| anyhow::anyhow!("hinge FEM: {e}"))?;
+        rows.push((tr, beam, pw, c.k_bend, c.error_estimate));
+    }
+    match a.format {
+        Format::Json => {
+            let v: Vec<serde_json::Value> = rows
+                .iter()
+                .map(|&(tr, beam, pw, fem, err)| {
+                    json!({"t_over_r": tr, "k_beam": beam, "k_pw_simple": pw, "k_fem": fem,
+                           "beam_over_fem": beam / fem, "pw_over_fem": pw / fem, "fem_mesh_error": err})
+                })
+                .collect();
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        }
+        Format::Text => {
+            println!(
+                "Circular notch, R = {} mm, b = {} mm, E = {} GPa, plane {:?}: compliant stiffness, N·m/rad",
+                a.radius * 1e3,
+                a.width * 1e3,
+                a.youngs * 1e-9,
+                a.plane
+            );
+            let mut t = Table::new(
+                &[
+                    "t/R",
+                    "beam integral",
+                    "PW simplified",
+                    "FEM",
+                    "beam/FEM",
+                    "PW/FEM",
+                    "FEM mesh error",
+                ],
+                &[true; 7],
+            );
+            for (tr, beam, pw, fem, err) in rows {
+                t.row(vec![
+                    format!("{tr}"),
+                    format!("{beam:.4}"),
+                    format!("{pw:.4}"),
+                    format!("{fem:.4}"),
+                    format!("{:.4}", beam / fem),
+                    format!("{:.4}", pw / fem),
+                    format!("{err:.1e}"),
+                ]);
+            }
+            print!("{}", t.text());
+        }
+    }
+    Ok(())
+}

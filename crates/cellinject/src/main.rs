@@ -54,6 +54,8 @@ enum Command {
     },
     /// Stiffness, compliance and stress of one flexure hinge.
     Hinge(hinge::HingeArgs),
+    /// Circular notches from t/R = 0.05 to 1: beam integral, Paros-Weisbord and FEM side by side.
+    HingeTable(hinge::TableArgs),
     /// Digital image correlation: points, fields, tracking, synthetic test images.
     Dic(dic::DicArgs),
     /// Run the digital twin: hysteresis loops, step responses, camera frames.
@@ -89,6 +91,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Sim(cmd)) => sim::run(&description, &cmd),
         Some(Command::Dic(args)) => dic::run(&args),
         Some(Command::Hinge(args)) => hinge::run(&args),
+        Some(Command::HingeTable(args)) => hinge::table(&args),
         Some(Command::Reproduce { out }) => commands::reproduce(&description, &out),
         None => commands::reproduce(&description, std::path::Path::new("reports")),
     }

@@ -1001,3 +1001,18 @@ fn hinge_fem_reports_levels_and_sits_below_the_beam_integral() {
         .unwrap();
     assert!(strain > k);
 }
+
+#[test]
+fn hinge_table_shows_beam_theory_overestimating_thick_notches() {
+    let v = json(&["hinge-table", "--format", "json"]);
+    let rows = v.as_array().unwrap();
+    assert_eq!(rows.len(), 7);
+    let ratios: Vec<f64> = rows
+        .iter()
+        .map(|r| r["beam_over_fem"].as_f64().unwrap())
+        .collect();
+    // Close to 1 for thin notches, growing with t/R (to ~1.3 at t/R = 1).
+    assert!(ratios[0] > 1.0 && ratios[0] < 1.05, "{ratios:?}");
+    assert!(ratios.windows(2).all(|w| w[1] > w[0]), "{ratios:?}");
+    assert!(ratios[6] > 1.2 && ratios[6] < 1.4, "{ratios:?}");
+}
