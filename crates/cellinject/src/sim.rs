@@ -124,8 +124,11 @@ fn refused(e: HwError) -> anyhow::Error {
 
 /// The displacement of an actuator's end as the mechanism sees it, m (positive = extends).
 fn displacement(twin: &SharedTwin, ch: usize) -> f64 {
-    let t = twin.lock().unwrap_or_else(|e| e.into_inner());
-    let s = t.world.snapshot();
+    displacement_in(&lock(twin).world.snapshot(), ch)
+}
+
+/// The same, from a snapshot already taken.
+fn displacement_in(s: &cellinject_twin::Snapshot, ch: usize) -> f64 {
     if ch < 2 { -s.dl[ch] } else { s.q[2] }
 }
 
@@ -268,7 +271,7 @@ fn run_step(
         // Every step for the first 50 ms (ringing), then every millisecond (creep).
         if t <= 0.05 || t >= next_slow {
             let s = lock(&twin).world.snapshot();
-            let x = displacement(&twin, ch) - start;
+            let x = displacement_in(&s, ch) - start;
             let ee = s.x - x0;
             let _ = writeln!(
                 csv,
