@@ -3,6 +3,7 @@
 
 mod commands;
 mod dic;
+mod fea;
 mod hinge;
 mod output;
 mod sim;
@@ -56,6 +57,8 @@ enum Command {
     Hinge(hinge::HingeArgs),
     /// Circular notches from t/R = 0.05 to 1: beam integral, Paros-Weisbord and FEM side by side.
     HingeTable(hinge::TableArgs),
+    /// Whole-manipulator structural model: displacements, coupling, joint stresses, modes.
+    Fea(fea::FeaArgs),
     /// Digital image correlation: points, fields, tracking, synthetic test images.
     Dic(dic::DicArgs),
     /// Run the digital twin: hysteresis loops, step responses, camera frames.
@@ -90,6 +93,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Model { format }) => commands::model(&description, format),
         Some(Command::Sim(cmd)) => sim::run(&description, &cmd),
         Some(Command::Dic(args)) => dic::run(&args),
+        Some(Command::Fea(args)) => fea::run(&description, &args),
         Some(Command::Hinge(args)) => hinge::run(&args),
         Some(Command::HingeTable(args)) => hinge::table(&args),
         Some(Command::Reproduce { out }) => commands::reproduce(&description, &out),

@@ -9,10 +9,12 @@
 //! file. The binary reads files and adds the file name to the error.
 
 use cellinject_model::{Actuator, Design, Flexures, Geometry, Mechanism, ModelError, TensionSpec};
+use cellinject_structure::StructureParams;
 use cellinject_twin::params::{StackParams, TwinParams};
 use thiserror::Error;
 
 mod section;
+mod structure;
 mod twin;
 
 use section::Section;
@@ -85,6 +87,8 @@ pub struct Description {
     pub design: Design,
     /// The digital twin's parameters.
     pub twin: TwinParams,
+    /// The whole-manipulator structural model's parameters (`[structure]`).
+    pub structure: StructureParams,
 }
 
 impl Description {
@@ -152,6 +156,7 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
     };
     t.finish()?;
     let twin = twin::twin(&mut top, [s1, s2, s3])?;
+    let structure = structure::structure(&mut top)?;
     top.finish()?;
     let design = Design {
         geometry,
@@ -173,7 +178,12 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
             reason: other.to_string(),
         },
     })?;
-    Ok(Description { name, design, twin })
+    Ok(Description {
+        name,
+        design,
+        twin,
+        structure,
+    })
 }
 
 /// The embedded prototype description.
@@ -192,6 +202,7 @@ mod tests {
         assert_eq!(d.name, "ICINCO-2012 prototype");
         assert_eq!(d.design, cellinject_model::prototype());
         assert_eq!(d.twin, TwinParams::default());
+        assert_eq!(d.structure, StructureParams::default());
     }
 
     fn replace(from: &str, to: &str) -> Result<Description, ConfigError> {

@@ -10,7 +10,7 @@ use crate::ConfigError;
 use crate::section::{Check, Section};
 
 /// Reads a section if present and applies `f` to it, then refuses unknown keys.
-fn with<'a, T>(
+pub(crate) fn with<'a, T>(
     parent: &mut Section<'a>,
     name: &str,
     default: T,

@@ -6,6 +6,7 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::{Mat, Side};
 
 use crate::FemError;
+use crate::lagrange::{G3, quad};
 
 /// In-plane assumption.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,21 +71,6 @@ pub struct Convergence {
     /// is applied).
     pub error_estimate: f64,
 }
-
-/// Lagrange quadratic shape functions on [−1, 1] and their derivatives.
-#[inline]
-fn quad(x: f64) -> ([f64; 3], [f64; 3]) {
-    (
-        [0.5 * x * (x - 1.0), 1.0 - x * x, 0.5 * x * (x + 1.0)],
-        [x - 0.5, -2.0 * x, x + 0.5],
-    )
-}
-
-const GAUSS3: [(f64, f64); 3] = [
-    (-0.774_596_669_241_483_4, 5.0 / 9.0),
-    (0.0, 8.0 / 9.0),
-    (0.774_596_669_241_483_4, 5.0 / 9.0),
-];
 
 /// Solves the hinge at a refinement level.
 pub fn solve(
@@ -190,8 +176,8 @@ pub fn solve(
                 }
             }
             let mut ke = [[0.0f64; 18]; 18];
-            for &(xi, wx) in &GAUSS3 {
-                for &(eta, wy) in &GAUSS3 {
+            for &(xi, wx) in &G3 {
+                for &(eta, wy) in &G3 {
                     let (nxi, dxi) = quad(xi);
                     let (neta, deta) = quad(eta);
                     let mut dn = [(0.0, 0.0); 9];
@@ -269,7 +255,7 @@ pub fn solve(
             node(last, 2 * ey + 1),
             node(last, 2 * ey + 2),
         ];
-        for &(eta, w) in &GAUSS3 {
+        for &(eta, w) in &G3 {
             let (n, dn) = quad(eta);
             let y: f64 = (0..3).map(|k| n[k] * coords[ids[k]].1).sum();
             let dy: f64 = (0..3).map(|k| dn[k] * coords[ids[k]].1).sum();

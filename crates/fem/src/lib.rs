@@ -13,9 +13,14 @@
 //! relative rotation of the notch's end sections, each the least-squares slope of its
 //! axial displacements.
 //!
+//! [`joint3d`]: the paper's double-notched two-axis joint in 3-D (27-node hexahedra),
+//! its full 6x6 compliance between the end sections and its stresses by superposition.
+//!
 //! **Architecture invariant:** pure computation; faer is used only here.
 
 pub mod hinge2d;
+pub mod joint3d;
+mod lagrange;
 
 use thiserror::Error;
 

@@ -51,11 +51,42 @@ impl Figure {
     }
 }
 
+/// One load case of the paper's whole-manipulator FEA (Tables 1 and 2).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeaCase {
+    /// N, force on the end of A1's motor loop.
+    #[serde(rename = "F11")]
+    pub f11: f64,
+    /// N, force on the end of A2's motor loop.
+    #[serde(rename = "F12")]
+    pub f12: f64,
+    /// m, end-effector displacement along x.
+    pub dx: f64,
+    /// m, end-effector displacement along y.
+    pub dy: f64,
+}
+
+/// One of the paper's FEA tables (Sec. 3.3).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeaTable {
+    /// Table number (1 or 2).
+    pub table: u8,
+    /// Pre-tensioning approach.
+    pub approach: u8,
+    /// m, dx change from raising F12 alone (case 3 against case 1).
+    pub coupling_x: f64,
+    /// The load cases.
+    pub cases: Vec<FeaCase>,
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct File {
     tolerance: f64,
     figure: Vec<Figure>,
+    fea_table: Vec<FeaTable>,
 }
 
 fn file() -> &'static File {
@@ -69,6 +100,11 @@ fn file() -> &'static File {
 /// Every figure, in equation order.
 pub fn figures() -> &'static [Figure] {
     &file().figure
+}
+
+/// The paper's Tables 1 and 2.
+pub fn fea_tables() -> &'static [FeaTable] {
+    &file().fea_table
 }
 
 /// The relative tolerance the paper's rounding allows (0.1 %).

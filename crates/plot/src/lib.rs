@@ -8,6 +8,8 @@
 
 use std::sync::OnceLock;
 
+pub mod contour;
+
 use plotters::prelude::*;
 use thiserror::Error;
 
