@@ -54,6 +54,9 @@ pub struct SolveArgs {
     plot: Option<PathBuf>,
     #[command(flatten)]
     mesh: MeshArgs,
+    /// Approach 2's pre-tension of J3 in the model.
+    #[arg(long, value_enum, default_value_t = PreloadArg::Deflection)]
+    preload: PreloadArg,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
@@ -81,6 +84,9 @@ pub enum FeaCommand {
     Tables {
         #[command(flatten)]
         mesh: MeshArgs,
+        /// Approach 2's pre-tension of J3 in the model.
+        #[arg(long, value_enum, default_value_t = PreloadArg::Deflection)]
+        preload: PreloadArg,
         /// Output format.
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
@@ -174,14 +180,38 @@ fn structure(d: &Description, j: &Joints) -> Result<Structure> {
     Structure::new(&d.design, &spec).map_err(|e| InputError(format!("structure: {e}")).into())
 }
 
+/// How approach 2's pre-tension of J3 enters the structural model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PreloadArg {
+    /// J3 assembled pre-deflected, by the approach's design rule (the stacks carry F10
+    /// with the drives at their home length) applied to this model's stiffness.
+    Deflection,
+    /// The paper's CAD set-up (Sec. 3.3.2): J3 straight and the torques of eq. (53) on
+    /// body 1. The net moment on body 1 is then a 0.1 % difference of 3 N·m terms, so
+    /// the offset of the first case is ill-conditioned.
+    Torque,
+}
+
 /// The structure's preload for an approach. Approach 2: J3's assembly deflection by
 /// the approach's design rule (the stacks carry F10 with the drives at home length),
-/// applied to this model's own stiffness, from the pseudo-rigid-body Δq0 (eq. 31).
-fn preload(d: &Description, s: &Structure, approach: Approach) -> Result<Preload> {
+/// applied to this model's own stiffness, from the pseudo-rigid-body Δq0 (eq. 31); or
+/// the paper's torques (eq. 53).
+fn preload(
+    d: &Description,
+    s: &Structure,
+    approach: Approach,
+    kind: PreloadArg,
+) -> Result<Preload> {
     Ok(match approach {
         Approach::DriveTranslation => Preload::Translation,
         Approach::JointDeflection => {
             let t = d.mechanism().tension(approach)?;
+            if kind == PreloadArg::Torque {
+                let fq = t.tensioned.fq;
+                return Ok(Preload::Torque {
+                    moment: [-fq[0], -fq[1]],
+                });
+            }
             let dq0 = t.dq0.unwrap_or_default();
             let dq0 = s
                 .deflection_for(d.design.tension.preload, [dq0[0], dq0[1]])
@@ -225,7 +255,11 @@ pub fn run(d: &Description, a: &FeaArgs) -> Result<()> {
             mesh.level as usize,
             *format,
         ),
-        Some(FeaCommand::Tables { mesh, format }) => tables(d, mesh.level as usize, *format),
+        Some(FeaCommand::Tables {
+            mesh,
+            preload,
+            format,
+        }) => tables(d, mesh.level as usize, *preload, *format),
         Some(FeaCommand::Joints { levels, format }) => joints(d, levels, *format),
         None => solve_case(d, &a.solve),
     }
@@ -254,7 +288,7 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
     let j = solve_joints(d, a.mesh.level as usize)?;
     let s = structure(d, &j)?;
     let eq = s
-        .solve(forces, preload(d, &s, approach)?)
+        .solve(forces, preload(d, &s, approach, a.preload)?)
         .context("structural equilibrium")?;
     let st = stresses(&j, &eq);
     if let Some(path) = &a.plot {
@@ -394,7 +428,7 @@ fn modes(
     let j = solve_joints(d, level)?;
     let s = structure(d, &j)?;
     let f = d.design.tension.preload;
-    let eq = s.solve(f, preload(d, &s, approach)?)?;
+    let eq = s.solve(f, preload(d, &s, approach, PreloadArg::Deflection)?)?;
     let modes = s.modes(&eq)?;
     let modes = &modes[..count.min(modes.len())];
     match format {
@@ -446,14 +480,14 @@ struct TableResult {
     coupling: f64,
 }
 
-fn tables(d: &Description, level: usize, format: Format) -> Result<()> {
+fn tables(d: &Description, level: usize, kind: PreloadArg, format: Format) -> Result<()> {
     let j = solve_joints(d, level)?;
     let s = structure(d, &j)?;
     let mut results = Vec::new();
     for t in paper::fea_tables() {
         let approach = Approach::from_number(t.approach)
             .ok_or_else(|| anyhow::anyhow!("table {}: bad approach", t.table))?;
-        let pre = preload(d, &s, approach)?;
+        let pre = preload(d, &s, approach, kind)?;
         let computed = t
             .cases
             .iter()
@@ -511,6 +545,7 @@ fn tables(d: &Description, level: usize, format: Format) -> Result<()> {
                 "{}",
                 serde_json::to_string_pretty(&json!({
                     "mesh_level": j.level,
+                    "approach2_preload": format!("{kind:?}").to_lowercase(),
                     "joint_k_bend": {"J1_J2": j.j12.k_bend, "J3": j.j3.k_bend},
                     "yield_strength": material().yield_strength,
                     "tables": v,

@@ -75,6 +75,11 @@ pub struct HingeArgs {
     /// In-plane assumption for `--method fem`.
     #[arg(long, value_enum, default_value_t = PlaneArg::Stress)]
     plane: PlaneArg,
+    /// With `--method fem`: write the finest mesh (nodes, 9-node elements, sections)
+    /// with this solve's stiffness and time as JSON, for peer solvers
+    /// (bench/fem_peers.sh).
+    #[arg(long, value_name = "FILE.json")]
+    export_mesh: Option<std::path::PathBuf>,
     /// A working rotation, rad: report its stress and safety factor.
     #[arg(long, allow_negative_numbers = true)]
     angle: Option<f64>,
@@ -96,6 +101,39 @@ fn flex_error(e: FlexureError) -> anyhow::Error {
         } => InputError(format!("--{name} {value}: {reason}")).into(),
         other => InputError(format!("--method: {other}")).into(),
     }
+}
+
+/// Writes the finest mesh of `converge` (level 4) and its solve for peer solvers.
+fn export_mesh(hinge: &Hinge, m: &Material, plane: Plane, path: &std::path::Path) -> Result<()> {
+    let density = MeshDensity::default();
+    let level = 4;
+    let t = std::time::Instant::now();
+    let sol = cellinject_fem::hinge2d::solve(hinge, m, plane, &density, level)
+        .map_err(|e| anyhow::anyhow!("hinge FEM: {e}"))?;
+    let seconds = t.elapsed().as_secs_f64();
+    let mesh = cellinject_fem::hinge2d::mesh(hinge, &density, level);
+    let v = json!({
+        "level": level,
+        "plane": match plane { Plane::Stress => "stress", Plane::Strain => "strain" },
+        "youngs": m.youngs,
+        "poisson": m.poisson,
+        "width": hinge.width,
+        "moment": sol.moment,
+        "cols": mesh.cols,
+        "rows": mesh.rows,
+        "coords": mesh.coords.iter().map(|p| [p.0, p.1]).collect::<Vec<_>>(),
+        "elements": mesh.elements(),
+        "element_order": "9 nodes, x fastest then y: (i, j) = (k % 3, k / 3)",
+        "section_columns": mesh.section_columns(),
+        "clamped_column": 0,
+        "loaded_column": mesh.cols - 1,
+        "k_bend": sol.k_bend,
+        "unknowns": sol.dofs,
+        "solve_seconds": seconds,
+    });
+    crate::output::write_atomic(path, &serde_json::to_string(&v)?)
+        .map_err(|e| InputError(format!("--export-mesh `{}`: {e}", path.display())))?;
+    Ok(())
 }
 
 /// Runs `cellinject hinge`.
@@ -147,6 +185,9 @@ pub fn run(a: &HingeArgs) -> Result<()> {
             };
             let c = converge(&hinge, &m, plane, &MeshDensity::default())
                 .map_err(|e| anyhow::anyhow!("hinge FEM: {e}"))?;
+            if let Some(path) = &a.export_mesh {
+                export_mesh(&hinge, &m, plane, path)?;
+            }
             fem_info = Some(c.clone());
             c.k_bend
         }

@@ -72,17 +72,48 @@ pub struct Convergence {
     pub error_estimate: f64,
 }
 
-/// Solves the hinge at a refinement level.
-pub fn solve(
-    hinge: &Hinge,
-    m: &Material,
-    plane: Plane,
-    density: &MeshDensity,
-    level: usize,
-) -> Result<HingeSolution, FemError> {
-    hinge
-        .validate()
-        .map_err(|e| FemError::Invalid(e.to_string()))?;
+/// The structured mesh of a hinge: node grid, 9-node elements, section columns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HingeMesh {
+    /// Node coordinates (x along the hinge, y across), row-major: node (i, j) is
+    /// `j·cols + i`.
+    pub coords: Vec<(f64, f64)>,
+    /// Node columns.
+    pub cols: usize,
+    /// Node rows.
+    pub rows: usize,
+    /// Elements along each block.
+    pub nb: usize,
+    /// Elements along the notch.
+    pub nh: usize,
+    /// Elements along the whole mesh.
+    pub nx: usize,
+    /// Elements across.
+    pub ny: usize,
+}
+
+impl HingeMesh {
+    /// Node ids of each 9-node element, lexicographic (x fastest, then y).
+    pub fn elements(&self) -> Vec<[usize; 9]> {
+        let mut out = Vec::with_capacity(self.nx * self.ny);
+        for ey in 0..self.ny {
+            for ex in 0..self.nx {
+                out.push(std::array::from_fn(|k| {
+                    (2 * ey + k / 3) * self.cols + 2 * ex + k % 3
+                }));
+            }
+        }
+        out
+    }
+
+    /// Node columns of the notch's end sections (x = −L/2 and x = +L/2).
+    pub fn section_columns(&self) -> [usize; 2] {
+        [2 * self.nb, 2 * (self.nb + self.nh)]
+    }
+}
+
+/// Builds the hinge's mesh at a refinement level (assumes a validated hinge).
+pub fn mesh(hinge: &Hinge, density: &MeshDensity, level: usize) -> HingeMesh {
     let level = level.max(1);
     let nh = 2 * (density.along * level).div_ceil(2);
     let ny = density.across * level;
@@ -123,7 +154,6 @@ pub fn solve(
             hinge.thickness_at(x)
         }
     };
-    let node = |i: usize, j: usize| j * cols + i;
     let coords: Vec<(f64, f64)> = (0..rows)
         .flat_map(|j| xs.iter().map(move |&x| (x, j)))
         .map(|(x, j)| {
@@ -133,6 +163,38 @@ pub fn solve(
             )
         })
         .collect();
+    HingeMesh {
+        coords,
+        cols,
+        rows,
+        nb,
+        nh,
+        nx,
+        ny,
+    }
+}
+
+/// Solves the hinge at a refinement level.
+pub fn solve(
+    hinge: &Hinge,
+    m: &Material,
+    plane: Plane,
+    density: &MeshDensity,
+    level: usize,
+) -> Result<HingeSolution, FemError> {
+    hinge
+        .validate()
+        .map_err(|e| FemError::Invalid(e.to_string()))?;
+    let HingeMesh {
+        coords,
+        cols,
+        rows,
+        nb,
+        nh,
+        nx,
+        ny,
+    } = mesh(hinge, density, level);
+    let node = |i: usize, j: usize| j * cols + i;
     // Elasticity matrix.
     let (e, nu) = (m.youngs, m.poisson);
     let d = match plane {
@@ -246,6 +308,8 @@ pub fn solve(
     }
     // Pure moment on the far end: traction t_x = −M·y/I over the block's height.
     let moment = 1.0;
+    let half = 0.5 * hinge.length();
+    let height = hinge.thickness_at(half).max(hinge.thickness_at(-half));
     let inertia = b * height.powi(3) / 12.0;
     let mut f = vec![0.0f64; n_dof];
     let last = cols - 1;

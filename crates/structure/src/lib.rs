@@ -248,6 +248,30 @@ pub enum Preload {
         /// Δq0 of the pseudo-rigid-body model.
         dq0: [f64; 2],
     },
+    /// Approach 2 as the paper's CAD FEA sets it up (Sec. 3.3.2): J3 straight, and
+    /// constant torques (eq. 53) on body 1 near J3 instead of the pre-deflection.
+    Torque {
+        /// N·m, about y (q1) and about x (q2), as Fq of eq. (53).
+        moment: [f64; 2],
+    },
+}
+
+/// The constant loads of one solve.
+#[derive(Debug, Clone, Copy)]
+struct Loads {
+    forces: [f64; 2],
+    /// N·m, constant moment on body 1 (global frame).
+    torque: Vector3<f64>,
+}
+
+impl Loads {
+    fn new(forces: [f64; 2], preload: Preload) -> Self {
+        let torque = match preload {
+            Preload::Torque { moment } => Vector3::new(moment[1], moment[0], 0.0),
+            _ => Vector3::zeros(),
+        };
+        Loads { forces, torque }
+    }
 }
 
 /// A static equilibrium.
@@ -421,7 +445,7 @@ impl Structure {
     /// J3's rest pose of its top section for a preload.
     fn j3_rest(&self, preload: Preload) -> (Vector3<f64>, Matrix3<f64>) {
         match preload {
-            Preload::Translation => (self.ref_point, Matrix3::identity()),
+            Preload::Translation | Preload::Torque { .. } => (self.ref_point, Matrix3::identity()),
             Preload::Deflection { dq0 } => {
                 // Rest angles q_r = −Δq0 (eq. 28): the joint as an assembly moment
                 // bends it, so its rest pose is C·w for the pure moment w that turns the
@@ -528,16 +552,20 @@ impl Structure {
     }
 
     /// Total potential: elastic energy plus the slider loads' potential, J.
-    fn potential(&self, q: &Vec16, rest: &(Vector3<f64>, Matrix3<f64>), forces: &[f64; 2]) -> f64 {
+    fn potential(&self, q: &Vec16, rest: &(Vector3<f64>, Matrix3<f64>), loads: &Loads) -> f64 {
         let e = self.strains(q, rest);
-        0.5 * e.dot(&(self.strain_stiffness() * e)) + Self::load_gradient(forces).dot(q)
+        0.5 * e.dot(&(self.strain_stiffness() * e)) + Self::load_gradient(loads).dot(q)
     }
 
-    /// Load term of the gradient: d(F·s)/dq.
-    fn load_gradient(forces: &[f64; 2]) -> Vec16 {
+    /// Load term of the gradient: d(F·s − τ·θ)/dq (the slider forces' and the constant
+    /// moment's potential, linear in the coordinates).
+    fn load_gradient(loads: &Loads) -> Vec16 {
         let mut g = Vec16::zeros();
-        g[10] = SCALE * forces[0];
-        g[15] = SCALE * forces[1];
+        g[10] = SCALE * loads.forces[0];
+        g[15] = SCALE * loads.forces[1];
+        for i in 0..3 {
+            g[3 + i] = -SCALE * loads.torque[i];
+        }
         g
     }
 
@@ -548,13 +576,13 @@ impl Structure {
         &self,
         q: &Vec16,
         rest: &(Vector3<f64>, Matrix3<f64>),
-        forces: &[f64; 2],
+        loads: &Loads,
     ) -> (Vec16, Mat16) {
         let ks = self.strain_stiffness();
         let eps = self.strains(q, rest);
         let w = ks * eps;
         let j = self.strain_jacobian(q, rest);
-        let g = j.transpose() * w + Self::load_gradient(forces);
+        let g = j.transpose() * w + Self::load_gradient(loads);
         let mut t = j.transpose() * ks * j;
         let h = 1.0;
         for c in 0..DOFS {
@@ -584,12 +612,13 @@ impl Structure {
             }
         }
         let rest = self.j3_rest(preload);
+        let loads = Loads::new(forces, preload);
         let mut q = Vec16::zeros();
         // Load scale for the convergence test: the applied forces (and J3's preload).
         let scale = SCALE * (forces[0].abs() + forces[1].abs() + 1.0);
         let mut last = f64::INFINITY;
         for it in 0..MAX_ITER {
-            let (g, t) = self.gradient_and_tangent(&q, &rest, &forces);
+            let (g, t) = self.gradient_and_tangent(&q, &rest, &loads);
             let res = g.amax() / scale;
             last = res;
             if res < TOLERANCE {
@@ -610,16 +639,16 @@ impl Structure {
                 }
             };
             // Backtracking on the potential energy.
-            let p0 = self.potential(&q, &rest, &forces);
+            let p0 = self.potential(&q, &rest, &loads);
             let mut a = 1.0;
-            while a > 1e-6 && self.potential(&(q + a * step), &rest, &forces) > p0 {
+            while a > 1e-6 && self.potential(&(q + a * step), &rest, &loads) > p0 {
                 a *= 0.5;
             }
             q += a * step;
             // At the rounding floor of the gradient the step vanishes first: 1e-5 µm
             // (10 pm) or 10 prad is converged.
             if (a * step).amax() < 1e-5 && res < 1e-4 {
-                let (g, _) = self.gradient_and_tangent(&q, &rest, &forces);
+                let (g, _) = self.gradient_and_tangent(&q, &rest, &loads);
                 let res = g.amax() / scale;
                 return Ok(self.equilibrium(&q, preload, forces, it + 1, res));
             }
@@ -756,7 +785,8 @@ impl Structure {
     /// lowest first.
     pub fn modes(&self, eq: &Equilibrium) -> Result<Vec<Mode>, StructureError> {
         let rest = self.j3_rest(eq.preload);
-        let (_, h) = self.gradient_and_tangent(&eq.coords, &rest, &eq.applied);
+        let (_, h) =
+            self.gradient_and_tangent(&eq.coords, &rest, &Loads::new(eq.applied, eq.preload));
         let m = self.mass_matrix(&eq.coords);
         // Remove the slider coordinates (10 and 15).
         let keep: Vec<usize> = (0..DOFS).filter(|&i| i != 10 && i != 15).collect();
