@@ -352,6 +352,16 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
                 ]);
             }
             print!("{}", t.text());
+            for (n, _, f, at) in &st {
+                if *f < 1.0 {
+                    println!(
+                        "warning: {n} is past its yield strength here (safety factor {f:.2}, at ({:.2}, {:.2}, {:.2}) mm in the joint)",
+                        at[0] * 1e3,
+                        at[1] * 1e3,
+                        at[2] * 1e3
+                    );
+                }
+            }
             if let Some(p) = &a.plot {
                 println!("plot: {}", p.display());
             }
