@@ -90,6 +90,8 @@ pub struct HingeMesh {
     pub nx: usize,
     /// Elements across.
     pub ny: usize,
+    /// Height of the blocks (the notch's thickness at its ends), m.
+    pub height: f64,
 }
 
 impl HingeMesh {
@@ -171,6 +173,7 @@ pub fn mesh(hinge: &Hinge, density: &MeshDensity, level: usize) -> HingeMesh {
         nh,
         nx,
         ny,
+        height,
     }
 }
 
@@ -193,6 +196,7 @@ pub fn solve(
         nh,
         nx,
         ny,
+        height,
     } = mesh(hinge, density, level);
     let node = |i: usize, j: usize| j * cols + i;
     // Elasticity matrix.
@@ -308,8 +312,6 @@ pub fn solve(
     }
     // Pure moment on the far end: traction t_x = −M·y/I over the block's height.
     let moment = 1.0;
-    let half = 0.5 * hinge.length();
-    let height = hinge.thickness_at(half).max(hinge.thickness_at(-half));
     let inertia = b * height.powi(3) / 12.0;
     let mut f = vec![0.0f64; n_dof];
     let last = cols - 1;

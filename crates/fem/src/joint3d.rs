@@ -323,53 +323,6 @@ pub fn von_mises(s: &[f64; 6]) -> f64 {
     (0.5 * d + 3.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5])).sqrt()
 }
 
-/// Mesh convergence of the joint.
-#[derive(Debug, Clone)]
-pub struct JointConvergence {
-    /// Solutions at the levels solved, coarse to fine.
-    pub levels: Vec<JointSolution>,
-    /// Richardson-extrapolated bending stiffnesses (about x, about y), N·m/rad, from the
-    /// two finest levels with the observed order of the 2-D hinge study (h⁴ is not
-    /// reached at the block corners; order 2 is assumed, a conservative choice).
-    pub k_extrapolated: [f64; 2],
-    /// Relative change of the bending stiffnesses between the two finest levels.
-    pub error_estimate: f64,
-}
-
-/// Solves at the given levels and reports the change between the two finest.
-pub fn converge(
-    joint: &DoubleNotch,
-    m: &Material,
-    mesh: &JointMesh,
-    levels: &[usize],
-) -> Result<JointConvergence, FemError> {
-    if levels.len() < 2 {
-        return Err(FemError::Invalid(
-            "convergence needs at least two levels".into(),
-        ));
-    }
-    let sols = levels
-        .iter()
-        .map(|&l| solve(joint, m, mesh, l))
-        .collect::<Result<Vec<_>, _>>()?;
-    let n = sols.len();
-    let (c, f) = (&sols[n - 2], &sols[n - 1]);
-    let ratio = levels[n - 1] as f64 / levels[n - 2] as f64;
-    let p = 2.0;
-    let mut k_ex = [0.0; 2];
-    let mut err: f64 = 0.0;
-    for a in 0..2 {
-        let (kc, kf) = (c.k_bend[a], f.k_bend[a]);
-        k_ex[a] = kf + (kf - kc) / (ratio.powf(p) - 1.0);
-        err = err.max(((kf - kc) / kf).abs());
-    }
-    Ok(JointConvergence {
-        levels: sols,
-        k_extrapolated: k_ex,
-        error_estimate: err,
-    })
-}
-
 /// Shape-function derivatives (natural coordinates) of the 27 nodes at one point.
 fn natural_gradients(xi: f64, eta: f64, zeta: f64) -> [[f64; 3]; 27] {
     let (nx, dx) = quad(xi);
