@@ -461,7 +461,12 @@ fn modes(
                 f
             );
             let mut t = Table::new(
-                &["mode", "frequency [Hz]", "mostly", "tip motion (x, y, z)"],
+                &[
+                    "mode",
+                    "frequency [Hz]",
+                    "mostly",
+                    "tip motion [µm] per 1 µm or µrad of it",
+                ],
                 &[true, true, false, false],
             );
             for (i, m) in modes.iter().enumerate() {
@@ -470,8 +475,10 @@ fn modes(
                     format!("{:.1}", m.frequency),
                     m.description.clone(),
                     format!(
-                        "({:+.2}, {:+.2}, {:+.2})",
-                        m.tip_shape[0], m.tip_shape[1], m.tip_shape[2]
+                        "({:+.4}, {:+.4}, {:+.4})",
+                        m.tip_shape[0] * 1e6,
+                        m.tip_shape[1] * 1e6,
+                        m.tip_shape[2] * 1e6
                     ),
                 ]);
             }

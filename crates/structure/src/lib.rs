@@ -305,8 +305,8 @@ pub struct Equilibrium {
 pub struct Mode {
     /// Hz.
     pub frequency: f64,
-    /// End-effector motion of the mass-normalised mode, m per unit modal coordinate,
-    /// normalised to a largest component of 1.
+    /// End-effector motion (m) of the mode scaled so that its largest coordinate (a
+    /// translation or a rotation of body 1 or a stack) is 1 µm or 1 µrad.
     pub tip_shape: Vector3<f64>,
     /// What moves most: "body 1 tilt about x", "A1 axial", ...
     pub description: String,
@@ -841,11 +841,8 @@ impl Structure {
             let km = self.kinematics(&(eq.coords - eps * full));
             let tp = kp.x1 + kp.r1 * self.tip_local;
             let tm = km.x1 + km.r1 * self.tip_local;
-            let mut tip = (tp - tm) / (2.0 * eps);
-            let big = tip.amax();
-            if big > 0.0 {
-                tip /= big;
-            }
+            // Scaled so that the mode's largest coordinate is 1 µm or 1 µrad.
+            let tip = (tp - tm) / (2.0 * eps) / full.amax();
             // Dominant coordinate by modal kinetic energy share.
             let mut share = vec![0.0f64; n];
             for r in 0..n {
