@@ -274,6 +274,14 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
         InputError("fea: --forces F11,F12 is required (N, e.g. -100,-100)".into())
     })?;
     for (i, f) in forces.iter().enumerate() {
+        if *f > 0.0 {
+            return Err(InputError(format!(
+                "--forces: F1{} = {f} N would pull on A{}: its spherical joint only pushes (compression is negative)",
+                i + 1,
+                i + 1
+            ))
+            .into());
+        }
         let cap = d.design.actuators[i].push_capacity;
         if f.abs() > cap {
             return Err(InputError(format!(

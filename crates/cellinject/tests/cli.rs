@@ -1156,7 +1156,11 @@ fn fea_modes_start_with_the_two_tilts_of_body_1() {
 
 #[test]
 fn fea_bad_arguments_exit_2_with_a_message() {
-    let cases: [(&[&str], &str); 5] = [
+    let cases: [(&[&str], &str); 6] = [
+        (
+            &["fea", "--approach", "2", "--forces", "50,-100"],
+            "would pull on A1",
+        ),
         (&["fea", "--forces", "-100,-100"], "--approach"),
         (&["fea", "--approach", "1"], "--forces"),
         (&["fea", "--approach", "1", "--forces", "abc"], "F11,F12"),
