@@ -1163,4 +1163,46 @@ mod tests {
             proptest::prop_assert!((both.stack_force[1] - f2).abs() < 5e-5 * big);
         }
     }
+
+    #[test]
+    fn the_papers_torque_setup_is_ill_conditioned() {
+        // Sec. 3.3.2 replaces J3's pre-deflection by the torques of eq. (53) on body 1.
+        // In the pseudo-rigid-body model itself (ideal joints) those torques, 3.002 N·m,
+        // nearly cancel the stacks' F·b1 = 3.0 N·m: M moves by about 1 µm, not the
+        // 22 µm of eq. (52) (Table 2: 23.2 µm). The pre-deflection's own moment
+        // −Kq·Δq0 (3.04 N·m) gives eq. (52).
+        let d = prototype();
+        let s = Structure::new(&d, &ideal_spec(&d)).unwrap();
+        let t = Mechanism::new(&d)
+            .unwrap()
+            .tension(Approach::JointDeflection)
+            .unwrap();
+        let (fq, dq0) = (t.tensioned.fq, t.dq0.unwrap());
+        let paper = s
+            .solve(
+                [-100.0, -100.0],
+                Preload::Torque {
+                    moment: [-fq[0], -fq[1]],
+                },
+            )
+            .unwrap();
+        assert!(paper.tip[0].abs() < 2e-6, "{}", paper.tip[0]);
+        let kq = d.flexures.j3;
+        let own = s
+            .solve(
+                [-100.0, -100.0],
+                Preload::Torque {
+                    moment: [-kq[0] * dq0[0], -kq[1] * dq0[1]],
+                },
+            )
+            .unwrap();
+        for a in 0..2 {
+            let prb = t.tensioned.dx[a];
+            assert!(
+                (own.tip[a] - prb).abs() < 0.01 * prb.abs(),
+                "{} vs {prb}",
+                own.tip[a]
+            );
+        }
+    }
 }
