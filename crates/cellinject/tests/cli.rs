@@ -1148,10 +1148,11 @@ fn fea_modes_start_with_the_two_tilts_of_body_1() {
                 .starts_with("body 1 tilt")
         );
     }
-    // The twin's tilt mode: J3 and the stacks at b1 against 1.2e-3 kg*m^2 (721 Hz);
-    // the structure adds the joints' and stacks' compliance in series, and the stacks'
-    // mass: a little lower.
-    assert!(f[0] > 550.0 && f[0] < 721.0, "{}", f[0]);
+    // The twin's tilt mode: J3 and the stacks at b1 against 1.2e-3 kg*m^2, rigid
+    // joints: 721 Hz. The structure adds compliance in series (J1's axial 1/1.8e8 m/N
+    // to the stacks' 1/2.7e7 alone takes 7 % off the frequency, J3's lateral
+    // compliance more) and the stacks' mass, so it can only be lower, and not by much.
+    assert!(f[0] > 0.7 * 721.0 && f[0] < 721.0, "{}", f[0]);
 }
 
 #[test]

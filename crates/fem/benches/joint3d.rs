@@ -13,9 +13,9 @@ use criterion::{Criterion, criterion_group, criterion_main};
 /// The prototype's J1/J2 (configs/prototype.toml [structure]).
 fn joint() -> DoubleNotch {
     DoubleNotch {
-        side: 13.6e-3,
-        radius: 1e-3,
-        flat: 2.62e-3,
+        side: 13.99e-3,
+        radius: 2e-3,
+        flat: 2.31e-3,
         throat: 1.2e-3,
         gap: 2e-3,
     }

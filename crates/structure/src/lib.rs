@@ -153,17 +153,18 @@ pub struct StructureParams {
 }
 
 impl Default for StructureParams {
-    /// The prototype: a 13.6 mm square rod, slots with 1 mm fillets and 2.62 mm straight
-    /// throats, 2 mm between the notches (fitted by the 3-D FEM to 91.3 and 340.3
-    /// N·m/rad at Δ = 1.2 and 2.0 mm); body 1 of 0.2 kg with its centre of mass 60 mm
+    /// The prototype: a 13.99 mm square rod, slots with 2 mm fillets and 2.31 mm
+    /// straight throats, 2 mm between the notches (fitted by the 3-D FEM to 91.3 and
+    /// 340.3 N·m/rad at Δ = 1.2 and 2.0 mm; the fillet is the smallest that keeps J3
+    /// below yield over both approaches' working ranges); body 1 of 0.2 kg with its centre of mass 60 mm
     /// above J3 (1.2e-3 kg·m² about J3, as the twin's dynamics), stacks of 50 g
     /// (10 x 10 x 66 mm of PZT).
     fn default() -> Self {
         StructureParams {
             joint: JointDimensions {
-                side: 13.6e-3,
-                radius: 1.0e-3,
-                flat: 2.62e-3,
+                side: 13.99e-3,
+                radius: 2.0e-3,
+                flat: 2.31e-3,
                 gap: 2.0e-3,
             },
             throat_j12: 1.2e-3,
