@@ -29,13 +29,16 @@ pub struct FeaArgs {
     solve: SolveArgs,
 }
 
-/// Mesh level of the joints' 3-D FEM.
+/// How the structural model is built: the joints' mesh level and approach 2's preload.
 #[derive(Debug, Clone, Copy, Args)]
 pub struct MeshArgs {
     /// Refinement level of the joints' 3-D FEM (1: 25k unknowns per joint, under a
     /// second; 2: 184k, about ten seconds, 1-2 % stiffer results converged).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=3))]
     level: u8,
+    /// Approach 2's pre-tension of J3 in the model.
+    #[arg(long, value_enum, default_value_t = PreloadArg::Deflection)]
+    preload: PreloadArg,
 }
 
 /// One static load case.
@@ -54,9 +57,6 @@ pub struct SolveArgs {
     plot: Option<PathBuf>,
     #[command(flatten)]
     mesh: MeshArgs,
-    /// Approach 2's pre-tension of J3 in the model.
-    #[arg(long, value_enum, default_value_t = PreloadArg::Deflection)]
-    preload: PreloadArg,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
@@ -84,9 +84,6 @@ pub enum FeaCommand {
     Tables {
         #[command(flatten)]
         mesh: MeshArgs,
-        /// Approach 2's pre-tension of J3 in the model.
-        #[arg(long, value_enum, default_value_t = PreloadArg::Deflection)]
-        preload: PreloadArg,
         /// Output format.
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
@@ -248,18 +245,8 @@ pub fn run(d: &Description, a: &FeaArgs) -> Result<()> {
             count,
             mesh,
             format,
-        }) => modes(
-            d,
-            approach_arg(*approach, d),
-            *count,
-            mesh.level as usize,
-            *format,
-        ),
-        Some(FeaCommand::Tables {
-            mesh,
-            preload,
-            format,
-        }) => tables(d, mesh.level as usize, *preload, *format),
+        }) => modes(d, approach_arg(*approach, d), *count, mesh, *format),
+        Some(FeaCommand::Tables { mesh, format }) => tables(d, mesh, *format),
         Some(FeaCommand::Joints { levels, format }) => joints(d, levels, *format),
         None => solve_case(d, &a.solve),
     }
@@ -296,7 +283,7 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
     let j = solve_joints(d, a.mesh.level as usize)?;
     let s = structure(d, &j)?;
     let eq = s
-        .solve(forces, preload(d, &s, approach, a.preload)?)
+        .solve(forces, preload(d, &s, approach, a.mesh.preload)?)
         .context("structural equilibrium")?;
     let st = stresses(&j, &eq);
     if let Some(path) = &a.plot {
@@ -440,13 +427,14 @@ fn modes(
     d: &Description,
     approach: Approach,
     count: usize,
-    level: usize,
+    mesh: &MeshArgs,
     format: Format,
 ) -> Result<()> {
+    let level = mesh.level as usize;
     let j = solve_joints(d, level)?;
     let s = structure(d, &j)?;
     let f = d.design.tension.preload;
-    let eq = s.solve(f, preload(d, &s, approach, PreloadArg::Deflection)?)?;
+    let eq = s.solve(f, preload(d, &s, approach, mesh.preload)?)?;
     let modes = s.modes(&eq)?;
     let modes = &modes[..count.min(modes.len())];
     match format {
@@ -505,8 +493,9 @@ struct TableResult {
     coupling: f64,
 }
 
-fn tables(d: &Description, level: usize, kind: PreloadArg, format: Format) -> Result<()> {
-    let j = solve_joints(d, level)?;
+fn tables(d: &Description, mesh: &MeshArgs, format: Format) -> Result<()> {
+    let kind = mesh.preload;
+    let j = solve_joints(d, mesh.level as usize)?;
     let s = structure(d, &j)?;
     let mut results = Vec::new();
     for t in paper::fea_tables() {
