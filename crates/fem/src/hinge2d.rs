@@ -188,6 +188,8 @@ pub fn solve(
     hinge
         .validate()
         .map_err(|e| FemError::Invalid(e.to_string()))?;
+    let hm = mesh(hinge, density, level);
+    let elements = hm.elements();
     let HingeMesh {
         coords,
         cols,
@@ -197,7 +199,7 @@ pub fn solve(
         nx,
         ny,
         height,
-    } = mesh(hinge, density, level);
+    } = hm;
     let node = |i: usize, j: usize| j * cols + i;
     // Elasticity matrix.
     let (e, nu) = (m.youngs, m.poisson);
@@ -233,79 +235,71 @@ pub fn solve(
         }
     }
     let mut triplets: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nx * ny * 18 * 18);
-    for ey in 0..ny {
-        for ex in 0..nx {
-            let mut ids = [0usize; 9];
-            for bj in 0..3 {
-                for ai in 0..3 {
-                    ids[bj * 3 + ai] = node(2 * ex + ai, 2 * ey + bj);
+    for (element, ids) in elements.iter().enumerate() {
+        let mut ke = [[0.0f64; 18]; 18];
+        for &(xi, wx) in &G3 {
+            for &(eta, wy) in &G3 {
+                let (nxi, dxi) = quad(xi);
+                let (neta, deta) = quad(eta);
+                let mut dn = [(0.0, 0.0); 9];
+                let mut jac = [[0.0; 2]; 2];
+                for bj in 0..3 {
+                    for ai in 0..3 {
+                        let k = bj * 3 + ai;
+                        let (dxi_k, deta_k) = (dxi[ai] * neta[bj], nxi[ai] * deta[bj]);
+                        dn[k] = (dxi_k, deta_k);
+                        let (x, y) = coords[ids[k]];
+                        jac[0][0] += dxi_k * x;
+                        jac[0][1] += dxi_k * y;
+                        jac[1][0] += deta_k * x;
+                        jac[1][1] += deta_k * y;
+                    }
                 }
-            }
-            let mut ke = [[0.0f64; 18]; 18];
-            for &(xi, wx) in &G3 {
-                for &(eta, wy) in &G3 {
-                    let (nxi, dxi) = quad(xi);
-                    let (neta, deta) = quad(eta);
-                    let mut dn = [(0.0, 0.0); 9];
-                    let mut jac = [[0.0; 2]; 2];
-                    for bj in 0..3 {
-                        for ai in 0..3 {
-                            let k = bj * 3 + ai;
-                            let (dxi_k, deta_k) = (dxi[ai] * neta[bj], nxi[ai] * deta[bj]);
-                            dn[k] = (dxi_k, deta_k);
-                            let (x, y) = coords[ids[k]];
-                            jac[0][0] += dxi_k * x;
-                            jac[0][1] += dxi_k * y;
-                            jac[1][0] += deta_k * x;
-                            jac[1][1] += deta_k * y;
-                        }
+                let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+                if det <= 0.0 {
+                    return Err(FemError::InvertedElement {
+                        element,
+                        jacobian: det,
+                    });
+                }
+                let inv = [
+                    [jac[1][1] / det, -jac[0][1] / det],
+                    [-jac[1][0] / det, jac[0][0] / det],
+                ];
+                // B: rows (εxx, εyy, γxy), columns (ux_k, uy_k).
+                let mut bm = [[0.0f64; 18]; 3];
+                for k in 0..9 {
+                    let gx = inv[0][0] * dn[k].0 + inv[0][1] * dn[k].1;
+                    let gy = inv[1][0] * dn[k].0 + inv[1][1] * dn[k].1;
+                    bm[0][2 * k] = gx;
+                    bm[1][2 * k + 1] = gy;
+                    bm[2][2 * k] = gy;
+                    bm[2][2 * k + 1] = gx;
+                }
+                let w = wx * wy * det * b;
+                let mut db = [[0.0f64; 18]; 3];
+                for r in 0..3 {
+                    for c in 0..18 {
+                        db[r][c] = d[r][0] * bm[0][c] + d[r][1] * bm[1][c] + d[r][2] * bm[2][c];
                     }
-                    let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                    if det <= 0.0 {
-                        return Err(FemError::InvertedElement {
-                            element: ey * nx + ex,
-                            jacobian: det,
-                        });
-                    }
-                    let inv = [
-                        [jac[1][1] / det, -jac[0][1] / det],
-                        [-jac[1][0] / det, jac[0][0] / det],
-                    ];
-                    // B: rows (εxx, εyy, γxy), columns (ux_k, uy_k).
-                    let mut bm = [[0.0f64; 18]; 3];
-                    for k in 0..9 {
-                        let gx = inv[0][0] * dn[k].0 + inv[0][1] * dn[k].1;
-                        let gy = inv[1][0] * dn[k].0 + inv[1][1] * dn[k].1;
-                        bm[0][2 * k] = gx;
-                        bm[1][2 * k + 1] = gy;
-                        bm[2][2 * k] = gy;
-                        bm[2][2 * k + 1] = gx;
-                    }
-                    let w = wx * wy * det * b;
-                    let mut db = [[0.0f64; 18]; 3];
-                    for r in 0..3 {
-                        for c in 0..18 {
-                            db[r][c] = d[r][0] * bm[0][c] + d[r][1] * bm[1][c] + d[r][2] * bm[2][c];
-                        }
-                    }
-                    for r in 0..18 {
-                        for c in 0..18 {
-                            ke[r][c] += w
-                                * (bm[0][r] * db[0][c] + bm[1][r] * db[1][c] + bm[2][r] * db[2][c]);
-                        }
+                }
+                for r in 0..18 {
+                    for c in 0..18 {
+                        ke[r][c] +=
+                            w * (bm[0][r] * db[0][c] + bm[1][r] * db[1][c] + bm[2][r] * db[2][c]);
                     }
                 }
             }
-            for r in 0..18 {
-                let gr = dof[2 * ids[r / 2] + r % 2];
-                if gr == usize::MAX {
-                    continue;
-                }
-                for c in 0..18 {
-                    let gc = dof[2 * ids[c / 2] + c % 2];
-                    if gc != usize::MAX && ke[r][c] != 0.0 {
-                        triplets.push(Triplet::new(gr, gc, ke[r][c]));
-                    }
+        }
+        for r in 0..18 {
+            let gr = dof[2 * ids[r / 2] + r % 2];
+            if gr == usize::MAX {
+                continue;
+            }
+            for c in 0..18 {
+                let gc = dof[2 * ids[c / 2] + c % 2];
+                if gc != usize::MAX && ke[r][c] != 0.0 {
+                    triplets.push(Triplet::new(gr, gc, ke[r][c]));
                 }
             }
         }
