@@ -9,8 +9,10 @@
 //! file. The binary reads files and adds the file name to the error.
 
 use cellinject_model::{Actuator, Design, Flexures, Geometry, Mechanism, ModelError, TensionSpec};
+use cellinject_rig::RigParams;
+use cellinject_rig::params::AmplifierRange;
+use cellinject_simparams::{SimParams, StackParams};
 use cellinject_structure::StructureParams;
-use cellinject_twin::params::{StackParams, TwinParams};
 use thiserror::Error;
 
 mod section;
@@ -85,10 +87,17 @@ pub struct Description {
     pub name: String,
     /// The mechanism parameters.
     pub design: Design,
-    /// The digital twin's parameters.
-    pub twin: TwinParams,
+    /// The physical bench: approach, amplifier ranges, safety margins, travels,
+    /// injector limit, zoom (shared by the twin and real hardware).
+    pub rig: RigParams,
+    /// What only the digital twin needs: noise, hysteresis, creep, dynamics, stick-slip,
+    /// camera sensor, scene.
+    pub sim: SimParams,
     /// The whole-manipulator structural model's parameters (`[structure]`).
     pub structure: StructureParams,
+    /// Whether the file sets `[structure]` itself (else the prototype's joints are
+    /// assumed, and `[flexures]` is not checked against them).
+    pub structure_given: bool,
 }
 
 impl Description {
@@ -132,21 +141,22 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
     };
     f.finish()?;
     let mut acts = top.table("actuators")?;
-    let mut actuator = |name: &str| -> Result<(Actuator, StackParams), ConfigError> {
-        let mut a = acts.table(name)?;
-        let out = Actuator {
-            stiffness: a.opt_number("stiffness")?,
-            travel: a.number("travel")?,
-            push_capacity: a.number("push_capacity")?,
-            torque_limit: a.number("torque_limit")?,
+    let mut actuator =
+        |name: &str| -> Result<(Actuator, AmplifierRange, StackParams), ConfigError> {
+            let mut a = acts.table(name)?;
+            let out = Actuator {
+                stiffness: a.opt_number("stiffness")?,
+                travel: a.number("travel")?,
+                push_capacity: a.number("push_capacity")?,
+                torque_limit: a.number("torque_limit")?,
+            };
+            let (range, stack) = twin::stack(&mut a)?;
+            a.finish()?;
+            Ok((out, range, stack))
         };
-        let stack = twin::stack(&mut a)?;
-        a.finish()?;
-        Ok((out, stack))
-    };
-    let (a1, s1) = actuator("A1")?;
-    let (a2, s2) = actuator("A2")?;
-    let (a3, s3) = actuator("A3")?;
+    let (a1, r1, s1) = actuator("A1")?;
+    let (a2, r2, s2) = actuator("A2")?;
+    let (a3, r3, s3) = actuator("A3")?;
     let actuators = [a1, a2, a3];
     acts.finish()?;
     let mut t = top.table("tension")?;
@@ -155,7 +165,8 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
         work_shift: t.array::<2>("work_shift")?,
     };
     t.finish()?;
-    let twin = twin::twin(&mut top, [s1, s2, s3])?;
+    let (rig, sim) = twin::bench(&mut top, [r1, r2, r3], [s1, s2, s3])?;
+    let structure_given = root.contains_key("structure");
     let structure = structure::structure(&mut top)?;
     top.finish()?;
     let design = Design {
@@ -181,8 +192,10 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
     Ok(Description {
         name,
         design,
-        twin,
+        rig,
+        sim,
         structure,
+        structure_given,
     })
 }
 
@@ -201,7 +214,8 @@ mod tests {
         let d = prototype();
         assert_eq!(d.name, "ICINCO-2012 prototype");
         assert_eq!(d.design, cellinject_model::prototype());
-        assert_eq!(d.twin, TwinParams::default());
+        assert_eq!(d.rig, RigParams::default());
+        assert_eq!(d.sim, SimParams::default());
         assert_eq!(d.structure, StructureParams::default());
     }
 
@@ -308,7 +322,8 @@ mod tests {
         // Sections are optional: a file without them gets the prototype's values.
         let start = PROTOTYPE_TOML.find("\n[twin]").unwrap();
         let d = parse(&PROTOTYPE_TOML[..start]).unwrap();
-        assert_eq!(d.twin.dynamics, TwinParams::default().dynamics);
+        assert_eq!(d.sim.dynamics, SimParams::default().dynamics);
+        assert_eq!(d.rig, RigParams::default());
     }
 
     #[test]

@@ -1,6 +1,6 @@
-//! The `[structure]` section: dimensions of the double-notched joints and the masses of
-//! the whole-manipulator model. Every key is optional and defaults to the prototype's
-//! value (`StructureParams::default()`).
+//! The `[structure]` section: dimensions and material of the double-notched joints and
+//! the masses of the whole-manipulator model. Every key is optional and defaults to the
+//! prototype's value (`StructureParams::default()`).
 
 use cellinject_structure::{JointDimensions, MassSpec, StructureParams};
 
@@ -29,7 +29,91 @@ pub(crate) fn structure(top: &mut Section<'_>) -> Result<StructureParams, Config
                 body_inertia: s.arr("body_inertia", d.mass.body_inertia, Check::Positive)?,
                 stack_mass: s.num("stack_mass", d.mass.stack_mass, Check::Positive)?,
             },
+            youngs: s.num("youngs", d.youngs, Check::Positive)?,
+            poisson: poisson(s, d.poisson)?,
+            yield_strength: s.num("yield_strength", d.yield_strength, Check::Positive)?,
         })
     })?;
     Ok(p)
+}
+
+/// `structure.poisson`: within the open interval (−1, 0.5), where the elasticity
+/// matrix is positive definite (0.5: incompressible; −1: no shear stiffness).
+fn poisson(s: &mut Section<'_>, default: f64) -> Result<f64, ConfigError> {
+    let nu = s.opt_number("poisson")?.unwrap_or(default);
+    if !(nu > -1.0 && nu < 0.5) {
+        return Err(ConfigError::Invalid {
+            key: s.key("poisson"),
+            reason: format!("{nu} must lie in the open interval (-1, 0.5)"),
+        });
+    }
+    Ok(nu)
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::{ConfigError, PROTOTYPE_TOML, parse};
+
+    fn with_line(line: &str) -> Result<crate::Description, ConfigError> {
+        let at = "stack_mass = 0.05";
+        assert!(PROTOTYPE_TOML.contains(at));
+        parse(&PROTOTYPE_TOML.replacen(at, &format!("{line}\n{at}"), 1))
+    }
+
+    #[test]
+    fn the_material_keys_are_read_and_validated() {
+        // The prototype sets them to the defaults; without them the defaults hold.
+        let d = crate::prototype();
+        assert_eq!(
+            (
+                d.structure.youngs,
+                d.structure.poisson,
+                d.structure.yield_strength
+            ),
+            (190e9, 0.3, 465e6)
+        );
+        let start = PROTOTYPE_TOML.find("youngs =").unwrap();
+        let end = start
+            + PROTOTYPE_TOML[start..]
+                .find("\n[")
+                .unwrap_or(PROTOTYPE_TOML.len() - start);
+        let without = parse(&format!(
+            "{}{}",
+            &PROTOTYPE_TOML[..start],
+            &PROTOTYPE_TOML[end..]
+        ))
+        .unwrap();
+        assert_eq!(without.structure, d.structure);
+        let text = PROTOTYPE_TOML
+            .replacen("youngs = 190e9", "youngs = 200e9", 1)
+            .replacen("poisson = 0.3 ", "poisson = 0.29", 1)
+            .replacen("yield_strength = 465e6", "yield_strength = 5e8", 1);
+        let d = parse(&text).unwrap();
+        assert_eq!(
+            (
+                d.structure.youngs,
+                d.structure.poisson,
+                d.structure.yield_strength
+            ),
+            (200e9, 0.29, 5e8)
+        );
+        for (from, to, key) in [
+            ("youngs = 190e9", "youngs = -1.0", "structure.youngs"),
+            ("youngs = 190e9", "youngs = nan", "structure.youngs"),
+            ("poisson = 0.3 ", "poisson = 0.5 ", "structure.poisson"),
+            ("poisson = 0.3 ", "poisson = -1.0", "structure.poisson"),
+            ("poisson = 0.3 ", "poisson = inf ", "structure.poisson"),
+            (
+                "yield_strength = 465e6",
+                "yield_strength = 0",
+                "structure.yield_strength",
+            ),
+        ] {
+            assert!(PROTOTYPE_TOML.contains(from), "{from}");
+            let e = parse(&PROTOTYPE_TOML.replacen(from, to, 1)).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{from} -> {to}: {e}");
+        }
+        let e = with_line("poisson_ratio = 0.3").unwrap_err();
+        assert_eq!(e.key(), Some("structure.poisson_ratio"));
+    }
 }

@@ -1,9 +1,14 @@
-//! The twin's sections of the description file. Every key is optional and defaults to
-//! the prototype's value (`TwinParams::default()`); present keys are validated.
+//! The bench's sections of the description file, split as they are read into the rig
+//! (what a real bench has: approach, amplifier ranges, margins, travels, limits, zoom)
+//! and the simulation (everything else). Every key is optional and defaults to the
+//! prototype's value (`RigParams::default()`, `SimParams::default()`); present keys are
+//! validated.
 
 use cellinject_model::Approach;
-use cellinject_twin::params::{
-    AmplifierParams, CreepParams, HysteresisParams, StackParams, TwinParams,
+use cellinject_rig::RigParams;
+use cellinject_rig::params::{AmplifierRange, OpticsSetup, SafetyMargins};
+use cellinject_simparams::{
+    AmplifierParams, CreepParams, HysteresisParams, LensParams, SimParams, StackParams,
 };
 
 use crate::ConfigError;
@@ -26,12 +31,14 @@ pub(crate) fn with<'a, T>(
     }
 }
 
-/// `[actuators.Ax.amplifier|hysteresis|creep]`.
-pub(crate) fn stack(a: &mut Section<'_>) -> Result<StackParams, ConfigError> {
+/// `[actuators.Ax.amplifier|hysteresis|creep]`: the amplifier's range (rig) and the
+/// stack's simulation.
+pub(crate) fn stack(a: &mut Section<'_>) -> Result<(AmplifierRange, StackParams), ConfigError> {
     let d = StackParams::default();
+    let mut range = AmplifierRange::default();
     let amplifier = with(a, "amplifier", d.amplifier, |s, d| {
+        range.v_max = s.num("v_max", range.v_max, Check::Positive)?;
         Ok(AmplifierParams {
-            v_max: s.num("v_max", d.v_max, Check::Positive)?,
             dac_bits: s.int("dac_bits", d.dac_bits as u64, 8, 24)? as u32,
             slew_rate: s.num("slew_rate", d.slew_rate, Check::Positive)?,
             bandwidth: s.num("bandwidth", d.bandwidth, Check::Positive)?,
@@ -52,26 +59,31 @@ pub(crate) fn stack(a: &mut Section<'_>) -> Result<StackParams, ConfigError> {
             tau_max: s.num("tau_max", d.tau_max, Check::Between(tau_min, 1e9))?,
         })
     })?;
-    Ok(StackParams {
-        amplifier,
-        hysteresis,
-        creep,
-    })
+    Ok((
+        range,
+        StackParams {
+            amplifier,
+            hysteresis,
+            creep,
+        },
+    ))
 }
 
-/// Every twin section except the per-actuator ones.
-pub(crate) fn twin(
+/// Every bench section except the per-actuator ones.
+pub(crate) fn bench(
     top: &mut Section<'_>,
+    amplifiers: [AmplifierRange; 3],
     stacks: [StackParams; 3],
-) -> Result<TwinParams, ConfigError> {
-    let d = TwinParams::default();
-    let (approach, seed) = with(top, "twin", (d.approach, d.seed), |s, (a, seed)| {
+) -> Result<(RigParams, SimParams), ConfigError> {
+    let d = SimParams::default();
+    let r = RigParams::default();
+    let (approach, seed) = with(top, "twin", (r.approach, d.seed), |s, (a, seed)| {
         let n = s.int("approach", a.number() as u64, 1, 2)?;
         let approach = Approach::from_number(n as u8).unwrap_or(a);
         Ok((approach, s.int("seed", seed, 0, u64::MAX)?))
     })?;
     let dynamics = with(top, "dynamics", d.dynamics, |s, d| {
-        Ok(cellinject_twin::params::DynamicsParams {
+        Ok(cellinject_simparams::DynamicsParams {
             inertia: s.arr("inertia", d.inertia, Check::Positive)?,
             a3_mass: s.num("a3_mass", d.a3_mass, Check::Positive)?,
             a3_stiffness: s.num("a3_stiffness", d.a3_stiffness, Check::Positive)?,
@@ -80,21 +92,22 @@ pub(crate) fn twin(
         })
     })?;
     let joints = with(top, "joints", d.joints, |s, d| {
-        Ok(cellinject_twin::params::JointParams {
+        Ok(cellinject_simparams::JointParams {
             stick_slip_angle: s.num("stick_slip_angle", d.stick_slip_angle, Check::NonNegative)?,
             slip_rotation: s.num("slip_rotation", d.slip_rotation, Check::Positive)?,
             ball_radius: s.num("ball_radius", d.ball_radius, Check::Positive)?,
         })
     })?;
     let thermal = with(top, "thermal", d.thermal, |s, d| {
-        Ok(cellinject_twin::params::ThermalParams {
+        Ok(cellinject_simparams::ThermalParams {
             drift_rate: s.num("drift_rate", d.drift_rate, Check::Between(-1.0, 1.0))?,
             expansion: s.num("expansion", d.expansion, Check::Between(-1e-5, 1e-5))?,
         })
     })?;
+    let mut stage_travel = r.stage_travel;
     let stage = with(top, "stage", d.stage, |s, d| {
-        Ok(cellinject_twin::params::StageParams {
-            travel: s.num("travel", d.travel, Check::Positive)?,
+        stage_travel = s.num("travel", stage_travel, Check::Positive)?;
+        Ok(cellinject_simparams::StageParams {
             max_speed: s.num("max_speed", d.max_speed, Check::Positive)?,
             max_accel: s.num("max_accel", d.max_accel, Check::Positive)?,
             encoder_resolution: s.num(
@@ -120,7 +133,7 @@ pub(crate) fn twin(
         }
         let fps_full = s.num("fps_full", d.fps_full, Check::Positive)?;
         let fps_vga = s.num("fps_vga", d.fps_vga, Check::Positive)?;
-        Ok(cellinject_twin::params::CameraParams {
+        Ok(cellinject_simparams::CameraParams {
             width: s.int("width", d.width as u64, 640, 16384)? as u32,
             height: s.int("height", d.height as u64, 480, 16384)? as u32,
             pixel_size: s.num("pixel_size", d.pixel_size, Check::Positive)?,
@@ -146,11 +159,24 @@ pub(crate) fn twin(
             )?,
         })
     })?;
-    let optics = with(top, "optics", d.optics, |s, d| {
-        let zoom_range = s.arr("zoom_range", d.zoom_range, Check::Positive)?;
-        Ok(cellinject_twin::params::OpticsParams {
-            zoom: s.num("zoom", d.zoom, Check::Between(zoom_range[0], zoom_range[1]))?,
+    let mut optics = r.optics;
+    let lens = with(top, "optics", d.lens, |s, d| {
+        let zoom_range = s.arr("zoom_range", optics.zoom_range, Check::Positive)?;
+        if zoom_range[0] > zoom_range[1] {
+            return Err(ConfigError::Invalid {
+                key: s.key("zoom_range"),
+                reason: "the smallest magnification exceeds the largest".into(),
+            });
+        }
+        optics = OpticsSetup {
+            zoom: s.num(
+                "zoom",
+                optics.zoom,
+                Check::Between(zoom_range[0], zoom_range[1]),
+            )?,
             zoom_range,
+        };
+        Ok(LensParams {
             focus_blur: s.num("focus_blur", d.focus_blur, Check::NonNegative)?,
             defocus_rate: s.num("defocus_rate", d.defocus_rate, Check::NonNegative)?,
         })
@@ -163,7 +189,7 @@ pub(crate) fn twin(
                 reason: "the smallest diameter exceeds the largest".into(),
             });
         }
-        Ok(cellinject_twin::params::FeederParams {
+        Ok(cellinject_simparams::FeederParams {
             rows: s.int("rows", d.rows as u64, 0, 1000)? as u32,
             cols: s.int("cols", d.cols as u64, 0, 1000)? as u32,
             pitch: s.num("pitch", d.pitch, Check::Positive)?,
@@ -173,14 +199,15 @@ pub(crate) fn twin(
             debris_density: s.num("debris_density", d.debris_density, Check::Between(0.0, 1e5))?,
         })
     })?;
+    let mut injector_max_pressure = r.injector_max_pressure;
     let injector = with(top, "injector", d.injector, |s, d| {
-        Ok(cellinject_twin::params::InjectorParams {
-            max_pressure: s.num("max_pressure", d.max_pressure, Check::Positive)?,
+        injector_max_pressure = s.num("max_pressure", injector_max_pressure, Check::Positive)?;
+        Ok(cellinject_simparams::InjectorParams {
             conductance: s.num("conductance", d.conductance, Check::Positive)?,
         })
     })?;
-    let safety = with(top, "safety", d.safety, |s, d| {
-        Ok(cellinject_twin::params::SafetyParams {
+    let safety = with(top, "safety", r.safety, |s, d| {
+        Ok(SafetyMargins {
             hysteresis_bound: s.num(
                 "hysteresis_bound",
                 d.hysteresis_bound,
@@ -189,8 +216,15 @@ pub(crate) fn twin(
             dynamic_margin: s.num("dynamic_margin", d.dynamic_margin, Check::Between(0.0, 1.0))?,
         })
     })?;
-    Ok(TwinParams {
+    let rig = RigParams {
         approach,
+        amplifiers,
+        safety,
+        stage_travel,
+        injector_max_pressure,
+        optics,
+    };
+    let sim = SimParams {
         seed,
         stacks,
         dynamics,
@@ -198,9 +232,9 @@ pub(crate) fn twin(
         thermal,
         stage,
         camera,
-        optics,
+        lens,
         feeder,
         injector,
-        safety,
-    })
+    };
+    Ok((rig, sim))
 }

@@ -40,6 +40,12 @@ impl Image {
         Image::new(width, height, px.iter().map(|&v| v as f64).collect())
     }
 
+    /// A camera frame as an image in the frame's own grey levels (0 to 2^bit_depth − 1):
+    /// the one conversion from the hardware layer's [`cellinject_hw::Frame`].
+    pub fn from_frame(frame: &cellinject_hw::Frame) -> Result<Self, DicError> {
+        Image::from_u16(frame.width as usize, frame.height as usize, &frame.pixels)
+    }
+
     /// Columns.
     pub fn width(&self) -> usize {
         self.width

@@ -2,6 +2,8 @@
 //! integrated over each pixel (through the error function), moved by moving their
 //! centres (never by interpolating an image), then Gaussian noise and quantisation.
 
+use cellinject_numeric::Rng;
+
 use crate::image::Image;
 
 /// How the speckle pattern looks.
@@ -41,26 +43,6 @@ impl SpeckleParams {
     }
 }
 
-/// A small deterministic generator (SplitMix64) with Gaussian samples by Box-Muller.
-struct Gen(u64);
-
-impl Gen {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f64 {
-        ((self.next() >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn gaussian(&mut self) -> f64 {
-        let (a, b) = (self.uniform(), self.uniform());
-        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
-    }
-}
-
 /// One speckle pattern.
 #[derive(Debug, Clone)]
 pub struct Speckle {
@@ -73,13 +55,13 @@ pub struct Speckle {
 fn gauss_integral(a: f64, b: f64, c: f64, sigma: f64) -> f64 {
     let k = sigma * std::f64::consts::FRAC_PI_2.sqrt();
     let r = std::f64::consts::SQRT_2 * sigma;
-    k * (libm::erf((b - c) / r) - libm::erf((a - c) / r))
+    k * (cellinject_numeric::erf((b - c) / r) - cellinject_numeric::erf((a - c) / r))
 }
 
 impl Speckle {
     /// A random pattern (speckles scattered a little beyond the borders).
     pub fn new(p: &SpeckleParams, seed: u64) -> Self {
-        let mut g = Gen(seed ^ 0x005E_ED0F_5BEC);
+        let mut g = Rng::new(seed, 0x005E_ED0F_5BEC);
         let margin = 40.0;
         let area = (p.width as f64 + 2.0 * margin) * (p.height as f64 + 2.0 * margin);
         let n = (p.density * area).round() as usize;
@@ -126,7 +108,7 @@ impl Speckle {
                 }
             }
         }
-        let mut g = Gen(noise_seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0xA5A5);
+        let mut g = Rng::new(noise_seed, 0xA5A5);
         let max = if p.bits == 0 {
             f64::INFINITY
         } else {
@@ -134,7 +116,7 @@ impl Speckle {
         };
         for v in &mut data {
             if p.noise > 0.0 {
-                *v += p.noise * g.gaussian();
+                *v += p.noise * g.gaussian_exact();
             }
             if p.bits > 0 {
                 *v = v.round().clamp(0.0, max);

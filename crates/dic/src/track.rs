@@ -7,18 +7,9 @@
 use crate::icgn::{self, IcgnOptions, Reference, Shape, Subset};
 use crate::{BSpline, DicError, Image, search};
 
-/// A region of interest: top-left corner and size, pixels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Roi {
-    /// First column.
-    pub x: usize,
-    /// First row.
-    pub y: usize,
-    /// Columns (odd sizes keep the centre on a pixel; even ones are shrunk by one).
-    pub width: usize,
-    /// Rows.
-    pub height: usize,
-}
+/// A region of interest, pixels: the hardware layer's [`Roi`] (top-left corner and
+/// size); odd sizes keep the centre on a pixel, even ones are shrunk by one.
+pub use cellinject_hw::Roi;
 
 /// What happened to one frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,11 +64,12 @@ impl Tracker {
     /// A tracker of `roi` in `first`, refusing matches below `min_zncc`.
     pub fn new(first: &Image, roi: Roi, shape: Shape, min_zncc: f64) -> Result<Self, DicError> {
         let (w, h) = (first.width(), first.height());
-        let hw = roi.width.saturating_sub(1) / 2;
-        let hh = roi.height.saturating_sub(1) / 2;
-        let (cx, cy) = (roi.x + hw, roi.y + hh);
-        let size = roi.width.max(roi.height);
-        if hw < 3 || hh < 3 || roi.x + 2 * hw >= w || roi.y + 2 * hh >= h {
+        let (rx, ry) = (roi.x as usize, roi.y as usize);
+        let hw = (roi.width as usize).saturating_sub(1) / 2;
+        let hh = (roi.height as usize).saturating_sub(1) / 2;
+        let (cx, cy) = (rx + hw, ry + hh);
+        let size = roi.width.max(roi.height) as usize;
+        if hw < 3 || hh < 3 || rx + 2 * hw >= w || ry + 2 * hh >= h {
             return Err(DicError::SubsetOutside {
                 x: cx as f64,
                 y: cy as f64,

@@ -2,31 +2,116 @@
 //!
 //! The small traits through which cellinject talks to hardware, after openrr's `arci`:
 //! a piezo amplifier channel, a camera, a translational stage, an injector and a clock.
-//! The digital twin implements every trait (crate `cellinject-twin`), real drivers will
-//! too, and the controllers see only the traits. Safety limits are wrappers
-//! ([`safety`]) around any implementation: an unsafe command is refused with a typed
-//! error before it reaches the device.
+//! a zoom lens. The digital twin implements every trait (crate `cellinject-twin`), real
+//! drivers will too, and the controllers see only the traits. Safety limits are
+//! wrappers around any implementation (crate `cellinject-rig`): an unsafe command is
+//! refused with a typed [`SafetyError`] before it reaches the device.
 //!
-//! All traits are object-safe; all quantities are SI (s, V, m, Pa).
+//! All traits are object-safe and `Send` (devices live on a control thread); all
+//! quantities are SI (s, V, m, Pa).
 //!
-//! **Architecture invariant:** this crate defines contracts and checks; it does no IO
-//! and knows no particular device.
-
-pub mod safety;
+//! **Architecture invariant:** this crate defines contracts and vocabulary types
+//! ([`Frame`], [`Roi`], the errors); it does no IO, knows no particular device and
+//! depends on nothing but `thiserror`.
+//!
+//! **Architecture invariant:** errors of an accepted command path carry static names
+//! (`&'static str`), so that checking a command allocates nothing.
 
 use thiserror::Error;
+
+/// Why a safety wrapper refused a command.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum SafetyError {
+    /// Voltage outside the amplifier channel's range (the stack's travel).
+    #[error("{channel}: {volts} V is outside [{min}, {max}] V (the stack's travel)")]
+    Voltage {
+        /// Channel name.
+        channel: &'static str,
+        /// Requested voltage.
+        volts: f64,
+        /// Lowest allowed.
+        min: f64,
+        /// Highest allowed.
+        max: f64,
+    },
+    /// A stack would be pushed beyond its push capacity.
+    #[error("{actuator} force could reach {force:.3} N, beyond its push capacity {capacity} N")]
+    Force {
+        /// Actuator name.
+        actuator: &'static str,
+        /// Worst-case force, N (compression negative).
+        force: f64,
+        /// Push capacity, N.
+        capacity: f64,
+    },
+    /// A stack would lose its compression (backlash, tensile load on the ceramic).
+    #[error("{actuator} force could reach {force:.3} N: the stack would no longer be compressed")]
+    Compression {
+        /// Actuator name.
+        actuator: &'static str,
+        /// Worst-case force, N.
+        force: f64,
+    },
+    /// A flexure would bend its stack beyond the stack's torque limit.
+    #[error(
+        "{flexure} bending torque could reach {torque:.4} N*m, beyond the torque limit {limit} N*m of {actuator}"
+    )]
+    Torque {
+        /// Flexure name (J1, J2).
+        flexure: &'static str,
+        /// Actuator it loads.
+        actuator: &'static str,
+        /// Worst-case torque, N·m.
+        torque: f64,
+        /// Limit, N·m.
+        limit: f64,
+    },
+    /// A stage move beyond the axis travel.
+    #[error("stage axis {axis}: {position} m is outside its travel [{min}, {max}] m")]
+    StageTravel {
+        /// Axis index.
+        axis: usize,
+        /// Requested position.
+        position: f64,
+        /// Lower limit.
+        min: f64,
+        /// Upper limit.
+        max: f64,
+    },
+    /// An injection pressure beyond the limit.
+    #[error("pressure {pressure} Pa exceeds the limit {max} Pa")]
+    Pressure {
+        /// Requested pressure.
+        pressure: f64,
+        /// Limit.
+        max: f64,
+    },
+    /// A magnification outside the zoom range.
+    #[error("zoom {zoom} is outside the zoom range [{min}, {max}]")]
+    Zoom {
+        /// Requested magnification.
+        zoom: f64,
+        /// Smallest allowed.
+        min: f64,
+        /// Largest allowed.
+        max: f64,
+    },
+    /// The model could not evaluate the command.
+    #[error("the mechanism model failed: {0}")]
+    Model(String),
+}
 
 /// Errors a device can report.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum HwError {
     /// The command was refused by a safety wrapper.
     #[error("refused: {0}")]
-    Refused(#[from] safety::SafetyError),
+    Refused(#[from] SafetyError),
     /// A parameter outside the device's own range.
     #[error("{what} = {value} is outside the device range [{min}, {max}]")]
     OutOfRange {
         /// Which parameter.
-        what: String,
+        what: &'static str,
         /// Requested value.
         value: f64,
         /// Smallest accepted value.
@@ -38,7 +123,7 @@ pub enum HwError {
     #[error("{what} must be a finite number, got {value}")]
     NotFinite {
         /// Which parameter.
-        what: String,
+        what: &'static str,
         /// Requested value.
         value: f64,
     },
@@ -61,16 +146,13 @@ pub enum HwError {
 }
 
 /// Checks that `value` is finite and in `[min, max]`.
-pub fn check_range(what: &str, value: f64, min: f64, max: f64) -> Result<(), HwError> {
+pub fn check_range(what: &'static str, value: f64, min: f64, max: f64) -> Result<(), HwError> {
     if !value.is_finite() {
-        return Err(HwError::NotFinite {
-            what: what.to_string(),
-            value,
-        });
+        return Err(HwError::NotFinite { what, value });
     }
     if value < min || value > max {
         return Err(HwError::OutOfRange {
-            what: what.to_string(),
+            what,
             value,
             min,
             max,
@@ -81,7 +163,7 @@ pub fn check_range(what: &str, value: f64, min: f64, max: f64) -> Result<(), HwE
 
 /// Time. The twin's clock is simulated: `sleep` advances the simulation, so a run is
 /// as fast as the computer allows while reporting the time the real device would take.
-pub trait Clock {
+pub trait Clock: Send {
     /// Seconds since the clock's epoch.
     fn now(&self) -> f64;
     /// Lets `seconds` pass (the twin integrates its dynamics over them).
@@ -93,7 +175,7 @@ pub trait Clock {
 /// Contract: `set_voltage` returns once the command is accepted (not once the stack has
 /// moved); the amplifier then follows it with its own slew rate and bandwidth.
 /// `read_voltage` is the amplifier's output monitor.
-pub trait PiezoChannel {
+pub trait PiezoChannel: Send {
     /// Channel name (A1, A2, A3).
     fn name(&self) -> &str;
     /// Output range of the amplifier, volts.
@@ -154,7 +236,7 @@ pub struct Frame {
 }
 
 /// A camera.
-pub trait Camera {
+pub trait Camera: Send {
     /// Sensor size in pixels (columns, rows).
     fn sensor_size(&self) -> (u32, u32);
     /// Current acquisition settings.
@@ -174,7 +256,7 @@ pub trait Camera {
 }
 
 /// A motorised translational stage with position encoders.
-pub trait Stage {
+pub trait Stage: Send {
     /// Number of axes.
     fn axes(&self) -> usize;
     /// Travel limits of an axis, m.
@@ -188,9 +270,39 @@ pub trait Stage {
 }
 
 /// A pressure injector connected to the pipette.
-pub trait Injector {
+pub trait Injector: Send {
     /// Largest pressure the injector may apply, Pa.
     fn max_pressure(&self) -> f64;
     /// Applies a pressure pulse (gauge pressure in Pa, duration in s).
     fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError>;
+}
+
+/// A zoom lens.
+pub trait Optics: Send {
+    /// Magnification now.
+    fn zoom(&self) -> f64;
+    /// Smallest and largest magnification.
+    fn zoom_range(&self) -> (f64, f64);
+    /// Changes the magnification.
+    fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError>;
+}
+
+/// The centred 640x480 acquisition a camera of `sensor` pixels offers for fast
+/// tracking: `binned` takes 4x4-binned pixels of a 2560x1920 centre region, otherwise
+/// the centre region at full resolution; exposure and bit depth are kept from `current`.
+pub fn vga_settings(sensor: (u32, u32), current: &CameraSettings, binned: bool) -> CameraSettings {
+    let (w, h) = (640u32, 480u32);
+    let b = if binned { 4 } else { 1 };
+    let sw = (w * b).min(sensor.0);
+    let sh = (h * b).min(sensor.1);
+    CameraSettings {
+        roi: Roi {
+            x: (sensor.0 - sw) / 2,
+            y: (sensor.1 - sh) / 2,
+            width: sw,
+            height: sh,
+        },
+        binning: b,
+        ..*current
+    }
 }

@@ -26,12 +26,14 @@ pub mod design;
 pub mod error;
 pub mod kinematics;
 pub mod nonlinear;
+pub mod statics;
 pub mod tension;
 
 pub use design::{ACTUATOR_NAMES, Actuator, Design, Flexures, Geometry, TensionSpec};
 pub use error::ModelError;
 pub use kinematics::{ChainState, Jacobians, Kinematics, Pose};
 pub use nonlinear::{Deviation, Linearisation, NonlinearState};
+pub use statics::Statics;
 pub use tension::{Approach, Assembly, Margins, Mechanism, State, Tension};
 
 /// The parameters of the paper's prototype (Sec. 3.1 and eqs. 34-37, 44), for examples

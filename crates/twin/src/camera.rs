@@ -17,10 +17,12 @@ use std::sync::OnceLock;
 
 use cellinject_hw::{CameraSettings, Frame, HwError, Roi, check_range};
 
-use crate::params::{CameraParams, OpticsParams};
-use crate::rng::Rng;
+use cellinject_rig::params::OpticsSetup;
+
+use crate::params::{CameraParams, LensParams};
 use crate::scene::Scene;
 use crate::world::stream;
+use cellinject_numeric::Rng;
 
 /// Object point at the centre of the sensor, relative to the tip's aligned position (x, z), m.
 pub const VIEW_CENTER: [f64; 2] = [0.0, 30e-6];
@@ -64,31 +66,13 @@ fn phi_table() -> &'static [f32] {
         (0..=PHI_N)
             .map(|i| {
                 let u = -PHI_RANGE + 2.0 * PHI_RANGE * i as f64 / PHI_N as f64;
-                (0.5 * erfc(-u / std::f64::consts::SQRT_2)) as f32
+                cellinject_numeric::normal_cdf(u) as f32
             })
             .collect()
     })
 }
 const PHI_N: usize = 8192;
 const PHI_RANGE: f64 = 8.0;
-
-/// Complementary error function (Numerical Recipes' erfcc, relative error < 1.2e-7).
-fn erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t
-        * (-z * z - 1.265_512_23
-            + t * (1.000_023_68
-                + t * (0.374_091_96
-                    + t * (0.096_784_18
-                        + t * (-0.186_288_06
-                            + t * (0.278_868_07
-                                + t * (-1.135_203_98
-                                    + t * (1.488_515_87
-                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-            .exp();
-    if x >= 0.0 { r } else { 2.0 - r }
-}
 
 /// Φ(u), a smooth step of unit width.
 #[inline]
@@ -134,11 +118,20 @@ fn span(c0: f64, pitch: f64, n: usize, a: f64, b: f64) -> (usize, usize) {
     (lo, hi.max(lo))
 }
 
+/// The zoom lens's state: magnification (the rig's) and blur (the simulation's).
+#[derive(Debug, Clone, Copy)]
+struct Lens {
+    zoom: f64,
+    zoom_range: [f64; 2],
+    focus_blur: f64,
+    defocus_rate: f64,
+}
+
 /// The camera behind the zoom lens.
 #[derive(Debug, Clone)]
 pub struct Microscope {
     params: CameraParams,
-    optics: OpticsParams,
+    optics: Lens,
     scene: Scene,
     settings: CameraSettings,
     static_grid: Option<Grid>,
@@ -149,8 +142,15 @@ pub struct Microscope {
 }
 
 impl Microscope {
-    /// A camera at full resolution with the default exposure.
-    pub fn new(params: CameraParams, optics: OpticsParams, scene: Scene) -> Self {
+    /// A camera at full resolution with the default exposure, behind a lens set up as
+    /// `optics` that blurs as `lens` says.
+    pub fn new(params: CameraParams, lens: LensParams, optics: OpticsSetup, scene: Scene) -> Self {
+        let optics = Lens {
+            zoom: optics.zoom,
+            zoom_range: optics.zoom_range,
+            focus_blur: lens.focus_blur,
+            defocus_rate: lens.defocus_rate,
+        };
         Microscope {
             settings: CameraSettings {
                 roi: Roi {
@@ -194,6 +194,11 @@ impl Microscope {
         self.optics.zoom
     }
 
+    /// Smallest and largest magnification.
+    pub fn zoom_range(&self) -> (f64, f64) {
+        (self.optics.zoom_range[0], self.optics.zoom_range[1])
+    }
+
     /// Sets the magnification (within the lens's range).
     pub fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
         let [lo, hi] = self.optics.zoom_range;
@@ -204,23 +209,13 @@ impl Microscope {
     }
 
     /// The VGA settings: 640x480 output, by 4x4 binning of the centre of the sensor
-    /// (`binned`) or by cropping it at full resolution.
+    /// (`binned`) or by cropping it at full resolution (`cellinject_hw::vga_settings`).
     pub fn vga_settings(&self, binned: bool) -> CameraSettings {
-        let (w, h) = (640u32, 480u32);
-        let b = if binned { 4 } else { 1 };
-        let (sw, sh) = (w * b, h * b);
-        let sw = sw.min(self.params.width);
-        let sh = sh.min(self.params.height);
-        CameraSettings {
-            roi: Roi {
-                x: (self.params.width - sw) / 2,
-                y: (self.params.height - sh) / 2,
-                width: sw,
-                height: sh,
-            },
-            binning: b,
-            ..self.settings
-        }
+        cellinject_hw::vga_settings(
+            (self.params.width, self.params.height),
+            &self.settings,
+            binned,
+        )
     }
 
     /// Frames per second: the full-frame rate, or the VGA rate once the output has no
@@ -238,7 +233,7 @@ impl Microscope {
     pub fn configure(&mut self, s: CameraSettings) -> Result<(), HwError> {
         if ![1, 2, 4].contains(&s.binning) {
             return Err(HwError::OutOfRange {
-                what: "binning".into(),
+                what: "binning",
                 value: s.binning as f64,
                 min: 1.0,
                 max: 4.0,
@@ -246,7 +241,7 @@ impl Microscope {
         }
         if s.bit_depth != 8 && s.bit_depth != 12 {
             return Err(HwError::OutOfRange {
-                what: "bit depth".into(),
+                what: "bit depth",
                 value: s.bit_depth as f64,
                 min: 8.0,
                 max: 12.0,
@@ -585,7 +580,8 @@ mod tests {
     fn camera() -> Microscope {
         Microscope::new(
             CameraParams::default(),
-            OpticsParams::default(),
+            LensParams::default(),
+            OpticsSetup::default(),
             Scene::generate(&FeederParams::default(), 1),
         )
     }

@@ -7,18 +7,16 @@
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use cellinject_hw::safety::{
-    EnvelopeLimits, GuardedInjector, GuardedPiezo, GuardedStage, PiezoEnvelope, SharedGuard,
-    shared_guard,
-};
 use cellinject_hw::{
-    Camera, CameraSettings, Clock, Frame, HwError, Injector, PiezoChannel, Stage, check_range,
+    Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, Stage,
+    check_range,
 };
 use cellinject_model::{ACTUATOR_NAMES, Design};
+use cellinject_rig::{Backend, Devices, Rig, RigError};
 
 use crate::camera::{Microscope, TipPose};
-use crate::params::TwinParams;
 use crate::scene::Scene;
+pub use crate::world::TwinParams;
 use crate::world::{TwinError, World};
 
 /// The world and its camera.
@@ -44,10 +42,11 @@ impl Twin {
     /// A twin of `design` at rest, assembled with `params.approach`.
     pub fn new(design: &Design, params: TwinParams) -> Result<Self, TwinError> {
         let world = World::new(design, params)?;
-        let scene = Scene::generate(&params.feeder, params.seed);
-        let mut camera = Microscope::new(params.camera, params.optics, scene);
+        let sim = &params.sim;
+        let scene = Scene::generate(&sim.feeder, sim.seed);
+        let mut camera = Microscope::new(sim.camera, sim.lens, params.rig.optics, scene);
         camera
-            .set_zoom(params.optics.zoom)
+            .set_zoom(params.rig.optics.zoom)
             .map_err(|e| TwinError::Invalid {
                 key: "optics.zoom".into(),
                 reason: e.to_string(),
@@ -75,6 +74,12 @@ impl Twin {
         }
     }
 
+    /// The displacement of actuator `ch`'s end as the mechanism sees it, m (positive:
+    /// the stack extends; for A1, A2 the drive shift is Δl2 = −e, eq. 44's sign).
+    pub fn actuator_displacement(&self, ch: usize) -> f64 {
+        displacement_in(&self.world.snapshot(), ch)
+    }
+
     /// Waits for the next frame, integrating the world through its exposure, and renders it.
     pub fn grab_into(&mut self, frame: &mut Frame) {
         let settings = self.camera.settings();
@@ -97,7 +102,7 @@ impl Twin {
             vx: (b.x - a.x) / t,
             vz: (b.z - a.z) / t,
         };
-        let seed = self.world.params().seed;
+        let seed = self.world.params().sim.seed;
         self.camera.render(&pose, start, k, seed, frame);
         self.last_frame = Some(k);
     }
@@ -106,6 +111,12 @@ impl Twin {
     pub fn into_shared(self) -> SharedTwin {
         Arc::new(Mutex::new(self))
     }
+}
+
+/// The displacement of actuator `ch`'s end in a snapshot, m (see
+/// [`Twin::actuator_displacement`]).
+pub fn displacement_in(s: &crate::Snapshot, ch: usize) -> f64 {
+    if ch < 2 { -s.dl[ch] } else { s.q[2] }
 }
 
 /// One amplifier channel of the twin.
@@ -121,15 +132,15 @@ impl PiezoChannel for TwinPiezo {
     fn voltage_range(&self) -> (f64, f64) {
         (
             0.0,
-            lock(&self.twin).world.params().stacks[self.channel]
-                .amplifier
-                .v_max,
+            lock(&self.twin).world.params().rig.amplifiers[self.channel].v_max,
         )
     }
     fn set_voltage(&mut self, volts: f64) -> Result<(), HwError> {
-        let (lo, hi) = self.voltage_range();
-        check_range(&format!("{} voltage", self.name()), volts, lo, hi)?;
-        lock(&self.twin).world.set_voltage(self.channel, volts);
+        let mut t = lock(&self.twin);
+        let hi = t.world.params().rig.amplifiers[self.channel].v_max;
+        let what = ["A1 voltage", "A2 voltage", "A3 voltage"][self.channel];
+        check_range(what, volts, 0.0, hi)?;
+        t.world.set_voltage(self.channel, volts);
         Ok(())
     }
     fn commanded_voltage(&self) -> f64 {
@@ -180,8 +191,8 @@ impl Stage for TwinStage {
     }
     fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
         let (lo, hi) = self.travel(axis);
-        check_range(&format!("stage axis {axis}"), axis as f64, 0.0, 2.0)?;
-        check_range(&format!("stage axis {axis} position"), position, lo, hi)?;
+        check_range("stage axis", axis as f64, 0.0, 2.0)?;
+        check_range("stage position", position, lo, hi)?;
         lock(&self.twin).world.stage.move_to(axis, position);
         Ok(())
     }
@@ -201,7 +212,7 @@ pub struct TwinInjector {
 
 impl Injector for TwinInjector {
     fn max_pressure(&self) -> f64 {
-        lock(&self.twin).world.params().injector.max_pressure
+        lock(&self.twin).world.params().rig.injector_max_pressure
     }
     fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
         check_range("pressure", pressure, 0.0, self.max_pressure())?;
@@ -227,22 +238,38 @@ impl Clock for TwinClock {
     }
 }
 
-/// Every device of the twin, unguarded.
-pub struct Devices {
-    /// A1, A2, A3.
-    pub piezo: [TwinPiezo; 3],
-    /// Camera.
-    pub camera: TwinCamera,
-    /// Stage.
-    pub stage: TwinStage,
-    /// Injector.
-    pub injector: TwinInjector,
-    /// Clock.
-    pub clock: TwinClock,
+/// The twin's zoom lens.
+pub struct TwinOptics {
+    twin: SharedTwin,
 }
 
-/// Handles to every device of a shared twin.
-pub fn devices(twin: &SharedTwin) -> Devices {
+impl Optics for TwinOptics {
+    fn zoom(&self) -> f64 {
+        lock(&self.twin).camera.zoom()
+    }
+    fn zoom_range(&self) -> (f64, f64) {
+        lock(&self.twin).camera.zoom_range()
+    }
+    fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
+        lock(&self.twin).camera.set_zoom(zoom)
+    }
+}
+
+/// The twin as a backend of `cellinject-rig`.
+#[derive(Debug, Clone, Copy)]
+pub struct TwinBackend;
+
+impl Backend for TwinBackend {
+    type Piezo = TwinPiezo;
+    type Camera = TwinCamera;
+    type Stage = TwinStage;
+    type Injector = TwinInjector;
+    type Optics = TwinOptics;
+    type Clock = TwinClock;
+}
+
+/// Handles to every device of a shared twin, unguarded.
+pub fn devices(twin: &SharedTwin) -> Devices<TwinBackend> {
     let piezo = [0, 1, 2].map(|channel| TwinPiezo {
         twin: twin.clone(),
         channel,
@@ -252,60 +279,17 @@ pub fn devices(twin: &SharedTwin) -> Devices {
         camera: TwinCamera { twin: twin.clone() },
         stage: TwinStage { twin: twin.clone() },
         injector: TwinInjector { twin: twin.clone() },
+        optics: TwinOptics { twin: twin.clone() },
         clock: TwinClock { twin: twin.clone() },
     }
 }
 
-/// The devices of a twin behind the safety wrappers, as a controller should see them.
-pub struct GuardedDevices {
-    /// A1, A2, A3 behind the shared piezo envelope.
-    pub piezo: [GuardedPiezo<TwinPiezo>; 3],
-    /// The envelope's shared state.
-    pub guard: SharedGuard,
-    /// Camera (nothing to guard).
-    pub camera: TwinCamera,
-    /// Stage within its travel.
-    pub stage: GuardedStage<TwinStage>,
-    /// Injector below its pressure limit.
-    pub injector: GuardedInjector<TwinInjector>,
-    /// Clock.
-    pub clock: TwinClock,
-}
-
-/// The safety envelope of a twin's mechanism and stacks.
-pub fn envelope(twin: &SharedTwin) -> Result<PiezoEnvelope, TwinError> {
-    let t = lock(twin);
-    let p = t.world.params();
-    let limits = EnvelopeLimits {
-        voltage_range: [0, 1, 2].map(|i| (0.0, p.stacks[i].amplifier.v_max)),
-        hysteresis_bound: p.safety.hysteresis_bound,
-        dynamic_margin: p.safety.dynamic_margin,
+/// The twin's devices behind the safety guards of its own design and rig description,
+/// as a controller should see them.
+pub fn rig(twin: &SharedTwin) -> Result<Rig<TwinBackend>, RigError> {
+    let (design, params) = {
+        let t = lock(twin);
+        (*t.world.mechanism().design(), t.world.params().rig)
     };
-    Ok(PiezoEnvelope::new(
-        t.world.mechanism().clone(),
-        p.approach,
-        limits,
-    )?)
-}
-
-/// Guarded handles to every device of a shared twin.
-pub fn guarded_devices(twin: &SharedTwin) -> Result<GuardedDevices, TwinError> {
-    let env = envelope(twin)?;
-    let d = devices(twin);
-    let commanded = [0, 1, 2].map(|i| d.piezo[i].commanded_voltage());
-    let guard = shared_guard(env, commanded);
-    let [a1, a2, a3] = d.piezo;
-    let max_p = d.injector.max_pressure();
-    Ok(GuardedDevices {
-        piezo: [
-            GuardedPiezo::new(a1, 0, guard.clone()),
-            GuardedPiezo::new(a2, 1, guard.clone()),
-            GuardedPiezo::new(a3, 2, guard.clone()),
-        ],
-        guard,
-        camera: d.camera,
-        stage: GuardedStage::new(d.stage, None),
-        injector: GuardedInjector::new(d.injector, max_p),
-        clock: d.clock,
-    })
+    Rig::new(devices(twin), &design, &params)
 }

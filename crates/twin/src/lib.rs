@@ -8,19 +8,22 @@
 //!
 //! **Architecture invariant:** the twin is pure simulation. Its only notion of time is
 //! the simulated clock; it opens no files and talks to no device. It is reached by
-//! controllers only through the traits of `cellinject-hw`.
+//! controllers only through the traits of `cellinject-hw`, as a backend of
+//! `cellinject-rig` ([`TwinBackend`]).
 
 pub mod camera;
 pub mod devices;
 pub mod dynamics;
-pub mod params;
 pub mod piezo;
-pub mod rng;
 pub mod scene;
 pub mod stage;
 pub mod world;
 
+/// The twin's random generator (crate `cellinject-numeric`).
+pub use cellinject_numeric::rng;
+/// The twin's simulation-only parameters (crate `cellinject-simparams`).
+pub use cellinject_simparams as params;
+
 pub use camera::{Microscope, TipPose};
-pub use devices::{Devices, GuardedDevices, SharedTwin, Twin, devices, guarded_devices};
-pub use params::TwinParams;
+pub use devices::{SharedTwin, Twin, TwinBackend, TwinParams, devices, rig};
 pub use world::{Snapshot, TwinError, World};

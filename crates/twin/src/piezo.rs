@@ -18,6 +18,7 @@ use crate::params::{AmplifierParams, CreepParams, HysteresisParams, StackParams}
 #[derive(Debug, Clone)]
 pub struct Amplifier {
     p: AmplifierParams,
+    v_max: f64,
     command: f64,
     quantised: f64,
     output: f64,
@@ -26,10 +27,12 @@ pub struct Amplifier {
 }
 
 impl Amplifier {
-    /// An amplifier stepped every `dt` seconds, starting at 0 V.
-    pub fn new(p: AmplifierParams, dt: f64) -> Self {
+    /// An amplifier with the output range 0..`v_max` volts (the rig's), stepped every
+    /// `dt` seconds, starting at 0 V.
+    pub fn new(p: AmplifierParams, v_max: f64, dt: f64) -> Self {
         Amplifier {
             p,
+            v_max,
             command: 0.0,
             quantised: 0.0,
             output: 0.0,
@@ -41,8 +44,8 @@ impl Amplifier {
     /// The DAC value nearest to `volts` (16 bits over 0..V_max by default).
     pub fn quantise(&self, volts: f64) -> f64 {
         let levels = ((1u64 << self.p.dac_bits) - 1) as f64;
-        let v = volts.clamp(0.0, self.p.v_max);
-        (v / self.p.v_max * levels).round() / levels * self.p.v_max
+        let v = volts.clamp(0.0, self.v_max);
+        (v / self.v_max * levels).round() / levels * self.v_max
     }
 
     /// Sets the command (clamped to the output range: range checks belong to the caller).
@@ -64,6 +67,11 @@ impl Amplifier {
     /// Parameters.
     pub fn params(&self) -> &AmplifierParams {
         &self.p
+    }
+
+    /// Highest output, V.
+    pub fn v_max(&self) -> f64 {
+        self.v_max
     }
 
     /// Advances one step and returns the noise-free output. The output snaps to the
@@ -323,17 +331,17 @@ pub struct Stack {
 }
 
 impl Stack {
-    /// A stack of rated `travel` (m), stepped every `dt`.
-    pub fn new(p: &StackParams, travel: f64, dt: f64) -> Self {
+    /// A stack of rated `travel` (m) on an amplifier of 0..`v_max` volts, stepped
+    /// every `dt`.
+    pub fn new(p: &StackParams, v_max: f64, travel: f64, dt: f64) -> Self {
         let creep = Creep::new(&p.creep, dt);
         Stack {
-            amplifier: Amplifier::new(p.amplifier, dt),
+            amplifier: Amplifier::new(p.amplifier, v_max, dt),
             hysteresis: p.hysteresis,
             preisach: Preisach::new(p.hysteresis.skew),
             // Fully crept at full voltage with the largest noise sample (the Gaussian table
             // is bounded by ±4.5σ), the stack just reaches its rated travel.
-            scale: travel
-                / (1.0 + creep.total_weight() + 4.5 * p.amplifier.noise / p.amplifier.v_max),
+            scale: travel / (1.0 + creep.total_weight() + 4.5 * p.amplifier.noise / v_max),
             creep,
             travel,
             extension: 0.0,
@@ -369,7 +377,7 @@ impl Stack {
     /// response: it adds to the extension without entering the Preisach memory.
     #[inline]
     pub fn step(&mut self, noise: f64) -> f64 {
-        let v_max = self.amplifier.params().v_max;
+        let v_max = self.amplifier.v_max();
         let u = self.amplifier.step() / v_max;
         let y = self.hysteretic(u);
         let c = self.creep.step(y);
@@ -468,13 +476,13 @@ mod tests {
     fn amplifier_respects_slew_quantisation_and_bandwidth() {
         let dt = 5e-5;
         let p = AmplifierParams::default();
-        let mut a = Amplifier::new(p, dt);
+        let mut a = Amplifier::new(p, 100.0, dt);
         a.set(100.0);
         let v1 = a.step();
         // Slew-limited: one step moves at most slew · dt.
         assert!((v1 - p.slew_rate * dt).abs() < 1e-12);
         // A small step is bandwidth-limited: 63 % after one time constant 1/(2π f).
-        let mut b = Amplifier::new(AmplifierParams { noise: 0.0, ..p }, dt);
+        let mut b = Amplifier::new(AmplifierParams { noise: 0.0, ..p }, 100.0, dt);
         b.set(0.01);
         let tau = 1.0 / (2.0 * std::f64::consts::PI * p.bandwidth);
         let steps = (tau / dt).round() as usize;

@@ -10,8 +10,8 @@
 //! optical axis: moving along it defocuses the pipette.
 
 use crate::params::FeederParams;
-use crate::rng::Rng;
 use crate::world::stream;
+use cellinject_numeric::Rng;
 
 /// One cell waiting in a well.
 #[derive(Debug, Clone, Copy, PartialEq)]

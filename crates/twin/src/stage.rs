@@ -72,15 +72,17 @@ impl Move {
 #[derive(Debug, Clone)]
 pub struct StageSim {
     p: StageParams,
+    travel: f64,
     moves: [Move; 3],
     time: f64,
 }
 
 impl StageSim {
-    /// A stage at rest at the origin.
-    pub fn new(p: StageParams) -> Self {
+    /// A stage at rest at the origin, `travel` metres per axis (the rig's), centred on 0.
+    pub fn new(p: StageParams, travel: f64) -> Self {
         StageSim {
             p,
+            travel,
             moves: [Move::plan(0.0, 0.0, 0.0, 1.0, 1.0); 3],
             time: 0.0,
         }
@@ -93,7 +95,7 @@ impl StageSim {
 
     /// Travel limits of each axis.
     pub fn travel(&self) -> (f64, f64) {
-        (-0.5 * self.p.travel, 0.5 * self.p.travel)
+        (-0.5 * self.travel, 0.5 * self.travel)
     }
 
     /// Moves the clock.
@@ -165,7 +167,7 @@ mod tests {
     #[test]
     fn trapezoidal_move_respects_limits_and_arrives() {
         let p = StageParams::default();
-        let mut s = StageSim::new(p);
+        let mut s = StageSim::new(p, 0.025);
         s.move_to(0, 5e-3);
         // 5 mm at 2 mm/s with 20 mm/s²: 2.5 s + 0.1 s.
         let m = s.moves[0];

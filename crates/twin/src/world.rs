@@ -7,10 +7,11 @@ use nalgebra::{Matrix2, Matrix4, Matrix4x2, Vector2, Vector3, Vector4};
 use thiserror::Error;
 
 use crate::dynamics::{Oscillator, TiltDynamics};
-use crate::params::TwinParams;
 use crate::piezo::Stack;
-use crate::rng::Rng;
 use crate::stage::StageSim;
+use cellinject_numeric::Rng;
+use cellinject_rig::RigParams;
+use cellinject_simparams::SimParams;
 
 /// Random streams, one per process, so that adding one never changes another.
 pub(crate) mod stream {
@@ -73,6 +74,19 @@ struct Joint {
     rho: f64,
 }
 
+impl From<&Snapshot> for cellinject_model::Statics {
+    /// The model's view of a snapshot (`cellinject_model::statics`): A3 carries no
+    /// preload, so its force and J3's third torque are 0.
+    fn from(s: &Snapshot) -> Self {
+        cellinject_model::Statics {
+            force: Vector3::new(s.force[0], s.force[1], 0.0),
+            fq: Vector3::new(s.fq[0], s.fq[1], 0.0),
+            fw: s.fw,
+            dx: s.x,
+        }
+    }
+}
+
 /// A pressure pulse applied by the injector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pulse {
@@ -84,6 +98,16 @@ pub struct Pulse {
     pub duration: f64,
     /// m³, volume delivered.
     pub volume: f64,
+}
+
+/// Everything the twin needs besides the mechanism design: the bench as built (the
+/// rig's description, shared with real hardware) and what only a simulation has.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TwinParams {
+    /// The physical bench: approach, amplifier ranges, margins, travels, limits, zoom.
+    pub rig: RigParams,
+    /// Noise, hysteresis, creep, dynamics, stick-slip, camera sensor, scene.
+    pub sim: SimParams,
 }
 
 /// The twin's physics.
@@ -135,7 +159,7 @@ impl World {
             key: key.to_string(),
             reason: reason.to_string(),
         };
-        let d = &params.dynamics;
+        let d = &params.sim.dynamics;
         if !(d.rate >= 20_000.0 && d.rate.is_finite()) {
             return Err(invalid("dynamics.rate", "must be at least 20000 Hz"));
         }
@@ -143,10 +167,16 @@ impl World {
             return Err(invalid("dynamics.damping_ratio", "must lie in (0, 1)"));
         }
         let mechanism = Mechanism::new(design)?;
-        let assembly = mechanism.assembly(params.approach)?;
+        let assembly = mechanism.assembly(params.rig.approach)?;
         let dt = 1.0 / d.rate;
-        let stacks =
-            [0, 1, 2].map(|i| Stack::new(&params.stacks[i], design.actuators[i].travel, dt));
+        let stacks = [0, 1, 2].map(|i| {
+            Stack::new(
+                &params.sim.stacks[i],
+                params.rig.amplifiers[i].v_max,
+                design.actuators[i].travel,
+                dt,
+            )
+        });
         let (kq, kw, kl, lp, wp, jp) = (
             mechanism.kq(),
             mechanism.kw(),
@@ -159,7 +189,7 @@ impl World {
         let k_inv = k
             .try_inverse()
             .ok_or_else(|| invalid("flexures", "the structure's stiffness matrix is singular"))?;
-        let (q_rest, l_base) = match params.approach {
+        let (q_rest, l_base) = match params.rig.approach {
             Approach::DriveTranslation => (Vector2::zeros(), assembly.dl0),
             Approach::JointDeflection => (-assembly.dq0, Vector2::zeros()),
         };
@@ -170,7 +200,7 @@ impl World {
         let a3_omega = (d.a3_stiffness / d.a3_mass).sqrt();
         let a3 = Oscillator::new(a3_omega, d.damping_ratio, dt);
         Ok(World {
-            stage: StageSim::new(params.stage),
+            stage: StageSim::new(params.sim.stage, params.rig.stage_travel),
             params,
             mechanism,
             assembly,
@@ -199,8 +229,8 @@ impl World {
             joint_pose: k_inv * f0,
             joint_dirty: false,
             q_static: k_inv * f0,
-            noise: Rng::new(params.seed, stream::AMPLIFIER),
-            joint_rng: Rng::new(params.seed, stream::JOINTS),
+            noise: Rng::new(params.sim.seed, stream::AMPLIFIER),
+            joint_rng: Rng::new(params.sim.seed, stream::JOINTS),
             pulses: Vec::new(),
         })
     }
@@ -233,7 +263,7 @@ impl World {
     /// Natural frequencies of the tilt modes and of the injection axis, Hz.
     pub fn natural_frequencies(&self) -> [f64; 3] {
         let tau = 2.0 * std::f64::consts::PI;
-        let d = &self.params.dynamics;
+        let d = &self.params.sim.dynamics;
         [
             self.tilt.omega[0] / tau,
             self.tilt.omega[1] / tau,
@@ -260,7 +290,8 @@ impl World {
     /// temperature (without the joints' stick-slip).
     #[inline]
     fn imposed_by_drives(&self) -> Vector2<f64> {
-        let thermal = self.params.thermal.expansion * self.params.thermal.drift_rate * self.time();
+        let thermal =
+            self.params.sim.thermal.expansion * self.params.sim.thermal.drift_rate * self.time();
         // A stack's extension pushes the drive: Δl2 = −e (the paper's eq. 44 sign).
         Vector2::new(
             self.l_base[0] - self.stacks[0].extension() - thermal,
@@ -286,7 +317,7 @@ impl World {
                 self.kw_diag[2 * i + 1] * w[2 * i + 1],
             );
             let torque = (ta * ta + tb * tb).sqrt();
-            let ball = self.params.joints.ball_radius;
+            let ball = self.params.sim.joints.ball_radius;
             let ecc = if f > 0.0 {
                 (torque / f).min(ball)
             } else {
@@ -313,7 +344,7 @@ impl World {
         if dq[0] != 0.0 || dq[1] != 0.0 {
             self.q_static = q_static;
             let dw = self.wp * dq;
-            let jp = self.params.joints;
+            let jp = self.params.sim.joints;
             for i in 0..2 {
                 let j = &mut self.joints[i];
                 j.rho += dq[0].abs() + dq[1].abs() + dw[2 * i].abs() + dw[2 * i + 1].abs();
@@ -393,7 +424,7 @@ impl World {
 
     /// Records an injector pulse and lets its duration pass.
     pub fn pulse(&mut self, pressure: f64, duration: f64) {
-        let volume = self.params.injector.conductance * pressure * duration;
+        let volume = self.params.sim.injector.conductance * pressure * duration;
         self.pulses.push(Pulse {
             time: self.time(),
             pressure,

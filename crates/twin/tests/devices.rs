@@ -3,18 +3,21 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use cellinject_hw::safety::SafetyError;
-use cellinject_hw::{Camera, Clock, Frame, HwError, Injector, PiezoChannel, Stage};
+use cellinject_hw::{Camera, Clock, Frame, HwError, Injector, PiezoChannel, SafetyError, Stage};
 use cellinject_model::{Approach, prototype};
-use cellinject_twin::{SharedTwin, Twin, TwinParams, guarded_devices};
+use cellinject_twin::{SharedTwin, Twin, TwinParams, rig};
 use proptest::prelude::*;
 
+/// The prototype's twin parameters, assembled with `approach`, seeded with `seed`.
+fn twin_params(approach: Approach, seed: u64) -> TwinParams {
+    let mut p = TwinParams::default();
+    p.rig.approach = approach;
+    p.sim.seed = seed;
+    p
+}
+
 fn twin(approach: Approach, seed: u64) -> SharedTwin {
-    let p = TwinParams {
-        approach,
-        seed,
-        ..TwinParams::default()
-    };
+    let p = twin_params(approach, seed);
     Twin::new(&prototype(), p).unwrap().into_shared()
 }
 
@@ -57,7 +60,7 @@ proptest! {
         commands in prop::collection::vec((0usize..3, -20.0f64..130.0, 1u32..30), 1..30),
     ) {
         let t = twin(approach, 3);
-        let mut dev = guarded_devices(&t).unwrap();
+        let mut dev = rig(&t).unwrap();
         let mut refused = 0;
         for (ch, volts, ms) in commands {
             let before = dev.piezo[ch].commanded_voltage();
@@ -85,7 +88,7 @@ fn the_envelope_refuses_what_the_paper_warns_about() {
     // Approach 1 at full stroke bends J1/J2 beyond the stacks' torque limit (eq. 43 is
     // already 0.316 of 0.35 N*m at rest): refused; approach 2 allows the full stroke.
     let t1 = twin(Approach::DriveTranslation, 1);
-    let mut d1 = guarded_devices(&t1).unwrap();
+    let mut d1 = rig(&t1).unwrap();
     let e = d1.piezo[0].set_voltage(100.0).unwrap_err();
     assert!(
         matches!(e, HwError::Refused(SafetyError::Torque { .. })),
@@ -94,15 +97,14 @@ fn the_envelope_refuses_what_the_paper_warns_about() {
     assert!(d1.piezo[0].set_voltage(40.0).is_ok());
     // The envelope is not needlessly timid: at the highest voltage it allows, the
     // settled J1 torque comes within 6 % of the limit.
-    let env = cellinject_twin::devices::envelope(&t1).unwrap();
-    let v = env.max_safe_voltage(1, [40.0, 0.0, 0.0]).unwrap();
+    let v = d1.max_safe_voltage(1).unwrap();
     d1.piezo[1].set_voltage(v).unwrap();
     d1.clock.sleep(0.5).unwrap();
     let s = t1.lock().unwrap().world.snapshot();
     let torque = s.fw[0].hypot(s.fw[1]);
     assert!(torque > 0.94 * 0.35 && torque <= 0.35, "{v} V: {torque}");
     let t2 = twin(Approach::JointDeflection, 1);
-    let mut d2 = guarded_devices(&t2).unwrap();
+    let mut d2 = rig(&t2).unwrap();
     assert!(d2.piezo[0].set_voltage(100.0).is_ok());
     assert!(d2.piezo[1].set_voltage(100.0).is_ok());
     assert!(matches!(
@@ -126,7 +128,7 @@ fn the_envelope_refuses_what_the_paper_warns_about() {
 #[test]
 fn camera_timing_follows_the_simulated_clock() {
     let t = twin(Approach::JointDeflection, 1);
-    let mut dev = guarded_devices(&t).unwrap();
+    let mut dev = rig(&t).unwrap();
     let vga = t.lock().unwrap().camera.vga_settings(true);
     dev.camera.configure(vga).unwrap();
     assert_eq!(dev.camera.frame_rate(), 30.0);
@@ -162,7 +164,7 @@ fn camera_timing_follows_the_simulated_clock() {
 #[test]
 fn the_stage_moves_the_pipette_in_the_image() {
     let t = twin(Approach::JointDeflection, 1);
-    let mut dev = guarded_devices(&t).unwrap();
+    let mut dev = rig(&t).unwrap();
     dev.stage.move_to(0, 20e-6).unwrap();
     while dev.stage.is_busy().unwrap() {
         dev.clock.sleep(0.01).unwrap();
@@ -176,7 +178,7 @@ fn the_stage_moves_the_pipette_in_the_image() {
 /// FNV-1a over the bits of a fixed scenario's trajectory and frames.
 fn scenario_digest(seed: u64) -> u64 {
     let t = twin(Approach::JointDeflection, seed);
-    let mut dev = guarded_devices(&t).unwrap();
+    let mut dev = rig(&t).unwrap();
     let vga = t.lock().unwrap().camera.vga_settings(true);
     dev.camera.configure(vga).unwrap();
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;

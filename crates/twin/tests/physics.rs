@@ -11,16 +11,21 @@ use cellinject_twin::{TwinParams, World};
 use nalgebra::{Matrix2, Vector2};
 
 /// Quiet twin: no amplifier noise, no creep, no stick-slip (isolates one effect).
+/// The prototype's twin parameters, assembled with `approach`, seeded with `seed`.
+fn twin_params(approach: Approach, seed: u64) -> TwinParams {
+    let mut p = TwinParams::default();
+    p.rig.approach = approach;
+    p.sim.seed = seed;
+    p
+}
+
 fn quiet(approach: Approach) -> TwinParams {
-    let mut p = TwinParams {
-        approach,
-        ..TwinParams::default()
-    };
-    for s in &mut p.stacks {
+    let mut p = twin_params(approach, 1);
+    for s in &mut p.sim.stacks {
         s.amplifier.noise = 0.0;
         s.creep.gamma = 0.0;
     }
-    p.joints.stick_slip_angle = 0.0;
+    p.sim.joints.stick_slip_angle = 0.0;
     p
 }
 
@@ -78,8 +83,8 @@ fn full_loop_width_and_asymmetry_match_the_density() {
     sweep(&mut w, 100.0, 2.0, &mut up);
     sweep(&mut w, 0.0, 2.0, &mut down);
     let travel = 30e-6;
-    let frac = p.stacks[0].hysteresis.fraction;
-    let skew = p.stacks[0].hysteresis.skew;
+    let frac = p.sim.stacks[0].hysteresis.fraction;
+    let skew = p.sim.stacks[0].hysteresis.skew;
     let mut widths = Vec::new();
     for v in [30.0, 50.0, 70.0] {
         let u: f64 = v / 100.0;
@@ -135,7 +140,7 @@ fn minor_loops_close_and_are_wiped_out() {
 fn creep_grows_by_gamma_per_decade() {
     let mut p = quiet(Approach::JointDeflection);
     let gamma = 0.015;
-    for s in &mut p.stacks {
+    for s in &mut p.sim.stacks {
         s.creep.gamma = gamma;
     }
     let mut w = World::new(&prototype(), p).unwrap();
@@ -165,7 +170,7 @@ fn expected_tilt_frequency(p: &TwinParams) -> f64 {
     let k1 = d.flexures.j3[0] + d.flexures.j2[0] * w * w + g.b1 * g.b1 * 27e6;
     let k2 = d.flexures.j3[1] + d.flexures.j1[0] * w * w + g.b1 * g.b1 * 27e6;
     let k = Matrix2::new(k1, 0.0, 0.0, k2);
-    (k[(0, 0)] / p.dynamics.inertia[0]).sqrt() / (2.0 * std::f64::consts::PI)
+    (k[(0, 0)] / p.sim.dynamics.inertia[0]).sqrt() / (2.0 * std::f64::consts::PI)
 }
 
 #[test]
@@ -173,7 +178,7 @@ fn step_response_rings_at_the_tilt_mode_and_decays_with_the_damping_ratio() {
     let p = quiet(Approach::JointDeflection);
     let mut w = World::new(&prototype(), p).unwrap();
     let f_n = expected_tilt_frequency(&p);
-    let zeta = p.dynamics.damping_ratio;
+    let zeta = p.sim.dynamics.damping_ratio;
     let x0 = w.snapshot().x[0];
     w.set_voltage(0, 50.0);
     // Slew: 50 V at 10 V/ms = 5 ms. Record 40 ms after the ramp.
@@ -263,6 +268,15 @@ fn at_rest_the_forces_satisfy_the_statics_of_the_mechanism_model() {
             assert!((s.force[i] / model.force[i] - 1.0).abs() < 1e-9);
             assert!((s.x[i] - model.dx[i]).abs() < 1e-9 * model.dx.norm());
         }
+        // The same through the documented conversion to the shared statics view.
+        let [df, dfq, dfw, dx] = cellinject_model::Statics::from(&s)
+            .max_difference(&cellinject_model::Statics::from(&model));
+        assert!(df < 1e-9 * model.force.amax(), "{df}");
+        assert!(
+            dfq < 1e-9 * model.fq.amax() && dfw < 1e-9 * model.fw.amax(),
+            "{dfq} {dfw}"
+        );
+        assert!(dx < 1e-9 * model.dx.norm(), "{dx}");
     }
 }
 
@@ -270,10 +284,7 @@ fn at_rest_the_forces_satisfy_the_statics_of_the_mechanism_model() {
 /// of A1 and A2 from rest, let it settle, measure the end-effector, return. The error
 /// of a run is its distance from the mean position of the 200.
 fn repeatability(approach: Approach) -> f64 {
-    let p = TwinParams {
-        approach,
-        ..TwinParams::default()
-    };
+    let p = twin_params(approach, 1);
     let mut w = World::new(&prototype(), p).unwrap();
     let volts = 1e-6 / 30e-6 * 100.0;
     let mut xs = Vec::new();
@@ -312,8 +323,8 @@ fn open_loop_repeatability_lands_in_the_papers_ranges() {
 fn temperature_drift_moves_the_end_effector_as_the_drives_lengthen() {
     let mut p = quiet(Approach::JointDeflection);
     // 10 mK/s for 100 s on drives that shrink 50 nm per kelvin: 50 nm less push.
-    p.thermal.drift_rate = 0.01;
-    p.thermal.expansion = 50e-9;
+    p.sim.thermal.drift_rate = 0.01;
+    p.sim.thermal.expansion = 50e-9;
     let mut w = World::new(&prototype(), p).unwrap();
     let x0 = w.snapshot().x;
     w.advance(100.0);
@@ -336,10 +347,7 @@ fn temperature_drift_moves_the_end_effector_as_the_drives_lengthen() {
 #[test]
 fn same_seed_same_trajectory_bit_for_bit() {
     let run = |seed: u64| {
-        let p = TwinParams {
-            seed,
-            ..TwinParams::default()
-        };
+        let p = twin_params(TwinParams::default().rig.approach, seed);
         let mut w = World::new(&prototype(), p).unwrap();
         let mut out = Vec::new();
         for k in 0..50 {

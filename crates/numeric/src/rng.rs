@@ -1,4 +1,5 @@
-//! Seeded randomness, bit-exact across platforms and crate versions.
+//! Seeded randomness, bit-exact across platforms and crate versions: the one random
+//! generator of cellinject (the twin's noise and scenes, synthetic DIC images).
 //!
 //! The twin's determinism test holds the digest of a fixed scenario, so the generator
 //! and the Gaussian sampler are defined here rather than taken from a crate whose
@@ -65,6 +66,15 @@ impl Rng {
     #[inline]
     pub fn gaussian(&mut self) -> f64 {
         gaussian_table()[(self.next_u64() >> 48) as usize] as f64
+    }
+
+    /// A standard normal sample by the Box-Muller transform of two uniforms: exact
+    /// (unbounded, unquantised) where the table of [`Rng::gaussian`] is too coarse,
+    /// e.g. the noise of synthetic test images.
+    pub fn gaussian_exact(&mut self) -> f64 {
+        let a = ((self.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        let b = self.uniform();
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
     }
 
     /// Four standard normal samples from one draw (for per-pixel noise).

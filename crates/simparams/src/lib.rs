@@ -1,15 +1,21 @@
-//! Parameters of the twin, with the prototype's defaults. The description file's
-//! `[twin]`, `[actuators.*.amplifier|hysteresis|creep]`, `[dynamics]`, `[joints]`,
-//! `[thermal]`, `[stage]`, `[camera]`, `[optics]`, `[feeder]`, `[injector]` and
-//! `[safety]` sections fill these structures (crate `cellinject-config`).
+//! # cellinject-simparams
+//!
+//! The simulation-only parameters of a bench description, with the prototype's
+//! defaults: how the digital twin renders noise, hysteresis density, creep, dynamics,
+//! stick-slip, the camera sensor and the scene. What a real bench has too (the
+//! pre-tensioning approach, amplifier ranges, safety margins, travels, the injector's
+//! limit, the zoom) is the rig's (`cellinject-rig::RigParams`).
+//!
+//! The description file's `[twin] seed`, `[actuators.*.amplifier|hysteresis|creep]`
+//! (all but `v_max`), `[dynamics]`, `[joints]`, `[thermal]`, `[stage]` (all but
+//! `travel`), `[camera]`, `[optics]` (`focus_blur`, `defocus_rate`), `[feeder]` and
+//! `[injector] conductance` fill these structures (crate `cellinject-config`).
+//!
+//! **Architecture invariant:** plain data with defaults; no behaviour, no dependencies.
 
-use cellinject_model::Approach;
-
-/// Piezo amplifier channel.
+/// Piezo amplifier channel: how it follows its command (its output range is the rig's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AmplifierParams {
-    /// V, highest output (the lowest is 0 V).
-    pub v_max: f64,
     /// Resolution of the DAC, bits.
     pub dac_bits: u32,
     /// V/s, largest output slew rate (current limit into the stack's capacitance).
@@ -23,7 +29,6 @@ pub struct AmplifierParams {
 impl Default for AmplifierParams {
     fn default() -> Self {
         AmplifierParams {
-            v_max: 100.0,
             dac_bits: 16,
             slew_rate: 1.0e4,
             bandwidth: 2.0e3,
@@ -154,11 +159,9 @@ pub struct ThermalParams {
     pub expansion: f64,
 }
 
-/// The macro stage M1-M3.
+/// How the macro stage M1-M3 moves (its travel is the rig's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StageParams {
-    /// m, travel of each axis, centred on 0.
-    pub travel: f64,
     /// m/s, top speed.
     pub max_speed: f64,
     /// m/s², acceleration.
@@ -174,7 +177,6 @@ pub struct StageParams {
 impl Default for StageParams {
     fn default() -> Self {
         StageParams {
-            travel: 0.025,
             max_speed: 2.0e-3,
             max_accel: 2.0e-2,
             encoder_resolution: 0.1e-6,
@@ -229,24 +231,18 @@ impl Default for CameraParams {
     }
 }
 
-/// The zoom lens.
+/// How the zoom lens blurs (its magnification is the rig's).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct OpticsParams {
-    /// Current magnification.
-    pub zoom: f64,
-    /// Smallest and largest magnification.
-    pub zoom_range: [f64; 2],
+pub struct LensParams {
     /// m, blur (Gaussian sigma, object plane) at best focus.
     pub focus_blur: f64,
     /// Blur sigma added per metre of distance from the focal plane (m/m).
     pub defocus_rate: f64,
 }
 
-impl Default for OpticsParams {
+impl Default for LensParams {
     fn default() -> Self {
-        OpticsParams {
-            zoom: 10.0,
-            zoom_range: [2.5, 10.0],
+        LensParams {
             focus_blur: 0.35e-6,
             defocus_rate: 0.05,
         }
@@ -286,11 +282,9 @@ impl Default for FeederParams {
     }
 }
 
-/// The pressure injector.
+/// The pressure injector's flow (its pressure limit is the rig's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InjectorParams {
-    /// Pa, largest gauge pressure.
-    pub max_pressure: f64,
     /// m³/(s·Pa), hydraulic conductance of the pipette tip.
     pub conductance: f64,
 }
@@ -298,36 +292,14 @@ pub struct InjectorParams {
 impl Default for InjectorParams {
     fn default() -> Self {
         InjectorParams {
-            max_pressure: 2.0e5,
             conductance: 5.0e-20,
         }
     }
 }
 
-/// Margins of the safety envelope (see `cellinject_hw::safety`).
+/// Everything the twin simulates besides the mechanism design and the rig.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SafetyParams {
-    /// Fraction of travel by which hysteresis and creep may move a stack's extension
-    /// away from `travel · V / V_max`.
-    pub hysteresis_bound: f64,
-    /// Fraction of travel allowed for dynamic overshoot.
-    pub dynamic_margin: f64,
-}
-
-impl Default for SafetyParams {
-    fn default() -> Self {
-        SafetyParams {
-            hysteresis_bound: 0.2,
-            dynamic_margin: 0.03,
-        }
-    }
-}
-
-/// Everything the twin needs besides the mechanism design.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TwinParams {
-    /// How the twin's structure was pre-tensioned.
-    pub approach: Approach,
+pub struct SimParams {
     /// Seed of every random process (noise, stick-slip, scene).
     pub seed: u64,
     /// A1, A2, A3.
@@ -338,24 +310,21 @@ pub struct TwinParams {
     pub joints: JointParams,
     /// Temperature drift.
     pub thermal: ThermalParams,
-    /// Macro stage.
+    /// Macro stage motion.
     pub stage: StageParams,
     /// Camera sensor.
     pub camera: CameraParams,
-    /// Zoom lens.
-    pub optics: OpticsParams,
+    /// Zoom lens blur.
+    pub lens: LensParams,
     /// Cells and scene.
     pub feeder: FeederParams,
-    /// Injector.
+    /// Injector flow.
     pub injector: InjectorParams,
-    /// Safety envelope margins.
-    pub safety: SafetyParams,
 }
 
-impl Default for TwinParams {
+impl Default for SimParams {
     fn default() -> Self {
-        TwinParams {
-            approach: Approach::JointDeflection,
+        SimParams {
             seed: 1,
             stacks: [StackParams::default(); 3],
             dynamics: DynamicsParams::default(),
@@ -363,10 +332,9 @@ impl Default for TwinParams {
             thermal: ThermalParams::default(),
             stage: StageParams::default(),
             camera: CameraParams::default(),
-            optics: OpticsParams::default(),
+            lens: LensParams::default(),
             feeder: FeederParams::default(),
             injector: InjectorParams::default(),
-            safety: SafetyParams::default(),
         }
     }
 }

@@ -10,88 +10,18 @@
 //! in the two drive shifts (eqs. 24-26, 32-33), so their extremes over the band lie at
 //! its four corners, which are checked.
 //!
-//! [`GuardedStage`] and [`GuardedInjector`] refuse stage moves outside the travel and
-//! pressures above the injector's limit.
+//! [`GuardedStage`], [`GuardedInjector`] and [`GuardedOptics`] refuse stage moves
+//! outside the travel, pressures above the injector's limit and magnifications outside
+//! the zoom range.
+//!
+//! An accepted command allocates nothing: the refusals carry static names and build
+//! their message only when displayed.
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
+use cellinject_hw::{HwError, Injector, Optics, PiezoChannel, SafetyError, Stage, check_range};
 use cellinject_model::{ACTUATOR_NAMES, Approach, Assembly, Mechanism, ModelError};
 use nalgebra::Vector2;
-use thiserror::Error;
-
-use crate::{HwError, Injector, PiezoChannel, Stage, check_range};
-
-/// Why a command was refused.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum SafetyError {
-    /// Voltage outside the amplifier channel's range (the stack's travel).
-    #[error("{channel}: {volts} V is outside [{min}, {max}] V (the stack's travel)")]
-    Voltage {
-        /// Channel name.
-        channel: String,
-        /// Requested voltage.
-        volts: f64,
-        /// Lowest allowed.
-        min: f64,
-        /// Highest allowed.
-        max: f64,
-    },
-    /// A stack would be pushed beyond its push capacity.
-    #[error("{actuator} force could reach {force:.3} N, beyond its push capacity {capacity} N")]
-    Force {
-        /// Actuator name.
-        actuator: String,
-        /// Worst-case force, N (compression negative).
-        force: f64,
-        /// Push capacity, N.
-        capacity: f64,
-    },
-    /// A stack would lose its compression (backlash, tensile load on the ceramic).
-    #[error("{actuator} force could reach {force:.3} N: the stack would no longer be compressed")]
-    Compression {
-        /// Actuator name.
-        actuator: String,
-        /// Worst-case force, N.
-        force: f64,
-    },
-    /// A flexure would bend its stack beyond the stack's torque limit.
-    #[error(
-        "{flexure} bending torque could reach {torque:.4} N*m, beyond the torque limit {limit} N*m of {actuator}"
-    )]
-    Torque {
-        /// Flexure name (J1, J2).
-        flexure: String,
-        /// Actuator it loads.
-        actuator: String,
-        /// Worst-case torque, N·m.
-        torque: f64,
-        /// Limit, N·m.
-        limit: f64,
-    },
-    /// A stage move beyond the axis travel.
-    #[error("stage axis {axis}: {position} m is outside its travel [{min}, {max}] m")]
-    StageTravel {
-        /// Axis index.
-        axis: usize,
-        /// Requested position.
-        position: f64,
-        /// Lower limit.
-        min: f64,
-        /// Upper limit.
-        max: f64,
-    },
-    /// An injection pressure beyond the limit.
-    #[error("pressure {pressure} Pa exceeds the limit {max} Pa")]
-    Pressure {
-        /// Requested pressure.
-        pressure: f64,
-        /// Limit.
-        max: f64,
-    },
-    /// The model could not evaluate the command.
-    #[error("the mechanism model failed: {0}")]
-    Model(String),
-}
 
 /// Parameters of the envelope besides the mechanism.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -161,7 +91,7 @@ impl PiezoEnvelope {
             let (min, max) = self.limits.voltage_range[ch];
             if !v.is_finite() || *v < min || *v > max {
                 return Err(SafetyError::Voltage {
-                    channel: ACTUATOR_NAMES[ch].to_string(),
+                    channel: ACTUATOR_NAMES[ch],
                     volts: *v,
                     min,
                     max,
@@ -192,7 +122,7 @@ impl PiezoEnvelope {
         let design = self.mechanism.design();
         for i in 0..2 {
             let a = &design.actuators[i];
-            let name = ACTUATOR_NAMES[i].to_string();
+            let name = ACTUATOR_NAMES[i];
             if -worst.force[i][0] > a.push_capacity {
                 return Err(SafetyError::Force {
                     actuator: name,
@@ -208,7 +138,7 @@ impl PiezoEnvelope {
             }
             if worst.torque[i] > a.torque_limit {
                 return Err(SafetyError::Torque {
-                    flexure: format!("J{}", i + 1),
+                    flexure: ["J1", "J2"][i],
                     actuator: name,
                     torque: worst.torque[i],
                     limit: a.torque_limit,
@@ -250,6 +180,18 @@ pub struct GuardState {
     commanded: [f64; 3],
 }
 
+impl GuardState {
+    /// The envelope.
+    pub fn envelope(&self) -> &PiezoEnvelope {
+        &self.envelope
+    }
+
+    /// The voltages last accepted on A1, A2, A3.
+    pub fn commanded(&self) -> [f64; 3] {
+        self.commanded
+    }
+}
+
 /// A shared [`GuardState`].
 pub type SharedGuard = Arc<Mutex<GuardState>>;
 
@@ -261,7 +203,9 @@ pub fn shared_guard(envelope: PiezoEnvelope, commanded: [f64; 3]) -> SharedGuard
     }))
 }
 
-fn lock(g: &SharedGuard) -> MutexGuard<'_, GuardState> {
+/// Locks a shared guard (a poisoned lock still holds consistent state: every update is
+/// one assignment).
+pub fn lock(g: &SharedGuard) -> MutexGuard<'_, GuardState> {
     g.lock().unwrap_or_else(|e| e.into_inner())
 }
 
@@ -319,9 +263,17 @@ pub struct GuardedStage<S> {
 }
 
 impl<S: Stage> GuardedStage<S> {
-    /// Guards `inner` with its own travel limits narrowed to `limits` where given.
+    /// Guards `inner` with its own travel limits, narrowed to `limits` where given.
     pub fn new(inner: S, limits: Option<Vec<(f64, f64)>>) -> Self {
-        let limits = limits.unwrap_or_else(|| (0..inner.axes()).map(|a| inner.travel(a)).collect());
+        let limits = (0..inner.axes())
+            .map(|a| {
+                let own = inner.travel(a);
+                match limits.as_ref().and_then(|l| l.get(a)) {
+                    Some(&(lo, hi)) => (lo.max(own.0), hi.min(own.1)),
+                    None => own,
+                }
+            })
+            .collect();
         GuardedStage { inner, limits }
     }
 }
@@ -385,6 +337,39 @@ impl<I: Injector> Injector for GuardedInjector<I> {
     }
 }
 
+/// A zoom lens kept within a magnification range.
+pub struct GuardedOptics<O> {
+    inner: O,
+    range: (f64, f64),
+}
+
+impl<O: Optics> GuardedOptics<O> {
+    /// Guards `inner` with the narrower of its own range and `range`.
+    pub fn new(inner: O, range: (f64, f64)) -> Self {
+        let own = inner.zoom_range();
+        GuardedOptics {
+            inner,
+            range: (range.0.max(own.0), range.1.min(own.1)),
+        }
+    }
+}
+
+impl<O: Optics> Optics for GuardedOptics<O> {
+    fn zoom(&self) -> f64 {
+        self.inner.zoom()
+    }
+    fn zoom_range(&self) -> (f64, f64) {
+        self.range
+    }
+    fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
+        let (min, max) = self.range;
+        if !zoom.is_finite() || zoom < min || zoom > max {
+            return Err(SafetyError::Zoom { zoom, min, max }.into());
+        }
+        self.inner.set_zoom(zoom)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -410,7 +395,7 @@ mod tests {
         let e = envelope(Approach::DriveTranslation);
         let err = e.check([100.0, 100.0, 0.0]).unwrap_err();
         assert!(
-            matches!(err, SafetyError::Torque { ref flexure, torque, .. } if flexure == "J1" && (torque - 0.3534).abs() < 1e-3),
+            matches!(err, SafetyError::Torque { flexure, torque, .. } if flexure == "J1" && (torque - 0.3534).abs() < 1e-3),
             "{err}"
         );
         assert!(e.check([0.0, 0.0, 0.0]).is_ok());

@@ -1,0 +1,144 @@
+//! The guarded device set of one bench, over any backend.
+
+use cellinject_hw::{Camera, Clock, Injector, Optics, PiezoChannel, Stage};
+use cellinject_model::{Design, Mechanism, ModelError};
+use thiserror::Error;
+
+use crate::guard::{
+    EnvelopeLimits, GuardedInjector, GuardedOptics, GuardedPiezo, GuardedStage, PiezoEnvelope,
+    SharedGuard, lock, shared_guard,
+};
+use crate::params::RigParams;
+
+/// A family of device types: the twin, a real controller, a recording fake. Every
+/// device is `Send`, so a bench can live on a control thread.
+pub trait Backend {
+    /// One amplifier channel.
+    type Piezo: PiezoChannel;
+    /// The microscope camera.
+    type Camera: Camera;
+    /// The macro stage.
+    type Stage: Stage;
+    /// The injector.
+    type Injector: Injector;
+    /// The zoom lens.
+    type Optics: Optics;
+    /// The clock.
+    type Clock: Clock;
+}
+
+/// Every device of a backend, unguarded.
+pub struct Devices<B: Backend> {
+    /// A1, A2, A3.
+    pub piezo: [B::Piezo; 3],
+    /// Camera.
+    pub camera: B::Camera,
+    /// Stage.
+    pub stage: B::Stage,
+    /// Injector.
+    pub injector: B::Injector,
+    /// Zoom lens.
+    pub optics: B::Optics,
+    /// Clock.
+    pub clock: B::Clock,
+}
+
+/// Why a bench could not be set up.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum RigError {
+    /// The mechanism model refused the design or its assembly.
+    #[error("the mechanism model: {0}")]
+    Model(#[from] ModelError),
+    /// An amplifier's range in the rig description differs from the device's own.
+    #[error(
+        "{channel}: the description's amplifier range 0..{described} V differs from the device's {device_min}..{device_max} V (actuators.{channel}.amplifier.v_max)"
+    )]
+    AmplifierRange {
+        /// Channel name.
+        channel: &'static str,
+        /// The description's highest voltage.
+        described: f64,
+        /// The device's lowest voltage.
+        device_min: f64,
+        /// The device's highest voltage.
+        device_max: f64,
+    },
+}
+
+/// The devices of one bench behind the safety wrappers, as every controller, program
+/// and front end should see them.
+pub struct Rig<B: Backend> {
+    /// A1, A2, A3 behind the shared piezo envelope.
+    pub piezo: [GuardedPiezo<B::Piezo>; 3],
+    /// The envelope's shared state.
+    pub guard: SharedGuard,
+    /// Camera (nothing to guard).
+    pub camera: B::Camera,
+    /// Stage within the rig's travel.
+    pub stage: GuardedStage<B::Stage>,
+    /// Injector below the rig's pressure limit.
+    pub injector: GuardedInjector<B::Injector>,
+    /// Zoom within the rig's range.
+    pub optics: GuardedOptics<B::Optics>,
+    /// Clock.
+    pub clock: B::Clock,
+}
+
+/// The safety envelope of a design assembled and wired as `rig` describes.
+pub fn envelope(design: &Design, rig: &RigParams) -> Result<PiezoEnvelope, ModelError> {
+    let limits = EnvelopeLimits {
+        voltage_range: rig.amplifiers.map(|a| (0.0, a.v_max)),
+        hysteresis_bound: rig.safety.hysteresis_bound,
+        dynamic_margin: rig.safety.dynamic_margin,
+    };
+    PiezoEnvelope::new(Mechanism::new(design)?, rig.approach, limits)
+}
+
+impl<B: Backend> Rig<B> {
+    /// Wraps a backend's devices in the guards of `design` and `rig`. The amplifiers'
+    /// own ranges must be the description's (else the envelope would be computed for
+    /// other voltages than the device applies).
+    pub fn new(devices: Devices<B>, design: &Design, rig: &RigParams) -> Result<Self, RigError> {
+        for (ch, p) in devices.piezo.iter().enumerate() {
+            let (lo, hi) = p.voltage_range();
+            let described = rig.amplifiers[ch].v_max;
+            if lo != 0.0 || hi != described {
+                return Err(RigError::AmplifierRange {
+                    channel: cellinject_model::ACTUATOR_NAMES[ch],
+                    described,
+                    device_min: lo,
+                    device_max: hi,
+                });
+            }
+        }
+        let env = envelope(design, rig)?;
+        let commanded = [0, 1, 2].map(|i| devices.piezo[i].commanded_voltage());
+        let guard = shared_guard(env, commanded);
+        let [a1, a2, a3] = devices.piezo;
+        let limits = rig.stage_limits();
+        let axes = devices.stage.axes();
+        Ok(Rig {
+            piezo: [
+                GuardedPiezo::new(a1, 0, guard.clone()),
+                GuardedPiezo::new(a2, 1, guard.clone()),
+                GuardedPiezo::new(a3, 2, guard.clone()),
+            ],
+            guard,
+            camera: devices.camera,
+            stage: GuardedStage::new(devices.stage, Some(vec![limits; axes])),
+            injector: GuardedInjector::new(devices.injector, rig.injector_max_pressure),
+            optics: GuardedOptics::new(
+                devices.optics,
+                (rig.optics.zoom_range[0], rig.optics.zoom_range[1]),
+            ),
+            clock: devices.clock,
+        })
+    }
+
+    /// The highest voltage channel `ch` may take with the other channels where they
+    /// were last commanded, or `None` if none is safe.
+    pub fn max_safe_voltage(&self, ch: usize) -> Option<f64> {
+        let g = lock(&self.guard);
+        g.envelope().max_safe_voltage(ch, g.commanded())
+    }
+}
