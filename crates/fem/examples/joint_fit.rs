@@ -6,7 +6,7 @@
 //! `cargo run --release -p cellinject-fem --example joint_fit [LEVEL [FILLET_M [GAP_M]]]`
 //! (level 2: about a minute).
 
-use cellinject_fem::joint3d::{DoubleNotch, JointMesh, fit_pair};
+use cellinject_fem::joint3d::{DoubleNotch, JointMesh, fit_pair_observed};
 use cellinject_flexure::Material;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -22,13 +22,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         gap,
     };
     let t = std::time::Instant::now();
-    let f = fit_pair(
+    let f = fit_pair_observed(
         &start,
         [1.2e-3, 2.0e-3],
         [91.3, 340.3],
         &Material::x2crni18_9(),
         &JointMesh::default(),
         level,
+        |s| {
+            eprintln!(
+                "fit it {}: flat {:.4e} b {:.4e} k {:.2} {:.2}",
+                s.iteration, s.flat, s.side, s.k[0], s.k[1]
+            )
+        },
     )?;
     let j3 = cellinject_fem::joint3d::solve(
         &DoubleNotch {

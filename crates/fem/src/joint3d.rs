@@ -42,6 +42,7 @@ use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
 
 use cellinject_flexure::Material;
+use cellinject_numeric::{Newton2Error, Newton2Options, newton2};
 
 use crate::FemError;
 use crate::lagrange::{G3, quad};
@@ -314,6 +315,206 @@ impl JointSolution {
             *o = self.max_von_mises(&w);
         }
         out
+    }
+}
+
+/// Version of the byte encoding of [`JointSolution::to_bytes`]; decoding refuses any
+/// other.
+pub const SOLUTION_ENCODING_VERSION: u64 = 1;
+
+/// Magic bytes that open an encoded [`JointSolution`].
+const SOLUTION_MAGIC: [u8; 8] = *b"CIJSOL\0\0";
+
+impl JointSolution {
+    /// The whole solution as bytes, for a cache: every field, the private stress basis
+    /// and its points included, as little-endian `f64` bit patterns and `u64` counts
+    /// after an 8-byte magic and [`SOLUTION_ENCODING_VERSION`]. Matrices are stored
+    /// column by column. [`JointSolution::from_bytes`] gives back an identical solution.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let n = self.stress_basis.len();
+        let m = self.stress_points.len();
+        let mut out = Vec::with_capacity(8 * (44 + 36 * n + 3 * m) + 256);
+        out.extend_from_slice(&SOLUTION_MAGIC);
+        let u = |out: &mut Vec<u8>, v: u64| out.extend_from_slice(&v.to_le_bytes());
+        u(&mut out, SOLUTION_ENCODING_VERSION);
+        let f = |out: &mut Vec<u8>, v: f64| out.extend_from_slice(&v.to_bits().to_le_bytes());
+        for v in self.compliance.iter() {
+            f(&mut out, *v);
+        }
+        for v in self.block_compliance.iter() {
+            f(&mut out, *v);
+        }
+        for v in self.block_sections {
+            f(&mut out, v);
+        }
+        f(&mut out, self.asymmetry);
+        for v in self.k_bend {
+            f(&mut out, v);
+        }
+        f(&mut out, self.k_axial);
+        f(&mut out, self.k_torsion);
+        let l = &self.layout;
+        for v in [
+            l.bottom,
+            l.lower_end,
+            l.notch_a,
+            l.a_end,
+            l.b_start,
+            l.notch_b,
+            l.upper_end,
+            l.top,
+        ] {
+            f(&mut out, v);
+        }
+        u(&mut out, self.dofs as u64);
+        u(&mut out, self.elements as u64);
+        f(&mut out, self.residual);
+        u(&mut out, n as u64);
+        for b in &self.stress_basis {
+            for row in b {
+                for v in row {
+                    f(&mut out, *v);
+                }
+            }
+        }
+        u(&mut out, m as u64);
+        for p in &self.stress_points {
+            for v in p {
+                f(&mut out, *v);
+            }
+        }
+        out
+    }
+
+    /// Decodes [`JointSolution::to_bytes`]. Refuses (as [`FemError::Invalid`], saying
+    /// where) a wrong magic or version, truncated or trailing bytes, and counts that do
+    /// not fit the length; the numbers themselves are not checked.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, FemError> {
+        let mut r = Reader { bytes, at: 0 };
+        if r.take(8)? != SOLUTION_MAGIC {
+            return Err(FemError::Invalid(
+                "joint solution bytes: wrong magic (not an encoded joint solution)".into(),
+            ));
+        }
+        let version = r.u64()?;
+        if version != SOLUTION_ENCODING_VERSION {
+            return Err(FemError::Invalid(format!(
+                "joint solution bytes: encoding version {version}, expected {SOLUTION_ENCODING_VERSION}"
+            )));
+        }
+        let compliance = Matrix6::from_iterator(r.f64s(36)?);
+        let block_compliance = Matrix6::from_iterator(r.f64s(36)?);
+        let block_sections = [r.f64()?, r.f64()?];
+        let asymmetry = r.f64()?;
+        let k_bend = [r.f64()?, r.f64()?];
+        let k_axial = r.f64()?;
+        let k_torsion = r.f64()?;
+        let layout = Layout {
+            bottom: r.f64()?,
+            lower_end: r.f64()?,
+            notch_a: r.f64()?,
+            a_end: r.f64()?,
+            b_start: r.f64()?,
+            notch_b: r.f64()?,
+            upper_end: r.f64()?,
+            top: r.f64()?,
+        };
+        let dofs = r.count(0)?;
+        let elements = r.count(0)?;
+        let residual = r.f64()?;
+        let n = r.count(36 * 8)?;
+        let mut stress_basis = Vec::with_capacity(n);
+        for _ in 0..n {
+            let mut b = [[0.0f64; 6]; 6];
+            for row in &mut b {
+                for v in row.iter_mut() {
+                    *v = r.f64()?;
+                }
+            }
+            stress_basis.push(b);
+        }
+        let m = r.count(3 * 8)?;
+        if m != n {
+            return Err(FemError::Invalid(format!(
+                "joint solution bytes: {m} stress points for {n} stress tensors"
+            )));
+        }
+        let mut stress_points = Vec::with_capacity(m);
+        for _ in 0..m {
+            stress_points.push([r.f64()?, r.f64()?, r.f64()?]);
+        }
+        if r.at != bytes.len() {
+            return Err(FemError::Invalid(format!(
+                "joint solution bytes: {} trailing bytes after byte {}",
+                bytes.len() - r.at,
+                r.at
+            )));
+        }
+        Ok(JointSolution {
+            compliance,
+            block_compliance,
+            block_sections,
+            asymmetry,
+            k_bend,
+            k_axial,
+            k_torsion,
+            layout,
+            dofs,
+            elements,
+            residual,
+            stress_basis,
+            stress_points,
+        })
+    }
+}
+
+/// Little-endian reader over the bytes of an encoded solution.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize) -> Result<&[u8], FemError> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let Some(end) = end else {
+            return Err(FemError::Invalid(format!(
+                "joint solution bytes: truncated ({} bytes, {n} more needed at byte {})",
+                self.bytes.len(),
+                self.at
+            )));
+        };
+        let out = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(out)
+    }
+
+    fn u64(&mut self) -> Result<u64, FemError> {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(self.take(8)?);
+        Ok(u64::from_le_bytes(b))
+    }
+
+    fn f64(&mut self) -> Result<f64, FemError> {
+        self.u64().map(f64::from_bits)
+    }
+
+    fn f64s(&mut self, n: usize) -> Result<Vec<f64>, FemError> {
+        (0..n).map(|_| self.f64()).collect()
+    }
+
+    /// A count whose items take `item` bytes each: refused if they cannot fit in what
+    /// is left (so that a corrupt count never allocates).
+    fn count(&mut self, item: usize) -> Result<usize, FemError> {
+        let v = self.u64()?;
+        let left = (self.bytes.len() - self.at) as u64;
+        match usize::try_from(v) {
+            Ok(n) if (n as u64).saturating_mul(item as u64) <= left => Ok(n),
+            _ => Err(FemError::Invalid(format!(
+                "joint solution bytes: count {v} at byte {} does not fit the {left} bytes left",
+                self.at - 8
+            ))),
+        }
     }
 }
 
@@ -1121,6 +1322,19 @@ pub struct PairFit {
     pub iterations: usize,
 }
 
+/// One Newton iterate of [`fit_pair_observed`], for progress reports.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitStep {
+    /// Newton step (0: the start).
+    pub iteration: usize,
+    /// m, straight throat length of the iterate.
+    pub flat: f64,
+    /// m, rod side of the iterate.
+    pub side: f64,
+    /// N·m/rad, bending stiffness reached at each throat (mean of the two axes).
+    pub k: [f64; 2],
+}
+
 /// Fits the straight throat length and the rod side so that one geometry gives bending stiffness
 /// `k[0]` at throat `throat[0]` and `k[1]` at `throat[1]` (the gap is kept), by
 /// Newton's method on the logarithms with a finite-difference Jacobian, starting from
@@ -1133,10 +1347,27 @@ pub fn fit_pair(
     mesh: &JointMesh,
     level: usize,
 ) -> Result<PairFit, FemError> {
+    fit_pair_observed(start, throat, k, m, mesh, level, |_| {})
+}
+
+/// [`fit_pair`], showing every Newton iterate to `observe` (each costs two joint
+/// solves, plus four for the Jacobian).
+pub fn fit_pair_observed(
+    start: &DoubleNotch,
+    throat: [f64; 2],
+    k: [f64; 2],
+    m: &Material,
+    mesh: &JointMesh,
+    level: usize,
+    mut observe: impl FnMut(&FitStep),
+) -> Result<PairFit, FemError> {
     // The fillet radius is kept, capped at the cut depth of the thicker throat.
     let thickest = throat[0].max(throat[1]);
     let fillet_for = |side: f64| start.radius.min(0.5 * (side - thickest));
-    let eval = |x: [f64; 2]| -> Result<[f64; 2], FemError> {
+    let target = [k[0].ln(), k[1].ln()];
+    // Residual: log-stiffness reached minus log-stiffness wanted, for x = (ln flat,
+    // ln side).
+    let residual = |x: [f64; 2]| -> Result<[f64; 2], FemError> {
         let mut out = [0.0; 2];
         for p in 0..2 {
             let j = DoubleNotch {
@@ -1147,60 +1378,45 @@ pub fn fit_pair(
                 gap: start.gap,
             };
             let s = solve(&j, m, mesh, level)?;
-            out[p] = (0.5 * (s.k_bend[0] + s.k_bend[1])).ln();
+            out[p] = (0.5 * (s.k_bend[0] + s.k_bend[1])).ln() - target[p];
         }
         Ok(out)
     };
-    let target = [k[0].ln(), k[1].ln()];
-    let mut x = [start.flat.max(1e-5).ln(), start.side.ln()];
-    let mut f = eval(x)?;
-    let mut residual = f64::INFINITY;
-    for it in 0..12 {
-        let r = [f[0] - target[0], f[1] - target[1]];
-        eprintln!(
-            "fit it {it}: flat {:.4e} b {:.4e} k {:.2} {:.2}",
-            x[0].exp(),
-            x[1].exp(),
-            f[0].exp(),
-            f[1].exp()
-        );
-        residual = r[0].abs().max(r[1].abs());
-        if residual < 1e-4 {
-            return Ok(PairFit {
-                joint: DoubleNotch {
-                    flat: x[0].exp(),
-                    side: x[1].exp(),
-                    radius: fillet_for(x[1].exp()),
-                    throat: throat[0],
-                    gap: start.gap,
-                },
-                k: [f[0].exp(), f[1].exp()],
-                iterations: it,
-            });
-        }
-        let h = 1e-3;
-        let mut jac = nalgebra::Matrix2::zeros();
-        for c in 0..2 {
-            let mut xp = x;
-            xp[c] += h;
-            let fp = eval(xp)?;
-            for row in 0..2 {
-                jac[(row, c)] = (fp[row] - f[row]) / h;
-            }
-        }
-        let step = jac
-            .lu()
-            .solve(&nalgebra::Vector2::new(-r[0], -r[1]))
-            .ok_or_else(|| FemError::Invalid("singular fit Jacobian".into()))?;
+    let options = Newton2Options {
+        fd_step: 1e-3,
+        tolerance: 1e-4,
+        max_iterations: 12,
         // Damped: at most 20 % change of a dimension per step.
-        let scale = (0.2 / step.amax()).min(1.0);
-        x[0] += scale * step[0];
-        x[1] += scale * step[1];
-        f = eval(x)?;
-    }
-    Err(FemError::Invalid(format!(
-        "joint fit did not converge: log-stiffness residual {residual:.2e}"
-    )))
+        max_step: 0.2,
+    };
+    let x0 = [start.flat.max(1e-5).ln(), start.side.ln()];
+    let fit = newton2(residual, x0, &options, |iteration, x, f| {
+        observe(&FitStep {
+            iteration,
+            flat: x[0].exp(),
+            side: x[1].exp(),
+            k: [(f[0] + target[0]).exp(), (f[1] + target[1]).exp()],
+        })
+    })
+    .map_err(|e| match e {
+        Newton2Error::Eval(e) => e,
+        Newton2Error::Singular { .. } => FemError::Invalid("singular fit Jacobian".into()),
+        Newton2Error::NotConverged { residual, .. } => FemError::Invalid(format!(
+            "joint fit did not converge: log-stiffness residual {residual:.2e}"
+        )),
+    })?;
+    let x = fit.x;
+    Ok(PairFit {
+        joint: DoubleNotch {
+            flat: x[0].exp(),
+            side: x[1].exp(),
+            radius: fillet_for(x[1].exp()),
+            throat: throat[0],
+            gap: start.gap,
+        },
+        k: [(fit.f[0] + target[0]).exp(), (fit.f[1] + target[1]).exp()],
+        iterations: fit.iterations,
+    })
 }
 
 #[cfg(test)]
@@ -1262,6 +1478,61 @@ mod tests {
         assert!(c.symmetric_eigenvalues().iter().all(|&e| e > 0.0));
         // The two notches are alike: equal bending stiffness about x and y.
         assert!((s.k_bend[0] / s.k_bend[1] - 1.0).abs() < 0.02);
+    }
+
+    #[test]
+    fn a_solution_survives_its_byte_encoding_bit_for_bit() {
+        // A coarse mesh: only the encoding is under test.
+        let joint = DoubleNotch {
+            side: 6e-3,
+            radius: 2.5e-3,
+            flat: 0.5e-3,
+            throat: 1.2e-3,
+            gap: 2e-3,
+        };
+        let mesh = JointMesh {
+            across: 2,
+            notch: 4,
+            block: 1,
+            gap: 1,
+            grading: 1.0,
+        };
+        let s = solve(&joint, &steel(), &mesh, 1).unwrap();
+        let bytes = s.to_bytes();
+        let back = JointSolution::from_bytes(&bytes).unwrap();
+        assert_eq!(back.to_bytes(), bytes);
+        assert_eq!(back.compliance, s.compliance);
+        assert_eq!(back.block_compliance, s.block_compliance);
+        assert_eq!(back.block_sections, s.block_sections);
+        assert_eq!(back.layout, s.layout);
+        assert_eq!(
+            (back.dofs, back.elements, back.residual.to_bits()),
+            (s.dofs, s.elements, s.residual.to_bits())
+        );
+        assert_eq!(back.k_bend, s.k_bend);
+        assert_eq!(back.stress_basis, s.stress_basis);
+        assert_eq!(back.stress_points, s.stress_points);
+        assert!(!s.stress_points.is_empty());
+        let w = Vector6::new(1.0, -2.0, 30.0, 0.4, -0.5, 0.06);
+        assert_eq!(back.peak_von_mises_block(&w), s.peak_von_mises_block(&w));
+        // Damaged bytes are refused, never decoded into a wrong solution.
+        for cut in [0, 7, 16, bytes.len() / 2, bytes.len() - 1] {
+            assert!(
+                JointSolution::from_bytes(&bytes[..cut]).is_err(),
+                "cut {cut}"
+            );
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(JointSolution::from_bytes(&longer).is_err());
+        let mut version = bytes.clone();
+        version[8] ^= 0x40;
+        assert!(JointSolution::from_bytes(&version).is_err());
+        // A stress-basis count far beyond the bytes left does not allocate.
+        let count_at = 8 + 8 + 8 * (36 + 36 + 2 + 1 + 2 + 1 + 1 + 8 + 2 + 1);
+        let mut count = bytes.clone();
+        count[count_at..count_at + 8].copy_from_slice(&u64::MAX.to_le_bytes());
+        assert!(JointSolution::from_bytes(&count).is_err());
     }
 
     #[test]

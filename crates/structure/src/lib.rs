@@ -36,6 +36,7 @@
 //! compliances come in as numbers, so this crate does not depend on the FEM.
 
 use cellinject_model::Design;
+use cellinject_numeric::{Newton2Error, Newton2Options, newton2};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Rotation3, SMatrix, SVector, Vector3, Vector6};
 use thiserror::Error;
 
@@ -150,6 +151,13 @@ pub struct StructureParams {
     pub throat_j3: f64,
     /// Masses for the natural modes.
     pub mass: MassSpec,
+    /// Pa, Young's modulus of the joints' material (X2CrNi18-9: 190 GPa, Sec. 3.1).
+    pub youngs: f64,
+    /// Poisson's ratio of the joints' material (0.3; not in the paper).
+    pub poisson: f64,
+    /// Pa, yield strength the joints' stresses are compared with (X2CrNi18-9: 465 MPa,
+    /// Sec. 3.1).
+    pub yield_strength: f64,
 }
 
 impl Default for StructureParams {
@@ -158,7 +166,7 @@ impl Default for StructureParams {
     /// 340.3 N·m/rad at Δ = 1.2 and 2.0 mm; the fillet is the smallest that keeps J3
     /// below yield over both approaches' working ranges); body 1 of 0.2 kg with its centre of mass 60 mm
     /// above J3 (1.2e-3 kg·m² about J3, as the twin's dynamics), stacks of 50 g
-    /// (10 x 10 x 66 mm of PZT).
+    /// (10 x 10 x 66 mm of PZT); X2CrNi18-9 (E = 190 GPa, ν = 0.3, yield 465 MPa).
     fn default() -> Self {
         StructureParams {
             joint: JointDimensions {
@@ -175,6 +183,9 @@ impl Default for StructureParams {
                 body_inertia: [4.8e-4, 4.8e-4, 5.0e-5],
                 stack_mass: 0.05,
             },
+            youngs: 190e9,
+            poisson: 0.3,
+            yield_strength: 465e6,
         }
     }
 }
@@ -678,34 +689,25 @@ impl Structure {
         let travel = |dq0: [f64; 2]| -> Result<[f64; 2], StructureError> {
             Ok(self.solve(preload, Preload::Deflection { dq0 })?.slider)
         };
-        let mut x = start;
-        let mut last = f64::INFINITY;
-        for _ in 0..MAX_ITER {
-            let s0 = travel(x)?;
-            last = s0[0].abs().max(s0[1].abs());
-            if last < 1e-11 {
-                return Ok(x);
-            }
-            let h = 1e-6;
-            let mut j = nalgebra::Matrix2::zeros();
-            for c in 0..2 {
-                let mut xp = x;
-                xp[c] += h;
-                let sp = travel(xp)?;
-                for r in 0..2 {
-                    j[(r, c)] = (sp[r] - s0[r]) / h;
-                }
-            }
-            let step = j
-                .lu()
-                .solve(&nalgebra::Vector2::new(-s0[0], -s0[1]))
-                .ok_or(StructureError::Unstable { pivot: 0.0 })?;
-            x = [x[0] + step[0], x[1] + step[1]];
-        }
-        Err(StructureError::NotConverged {
-            iterations: MAX_ITER,
-            residual: last / SCALE,
-        })
+        let options = Newton2Options {
+            fd_step: 1e-6,
+            tolerance: 1e-11,
+            max_iterations: MAX_ITER,
+            max_step: f64::INFINITY,
+        };
+        newton2(travel, start, &options, |_, _, _| {})
+            .map(|r| r.x)
+            .map_err(|e| match e {
+                Newton2Error::Eval(e) => e,
+                Newton2Error::Singular { .. } => StructureError::Unstable { pivot: 0.0 },
+                Newton2Error::NotConverged {
+                    iterations,
+                    residual,
+                } => StructureError::NotConverged {
+                    iterations,
+                    residual: residual / SCALE,
+                },
+            })
     }
 
     fn equilibrium(
