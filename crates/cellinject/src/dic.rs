@@ -4,11 +4,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use cellinject_dic::field::{FieldOptions, field};
+use cellinject_core::dic::{PointReport, field_report, points};
+use cellinject_dic::field::FieldOptions;
 use cellinject_dic::track::{Roi, Status, Tracker};
-use cellinject_dic::{DicError, Image, PointOptions, Shape, correlate_points};
+use cellinject_dic::{DicError, Image, PointOptions, Shape};
 use clap::{Args, Subcommand, ValueEnum};
-use serde_json::json;
 
 use crate::output::{Table, write_atomic};
 use crate::{Format, InputError};
@@ -233,32 +233,13 @@ fn run_points(a: &PointArgs) -> Result<()> {
         prefilter: a.prefilter,
         ..PointOptions::default()
     };
-    let res = correlate_points(&r, &c, &a.at, &opts).map_err(|e| match e {
+    let res = points(&r, &c, &a.at, &opts).map_err(|e| match e {
         DicError::SubsetSize { .. } => dic_error("--subset", e),
         DicError::SubsetOutside { .. } => dic_error("--at", e),
         other => dic_error("dic", other),
     })?;
     match a.format {
-        Format::Json => {
-            let list: Vec<serde_json::Value> = a
-                .at
-                .iter()
-                .zip(&res)
-                .map(|(&(x, y), o)| match o {
-                    Some(p) => json!({
-                        "x": x, "y": y, "u": p.u, "v": p.v,
-                        "du_dx": p.gradients[0], "du_dy": p.gradients[1],
-                        "dv_dx": p.gradients[2], "dv_dy": p.gradients[3],
-                        "zncc": p.zncc, "iterations": p.iterations, "converged": p.converged,
-                        "sigma_u": p.sigma_u, "sigma_v": p.sigma_v, "sigma_noise": p.sigma_noise,
-                    }),
-                    None => json!({"x": x, "y": y, "u": null, "v": null, "zncc": null,
-                        "iterations": 0, "converged": false, "sigma_u": null,
-                        "error": "no match (no texture, or the subset left the current image)"}),
-                })
-                .collect();
-            println!("{}", serde_json::to_string_pretty(&list)?);
-        }
+        Format::Json => println!("{}", serde_json::to_string_pretty(&res)?),
         Format::Text => {
             let mut t = Table::new(
                 &[
@@ -273,19 +254,30 @@ fn run_points(a: &PointArgs) -> Result<()> {
                 ],
                 &[true; 8],
             );
-            for (&(x, y), o) in a.at.iter().zip(&res) {
-                t.row(match o {
-                    Some(p) => vec![
+            for p in &res {
+                t.row(match *p {
+                    PointReport::Found {
+                        x,
+                        y,
+                        u,
+                        v,
+                        zncc,
+                        iterations,
+                        converged,
+                        sigma_u,
+                        sigma_v,
+                        ..
+                    } => vec![
                         format!("{x}"),
                         format!("{y}"),
-                        format!("{:.4}", p.u),
-                        format!("{:.4}", p.v),
-                        format!("{:.4}", p.zncc),
-                        format!("{}{}", p.iterations, if p.converged { "" } else { "!" }),
-                        format!("{:.4}", p.sigma_u),
-                        format!("{:.4}", p.sigma_v),
+                        format!("{u:.4}"),
+                        format!("{v:.4}"),
+                        format!("{zncc:.4}"),
+                        format!("{iterations}{}", if converged { "" } else { "!" }),
+                        format!("{sigma_u:.4}"),
+                        format!("{sigma_v:.4}"),
                     ],
-                    None => vec![
+                    PointReport::Missing { x, y, .. } => vec![
                         format!("{x}"),
                         format!("{y}"),
                         "no match".into(),
@@ -352,19 +344,19 @@ fn run_field(
         ..FieldOptions::default()
     };
     let t0 = std::time::Instant::now();
-    let f = field(&r, &c, &opts).map_err(|e| match e {
+    let report = field_report(&r, &c, &opts).map_err(|e| match e {
         DicError::SubsetSize { .. } => dic_error("--subset", e),
         other => dic_error("dic field", other),
     })?;
     let elapsed = t0.elapsed().as_secs_f64();
+    let f = &report.field;
     let mut csv =
         String::from("x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v\n");
-    let mut found = 0;
+    let found = report.found;
     for (k, p) in f.points.iter().enumerate() {
-        let (x, y) = (f.x0 + (k % f.nx) * f.step, f.y0 + (k / f.nx) * f.step);
+        let (x, y) = report.position(k);
         match p {
             Some(p) => {
-                found += 1;
                 let _ = writeln!(
                     csv,
                     "{x},{y},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{:.6},{},{},{:.6},{:.6}",
@@ -389,17 +381,8 @@ fn run_field(
     write_atomic(out, &csv)
         .map_err(|e| InputError(format!("--out `{}`: cannot write: {e}", out.display())))?;
     // Displacement maps: u and v side by side, each on its own colour scale.
-    let range = |sel: fn(&cellinject_dic::PointResult) -> f64| {
-        f.points
-            .iter()
-            .flatten()
-            .map(sel)
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-                (a.min(v), b.max(v))
-            })
-    };
-    let ru = range(|p| p.u);
-    let rv = range(|p| p.v);
+    let ru = report.u_range.unwrap_or((f64::INFINITY, f64::NEG_INFINITY));
+    let rv = report.v_range.unwrap_or((f64::INFINITY, f64::NEG_INFINITY));
     let (nx, ny) = (f.nx as u32, f.ny as u32);
     let gap = 4;
     let mut img = image::RgbImage::from_pixel(2 * nx + gap, ny, image::Rgb([255, 255, 255]));
@@ -543,11 +526,12 @@ fn run_track(
     }
     let files = frame_list(frames)?;
     let first = load_grey(&files[0])?;
+    let [x, y, width, height] = [0, 1, 2, 3].map(|i| u32::try_from(roi[i]).unwrap_or(u32::MAX));
     let roi = Roi {
-        x: roi[0],
-        y: roi[1],
-        width: roi[2],
-        height: roi[3],
+        x,
+        y,
+        width,
+        height,
     };
     let mut tracker =
         Tracker::new(&first, roi, shape.into(), min_zncc).map_err(|e| dic_error("--roi", e))?;

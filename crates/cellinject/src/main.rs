@@ -69,6 +69,9 @@ enum Command {
         /// Directory for the Markdown report (created if needed).
         #[arg(long, value_name = "DIR", default_value = "reports")]
         out: PathBuf,
+        /// Output format (the report is written either way).
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
     },
 }
 
@@ -85,19 +88,27 @@ impl std::fmt::Display for InputError {
 impl std::error::Error for InputError {}
 
 fn run(cli: Cli) -> anyhow::Result<()> {
-    let description = commands::load_description(cli.config.as_deref())?;
+    // Only the commands that use a description read one: `dic` and `hinge` never fail
+    // on a bad `--config`.
+    let description = || commands::load_description(cli.config.as_deref());
     match cli.command {
         Some(Command::Tension { approach, format }) => {
-            commands::tension(&description, approach, format)
+            commands::tension(&description()?, approach, format)
         }
-        Some(Command::Model { format }) => commands::model(&description, format),
-        Some(Command::Sim(cmd)) => sim::run(&description, &cmd),
+        Some(Command::Model { format }) => commands::model(&description()?, format),
+        Some(Command::Sim(cmd)) => sim::run(&description()?, &cmd),
         Some(Command::Dic(args)) => dic::run(&args),
-        Some(Command::Fea(args)) => fea::run(&description, &args),
+        Some(Command::Fea(args)) => fea::run(&description()?, &args),
         Some(Command::Hinge(args)) => hinge::run(&args),
         Some(Command::HingeTable(args)) => hinge::table(&args),
-        Some(Command::Reproduce { out }) => commands::reproduce(&description, &out),
-        None => commands::reproduce(&description, std::path::Path::new("reports")),
+        Some(Command::Reproduce { out, format }) => {
+            commands::reproduce(&description()?, &out, format)
+        }
+        None => commands::reproduce(
+            &description()?,
+            std::path::Path::new("reports"),
+            Format::Text,
+        ),
     }
 }
 

@@ -1,15 +1,18 @@
-//! `cellinject sim ...`: drive the digital twin through its hardware traits (behind the
-//! safety wrappers, as a controller would) and write what it did.
+//! `cellinject sim ...`: programs of `cellinject-core` run on the digital twin through
+//! its guarded rig, measured by the twin's own truth; this file writes what they did.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use cellinject_config::Description;
-use cellinject_hw::{Camera, Clock, Frame, HwError, PiezoChannel};
-use cellinject_model::{ACTUATOR_NAMES, Approach};
+use cellinject_core::sim::{self as core, Acquisition, SimError, StepSample};
+use cellinject_hw::{Frame, HwError};
+use cellinject_model::Approach;
 use cellinject_plot::{Chart, Series};
-use cellinject_twin::{GuardedDevices, SharedTwin, Twin, guarded_devices};
+use cellinject_rig::Rig;
+use cellinject_twin::devices::displacement_in;
+use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
 use clap::{Args, Subcommand};
 
 use crate::InputError;
@@ -94,42 +97,33 @@ fn parse_bits(s: &str) -> Result<u8, String> {
 }
 
 fn channel(name: &str) -> Result<usize> {
-    ACTUATOR_NAMES
-        .iter()
-        .position(|a| a.eq_ignore_ascii_case(name))
+    core::channel(name)
         .ok_or_else(|| InputError(format!("--actuator must be A1, A2 or A3, got `{name}`")).into())
 }
 
-/// Builds the twin of the description and its guarded devices.
-fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, GuardedDevices)> {
-    let mut p = d.twin;
+/// Builds the twin of the description and its guarded rig.
+fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig<TwinBackend>)> {
+    let mut p = TwinParams {
+        rig: d.rig,
+        sim: d.sim,
+    };
     if let Some(a) = args.approach {
-        p.approach = Approach::from_number(a).unwrap_or(p.approach);
+        p.rig.approach = Approach::from_number(a).unwrap_or(p.rig.approach);
     }
     if let Some(s) = args.seed {
-        p.seed = s;
+        p.sim.seed = s;
     }
     let twin = Twin::new(&d.design, p)
         .map_err(|e| InputError(format!("cannot build the twin: {e}")))?
         .into_shared();
-    let dev =
-        guarded_devices(&twin).map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
-    Ok((twin, dev))
+    let rig = cellinject_twin::rig(&twin)
+        .map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
+    Ok((twin, rig))
 }
 
-/// A refused command is the user's to fix: exit code 2.
-fn refused(e: HwError) -> anyhow::Error {
-    InputError(format!("{e}")).into()
-}
-
-/// The displacement of an actuator's end as the mechanism sees it, m (positive = extends).
-fn displacement(twin: &SharedTwin, ch: usize) -> f64 {
-    displacement_in(&lock(twin).world.snapshot(), ch)
-}
-
-/// The same, from a snapshot already taken.
-fn displacement_in(s: &cellinject_twin::Snapshot, ch: usize) -> f64 {
-    if ch < 2 { -s.dl[ch] } else { s.q[2] }
+/// Every refusal and every bad argument of a program is the user's to fix: exit code 2.
+fn sim_error(e: SimError) -> anyhow::Error {
+    InputError(e.to_string()).into()
 }
 
 fn lock(twin: &SharedTwin) -> std::sync::MutexGuard<'_, Twin> {
@@ -162,75 +156,33 @@ fn run_loop(
     args: &TwinArgs,
 ) -> Result<()> {
     let ch = channel(actuator)?;
-    let (twin, mut dev) = build(d, args)?;
-    let v_max = dev.piezo[ch].voltage_range().1;
-    let amp = amplitude.unwrap_or(v_max);
-    if !(amp > 0.0 && amp <= v_max) {
-        return Err(
-            InputError(format!("--amplitude must lie in (0, {v_max}] V, got {amp}")).into(),
-        );
-    }
-    let env = cellinject_twin::devices::envelope(&twin).map_err(|e| InputError(e.to_string()))?;
-    let safe = env.max_safe_voltage(ch, [0.0; 3]).unwrap_or(0.0);
-    if amp > safe {
-        let mut volts = [0.0; 3];
-        volts[ch] = amp;
-        let why = env
-            .check(volts)
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
-        return Err(InputError(format!(
-            "--amplitude {amp} V is beyond the safety envelope of {} under approach {} ({why}); at most {safe:.1} V is allowed",
-            ACTUATOR_NAMES[ch],
-            lock(&twin).world.params().approach.number()
-        ))
-        .into());
-    }
-    // A full loop, then nested minor loops closing towards the middle, then back to 0.
-    let turning = [1.0, 0.0, 0.8, 0.2, 0.7, 0.3, 0.6, 0.4, 0.0];
-    let ramp = amp; // V/s: one second per full leg
-    let dt = 1e-3;
-    let start = displacement(&twin, ch);
+    let (twin, mut rig) = build(d, args)?;
+    let approach = lock(&twin).world.params().rig.approach;
+    let r = core::hysteresis_loop(&mut rig, ch, amplitude, approach, || {
+        lock(&twin).actuator_displacement(ch)
+    })
+    .map_err(sim_error)?;
     let mut csv = String::from("time_s,voltage_v,displacement_m\n");
-    let mut points = Vec::new();
-    let mut v = 0.0;
-    for &target in &turning {
-        let target = target * amp;
-        let n = ((target - v).abs() / (ramp * dt)).ceil().max(1.0) as usize;
-        let from = v;
-        for k in 1..=n {
-            v = from + (target - from) * k as f64 / n as f64;
-            dev.piezo[ch]
-                .set_voltage(v)
-                .map_err(|e| InputError(format!("{} at {v:.3} V: {e}", ACTUATOR_NAMES[ch])))?;
-            dev.clock.sleep(dt).map_err(refused)?;
-            let out_v = dev.piezo[ch].read_voltage().map_err(refused)?;
-            let x = displacement(&twin, ch) - start;
-            let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", dev.clock.now(), out_v, x);
-            points.push((out_v, x * 1e6));
-        }
+    for s in &r.samples {
+        let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
     }
     write_csv(out, &csv)?;
     let chart = Chart {
-        title: format!(
-            "{ACTUATOR}: hysteresis loop with nested minor loops",
-            ACTUATOR = ACTUATOR_NAMES[ch]
-        ),
+        title: format!("{}: hysteresis loop with nested minor loops", r.actuator),
         x_label: "amplifier output [V]".into(),
         y_label: "actuator displacement [µm]".into(),
-        series: vec![cellinject_plot::Series {
-            name: ACTUATOR_NAMES[ch].into(),
-            points: points.clone(),
+        series: vec![Series {
+            name: r.actuator.into(),
+            points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
         }],
     };
     let plot = write_plot(out, &[chart], 1)?;
-    let max = points.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
     println!(
-        "{}: loop 0-{amp:.1} V, stroke {:.3} µm under load; {} samples",
-        ACTUATOR_NAMES[ch],
-        max,
-        points.len()
+        "{}: loop 0-{:.1} V, stroke {:.3} µm under load; {} samples",
+        r.actuator,
+        r.amplitude,
+        r.stroke * 1e6,
+        r.samples.len()
     );
     println!("wrote {} and {}", out.display(), plot.display());
     Ok(())
@@ -246,50 +198,44 @@ fn run_step(
     args: &TwinArgs,
 ) -> Result<()> {
     let ch = channel(actuator)?;
-    if !(duration > 0.0 && duration <= 3600.0) {
-        return Err(InputError(format!(
-            "--duration must lie in (0, 3600] s, got {duration}"
-        ))
-        .into());
-    }
-    let (twin, mut dev) = build(d, args)?;
-    let start = displacement(&twin, ch);
-    let x0 = lock(&twin).world.snapshot().x;
-    dev.piezo[ch].set_voltage(voltage).map_err(refused)?;
-    let dt = lock(&twin).world.dt();
+    let (twin, mut rig) = build(d, args)?;
+    let (start, x0, dt) = {
+        let t = lock(&twin);
+        (
+            t.actuator_displacement(ch),
+            t.world.snapshot().x,
+            t.world.dt(),
+        )
+    };
+    let r = core::step_response(&mut rig, ch, voltage, duration, dt, |t| {
+        let s = lock(&twin).world.snapshot();
+        let ee = s.x - x0;
+        StepSample {
+            time: t,
+            voltage: s.voltage[ch],
+            displacement: displacement_in(&s, ch) - start,
+            end_effector: [ee[0], ee[1], ee[2]],
+        }
+    })
+    .map_err(sim_error)?;
     let mut csv = String::from(
         "time_s,voltage_v,displacement_m,end_effector_x_m,end_effector_y_m,end_effector_z_m\n",
     );
-    let (mut fast, mut slow) = (Vec::new(), Vec::new());
-    let t0 = dev.clock.now();
-    let mut next_slow = 0.0;
-    loop {
-        let t = dev.clock.now() - t0;
-        if t > duration + 0.5 * dt {
-            break;
-        }
-        // Every step for the first 50 ms (ringing), then every millisecond (creep).
-        if t <= 0.05 || t >= next_slow {
-            let s = lock(&twin).world.snapshot();
-            let x = displacement_in(&s, ch) - start;
-            let ee = s.x - x0;
-            let _ = writeln!(
-                csv,
-                "{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e}",
-                t, s.voltage[ch], x, ee[0], ee[1], ee[2]
-            );
-            if t <= 0.03 {
-                fast.push((t * 1e3, x * 1e6));
-            }
-            slow.push((t, x * 1e6));
-            if t >= next_slow {
-                next_slow += 1e-3;
-            }
-        }
-        dev.clock.sleep(dt).map_err(refused)?;
+    for s in &r.samples {
+        let _ = writeln!(
+            csv,
+            "{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e}",
+            s.time,
+            s.voltage,
+            s.displacement,
+            s.end_effector[0],
+            s.end_effector[1],
+            s.end_effector[2]
+        );
     }
     write_csv(out, &csv)?;
-    let name = ACTUATOR_NAMES[ch];
+    let name = r.actuator;
+    let um = |s: &StepSample| s.displacement * 1e6;
     let charts = [
         Chart {
             title: format!("{name} step to {voltage} V: first 30 ms"),
@@ -297,7 +243,12 @@ fn run_step(
             y_label: "actuator displacement [µm]".into(),
             series: vec![Series {
                 name: name.into(),
-                points: fast,
+                points: r
+                    .samples
+                    .iter()
+                    .filter(|s| s.time <= 0.03)
+                    .map(|s| (s.time * 1e3, um(s)))
+                    .collect(),
             }],
         },
         Chart {
@@ -307,22 +258,22 @@ fn run_step(
             series: vec![Series {
                 name: name.into(),
                 // After the ringing, so that the vertical axis shows the creep.
-                points: slow.iter().copied().filter(|p| p.0 >= 0.05).collect(),
+                points: r
+                    .samples
+                    .iter()
+                    .filter(|s| s.time >= 0.05)
+                    .map(|s| (s.time, um(s)))
+                    .collect(),
             }],
         },
     ];
     let plot = write_plot(out, &charts, 2)?;
     let f = lock(&twin).world.natural_frequencies();
-    let at = |t: f64| {
-        slow.iter()
-            .find(|p| p.0 >= t)
-            .map(|p| p.1)
-            .unwrap_or(f64::NAN)
-    };
+    let at = |t: f64| r.displacement_at(t).map(|x| x * 1e6).unwrap_or(f64::NAN);
     println!(
         "{name}: step to {voltage} V; displacement {:.3} µm at 0.1 s, {:.3} µm at {duration} s; tilt modes {:.0} Hz and {:.0} Hz, A3 axis {:.0} Hz",
         at(0.1),
-        slow.last().map(|p| p.1).unwrap_or(f64::NAN),
+        r.samples.last().map(um).unwrap_or(f64::NAN),
         f[0],
         f[1],
         f[2]
@@ -372,33 +323,30 @@ fn run_frame(
     out: &Path,
     args: &TwinArgs,
 ) -> Result<()> {
-    let (twin, mut dev) = build(d, args)?;
-    {
-        let mut t = lock(&twin);
-        t.camera
-            .set_zoom(zoom)
-            .map_err(|e| InputError(format!("--zoom: {e}")))?;
-        if vga || crop {
-            let s = t.camera.vga_settings(vga);
-            t.camera
-                .configure(s)
-                .map_err(|e| InputError(format!("camera: {e}")))?;
-        }
-    }
-    if let Some(v) = volts {
-        if v.len() != 3 {
+    let volts = match volts {
+        None => None,
+        Some(&[a, b, c]) => Some([a, b, c]),
+        Some(v) => {
             return Err(InputError(format!(
                 "--volts takes three voltages V1,V2,V3, got {}",
                 v.len()
             ))
             .into());
         }
-        for (ch, volts) in v.iter().enumerate() {
-            dev.piezo[ch].set_voltage(*volts).map_err(refused)?;
-        }
-        dev.clock.sleep(0.1).map_err(refused)?;
-    }
-    let frame = dev.camera.grab().map_err(refused)?;
+    };
+    let acquisition = match (vga, crop) {
+        (true, _) => Acquisition::VgaBinned,
+        (false, true) => Acquisition::VgaCropped,
+        (false, false) => Acquisition::Full,
+    };
+    let (twin, mut rig) = build(d, args)?;
+    let frame = core::frame(&mut rig, zoom, acquisition, volts).map_err(|e| match e {
+        SimError::Device {
+            what,
+            source: HwError::Refused(r),
+        } => InputError(format!("{what}: refused: {r}")).into(),
+        other => sim_error(other),
+    })?;
     write_png(&frame, bits, out)?;
     let tip = lock(&twin).tip();
     println!(

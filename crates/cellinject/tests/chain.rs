@@ -8,14 +8,14 @@ use cellinject_dic::track::{Roi, Status, Tracker};
 use cellinject_dic::{Image, Shape};
 use cellinject_hw::{Camera, CameraSettings, Frame, PiezoChannel};
 use cellinject_model::prototype;
-use cellinject_twin::{Twin, TwinParams, guarded_devices};
+use cellinject_twin::{Twin, TwinParams, rig};
 
 #[test]
 fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
     let twin = Twin::new(&prototype(), TwinParams::default())
         .unwrap()
         .into_shared();
-    let mut dev = guarded_devices(&twin).unwrap();
+    let mut dev = rig(&twin).unwrap();
     // A 480x480 window of the sensor on the marker tab (10x: 0.22 µm per pixel).
     let roi = cellinject_hw::Roi {
         x: 1728 - 240,
@@ -31,8 +31,7 @@ fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
     };
     dev.camera.configure(s).unwrap();
     let mut f = Frame::default();
-    let to_image =
-        |f: &Frame| Image::from_u16(f.width as usize, f.height as usize, &f.pixels).unwrap();
+    let to_image = |f: &Frame| Image::from_frame(f).unwrap();
     let tip_z = || twin.lock().unwrap().tip().z;
     // A3 is pre-set so that the step works on a settled, crept stack.
     dev.piezo[2].set_voltage(10.0).unwrap();

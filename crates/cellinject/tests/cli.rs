@@ -8,8 +8,15 @@ use std::process::{Command, Output};
 
 use serde_json::Value;
 
+/// The binary, with its joint cache in a directory of this test process (never the
+/// user's).
 fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_cellinject"))
+    let mut c = Command::new(env!("CARGO_BIN_EXE_cellinject"));
+    c.env(
+        "XDG_CACHE_HOME",
+        std::env::temp_dir().join(format!("cellinject-cli-cache-{}", std::process::id())),
+    );
+    c
 }
 
 fn run(args: &[&str]) -> Output {
@@ -1191,4 +1198,122 @@ fn fea_bad_arguments_exit_2_with_a_message() {
     let (o, _) = bad_description("structure", "throat_J3 = 2.0e-3", "throat_J3 = 20e-3");
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("structure.throat_J3"), "{}", stderr(&o));
+}
+
+#[test]
+fn dic_and_hinge_never_read_the_description() {
+    let dir = tempdir("noconfig");
+    let bad = dir.join("bad.toml");
+    fs::write(&bad, "name = ").unwrap();
+    let b = bad.to_str().unwrap();
+    let o = run(&[
+        "--config",
+        b,
+        "hinge",
+        "--profile",
+        "leaf",
+        "--thickness",
+        "1e-3",
+        "--width",
+        "5e-3",
+        "--length",
+        "4e-3",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (r, c) = (dir.join("r.png"), dir.join("c.png"));
+    let o = run(&[
+        "--config",
+        b,
+        "dic",
+        "synth",
+        "--size",
+        "64,64",
+        "--reference",
+        r.to_str().unwrap(),
+        "--current",
+        c.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A command that models the manipulator still refuses it, naming the file.
+    let o = run(&["--config", b, "tension", "--approach", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("bad.toml"), "{}", stderr(&o));
+}
+
+#[test]
+fn fea_serves_a_repeat_from_its_cache_and_reports_the_fem_either_way() {
+    let cache = tempdir("fea-cache");
+    let solve = |extra: &[&str]| {
+        let o = bin()
+            .env("XDG_CACHE_HOME", &cache)
+            .args([
+                "fea",
+                "--approach",
+                "1",
+                "--forces=-100,-100",
+                "--format",
+                "json",
+            ])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_str::<Value>(&stdout(&o)).unwrap()
+    };
+    let first = solve(&[]);
+    let second = solve(&[]);
+    for j in ["J1_J2", "J3"] {
+        assert_eq!(first["joint_convergence"][j]["cache"], "miss");
+        assert_eq!(second["joint_convergence"][j]["cache"], "hit");
+        // The convergence of the FEM is reported from the cached solve too.
+        let r = second["joint_convergence"][j]["residual"].as_f64().unwrap();
+        assert!(r > 0.0 && r < 1e-13, "{r}");
+        assert_eq!(
+            first["joint_convergence"][j]["dofs"],
+            second["joint_convergence"][j]["dofs"]
+        );
+    }
+    assert_eq!(first["dx"], second["dx"]);
+    assert_eq!(first["joints"], second["joints"]);
+    // --no-cache neither reads nor writes it.
+    let v = solve(&["--no-cache"]);
+    assert_eq!(v["joint_convergence"]["J3"]["cache"], "off");
+    assert_eq!(v["dx"], first["dx"]);
+}
+
+#[test]
+fn fea_warns_when_structure_and_flexures_disagree_naming_both_keys() {
+    let dir = tempdir("fea-consistency");
+    let path = dir.join("thick-j3.toml");
+    assert!(PROTOTYPE.contains("throat_J3 = "));
+    let text = PROTOTYPE
+        .lines()
+        .map(|l| {
+            if l.trim_start().starts_with("throat_J3 = ") {
+                "throat_J3 = 2.2e-3".to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    fs::write(&path, text).unwrap();
+    let o = run(&[
+        "--config",
+        path.to_str().unwrap(),
+        "fea",
+        "--approach",
+        "2",
+        "--forces=-100,-100",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    let warning = out
+        .lines()
+        .find(|l| l.starts_with("warning: flexures.J3"))
+        .unwrap_or_else(|| panic!("no warning in\n{out}"));
+    assert!(warning.contains("structure.throat_J3"), "{warning}");
+    // The prototype's own joints agree with its [flexures] within 2 %: no warning.
+    let o = run(&["fea", "--approach", "2", "--forces=-100,-100"]);
+    assert!(!stdout(&o).contains("warning: flexures"), "{}", stdout(&o));
 }

@@ -1,0 +1,190 @@
+//! The dependency rules of ARCHITECTURE.md, checked over `cargo metadata` (after
+//! rust-analyzer's `tidy`): a rule written down is a rule a test enforces.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::process::Command;
+
+use serde_json::Value;
+
+/// The workspace's packages: name → (has a library target, [(dependency, kind)]).
+type Packages = BTreeMap<String, (bool, Vec<(String, String)>)>;
+
+fn packages() -> Packages {
+    let o = Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let lib = p["targets"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|t| t["kind"].as_array().unwrap().iter().any(|k| k == "lib"));
+            let deps = p["dependencies"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|d| {
+                    (
+                        d["name"].as_str().unwrap().to_string(),
+                        d["kind"].as_str().unwrap_or("normal").to_string(),
+                    )
+                })
+                .collect();
+            (p["name"].as_str().unwrap().to_string(), (lib, deps))
+        })
+        .collect()
+}
+
+/// Every package `name` depends on through normal and build dependencies, within and
+/// beyond the workspace (external crates as leaves).
+fn closure(all: &Packages, name: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut stack = vec![name.to_string()];
+    while let Some(n) = stack.pop() {
+        if let Some((_, deps)) = all.get(&n) {
+            for (d, kind) in deps {
+                if kind != "dev" && seen.insert(d.clone()) {
+                    stack.push(d.clone());
+                }
+            }
+        }
+    }
+    seen
+}
+
+const TWIN: &str = "cellinject-twin";
+
+/// Crates allowed to depend on the twin: the binary and those whose names say they
+/// simulate or emulate.
+fn may_use_the_twin(name: &str) -> bool {
+    name == "cellinject" || name.contains("-sim") || name.contains("emul")
+}
+
+#[test]
+fn the_twin_is_its_own_crate_and_only_simulators_depend_on_it() {
+    let all = packages();
+    assert!(
+        all.contains_key(TWIN),
+        "the twin must stay the crate `{TWIN}`"
+    );
+    for name in all.keys() {
+        if name == TWIN || may_use_the_twin(name) {
+            continue;
+        }
+        // Dev-dependencies included: a model crate's tests must not need the twin either.
+        let direct_dev = all[name].1.iter().any(|(d, _)| d == TWIN);
+        assert!(
+            !closure(&all, name).contains(TWIN) && !direct_dev,
+            "{name} depends on {TWIN}: only the binary and simulator/emulator crates may"
+        );
+    }
+    // The crates the issue names explicitly, so that a rename cannot dodge the rule.
+    for name in [
+        "cellinject-model",
+        "cellinject-flexure",
+        "cellinject-fem",
+        "cellinject-structure",
+        "cellinject-dic",
+        "cellinject-config",
+        "cellinject-hw",
+        "cellinject-rig",
+        "cellinject-core",
+        "cellinject-fea",
+    ] {
+        assert!(all.contains_key(name), "{name} is missing");
+        assert!(
+            !closure(&all, name).contains(TWIN),
+            "{name} depends on {TWIN}"
+        );
+    }
+}
+
+#[test]
+fn no_library_crate_depends_on_clap_or_anyhow() {
+    let all = packages();
+    for (name, (lib, deps)) in &all {
+        if !lib {
+            continue;
+        }
+        for (d, kind) in deps {
+            assert!(
+                kind == "dev" || (d != "clap" && d != "anyhow"),
+                "library crate {name} depends on {d}: argument parsing and anyhow belong in the binary"
+            );
+        }
+    }
+}
+
+/// At most one crate depends on `dep`, and its name contains `home`.
+fn only_in(all: &Packages, dep: &str, home: &str) {
+    let users: Vec<&String> = all
+        .iter()
+        .filter(|(_, (_, deps))| deps.iter().any(|(d, k)| d == dep && k != "dev"))
+        .map(|(n, _)| n)
+        .collect();
+    assert!(
+        users.len() <= 1,
+        "{dep} is used by {users:?}: one crate only"
+    );
+    for u in users {
+        assert!(
+            u.contains(home),
+            "{dep} is used by {u}, not by the {home} crate"
+        );
+    }
+}
+
+#[test]
+fn heavy_dependencies_stay_in_their_one_crate() {
+    let all = packages();
+    only_in(&all, "faer", "fem");
+    only_in(&all, "rusqlite", "records");
+    only_in(&all, "axum", "dashboard");
+    only_in(&all, "tokio", "dashboard");
+}
+
+#[test]
+fn the_hardware_vocabulary_depends_on_nothing_of_ours() {
+    let all = packages();
+    let ours: Vec<&String> = all["cellinject-hw"]
+        .1
+        .iter()
+        .map(|(d, _)| d)
+        .filter(|d| d.starts_with("cellinject"))
+        .collect();
+    assert!(ours.is_empty(), "cellinject-hw depends on {ours:?}");
+    // The pure computation crates know nothing of files, terminals or devices' crates.
+    for name in [
+        "cellinject-model",
+        "cellinject-flexure",
+        "cellinject-structure",
+        "cellinject-numeric",
+        "cellinject-simparams",
+    ] {
+        let c = closure(&all, name);
+        for bad in [
+            "cellinject-hw",
+            "cellinject-rig",
+            "cellinject-config",
+            "toml",
+        ] {
+            assert!(!c.contains(bad), "{name} depends on {bad}");
+        }
+    }
+}

@@ -1,0 +1,171 @@
+//! `dic` and `dic field`: reports over the image correlation of `cellinject-dic`.
+//! Decoding image files is the front end's; these take decoded [`Image`]s.
+
+use cellinject_dic::field::{Field, FieldOptions, field};
+use cellinject_dic::{DicError, Image, PointOptions, PointResult, correlate_points};
+use serde::Serialize;
+
+/// One point of `cellinject dic` (an element of its JSON list). A point without a
+/// trustworthy match has `u`, `v`, `zncc`, `sigma_u` null, `converged` false and an
+/// `error`.
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `x`, `y` | px | the reference point (x = column, y = row, pixel centres) |
+/// | `u`, `v` | px | its displacement in the current image |
+/// | `du_dx`, `du_dy`, `dv_dx`, `dv_dy` | 1 | displacement gradients (affine shape) |
+/// | `zncc` | 1 | zero-normalised cross-correlation at the match |
+/// | `iterations` | | IC-GN iterations |
+/// | `converged` | | whether IC-GN converged |
+/// | `sigma_u`, `sigma_v` | px | predicted standard deviation from the noise |
+/// | `sigma_noise` | grey levels | noise estimated from the residual |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum PointReport {
+    /// A match.
+    Found {
+        /// px.
+        x: f64,
+        /// px.
+        y: f64,
+        /// px.
+        u: f64,
+        /// px.
+        v: f64,
+        /// 1.
+        du_dx: f64,
+        /// 1.
+        du_dy: f64,
+        /// 1.
+        dv_dx: f64,
+        /// 1.
+        dv_dy: f64,
+        /// 1.
+        zncc: f64,
+        /// IC-GN iterations.
+        iterations: usize,
+        /// Converged.
+        converged: bool,
+        /// px.
+        sigma_u: f64,
+        /// px.
+        sigma_v: f64,
+        /// Grey levels.
+        sigma_noise: f64,
+    },
+    /// No trustworthy match.
+    Missing {
+        /// px.
+        x: f64,
+        /// px.
+        y: f64,
+        /// null.
+        u: Option<f64>,
+        /// null.
+        v: Option<f64>,
+        /// null.
+        zncc: Option<f64>,
+        /// 0.
+        iterations: usize,
+        /// false.
+        converged: bool,
+        /// null.
+        sigma_u: Option<f64>,
+        /// Why.
+        error: &'static str,
+    },
+}
+
+impl PointReport {
+    fn new((x, y): (f64, f64), p: &Option<PointResult>) -> Self {
+        match p {
+            Some(p) => PointReport::Found {
+                x,
+                y,
+                u: p.u,
+                v: p.v,
+                du_dx: p.gradients[0],
+                du_dy: p.gradients[1],
+                dv_dx: p.gradients[2],
+                dv_dy: p.gradients[3],
+                zncc: p.zncc,
+                iterations: p.iterations,
+                converged: p.converged,
+                sigma_u: p.sigma_u,
+                sigma_v: p.sigma_v,
+                sigma_noise: p.sigma_noise,
+            },
+            None => PointReport::Missing {
+                x,
+                y,
+                u: None,
+                v: None,
+                zncc: None,
+                iterations: 0,
+                converged: false,
+                sigma_u: None,
+                error: "no match (no texture, or the subset left the current image)",
+            },
+        }
+    }
+}
+
+/// `cellinject dic`: correlates each of `at` (reference pixels) into `current`.
+pub fn points(
+    reference: &Image,
+    current: &Image,
+    at: &[(f64, f64)],
+    options: &PointOptions,
+) -> Result<Vec<PointReport>, DicError> {
+    let res = correlate_points(reference, current, at, options)?;
+    Ok(at
+        .iter()
+        .zip(&res)
+        .map(|(&p, r)| PointReport::new(p, r))
+        .collect())
+}
+
+/// The result of `cellinject dic field`: the field itself and its summary.
+#[derive(Debug, Clone)]
+pub struct FieldReport {
+    /// The grid of points.
+    pub field: Field,
+    /// Points with a match.
+    pub found: usize,
+    /// Smallest and largest u over the matched points, px (None if none matched).
+    pub u_range: Option<(f64, f64)>,
+    /// The same for v.
+    pub v_range: Option<(f64, f64)>,
+}
+
+impl FieldReport {
+    /// Reference-image pixel of grid point `k`.
+    pub fn position(&self, k: usize) -> (usize, usize) {
+        let f = &self.field;
+        (f.x0 + (k % f.nx) * f.step, f.y0 + (k / f.nx) * f.step)
+    }
+}
+
+fn range(f: &Field, sel: fn(&PointResult) -> f64) -> Option<(f64, f64)> {
+    f.points.iter().flatten().map(sel).fold(None, |r, v| {
+        Some(match r {
+            None => (v, v),
+            Some((a, b)) => (a.min(v), b.max(v)),
+        })
+    })
+}
+
+/// `cellinject dic field`: the full field on a grid.
+pub fn field_report(
+    reference: &Image,
+    current: &Image,
+    options: &FieldOptions,
+) -> Result<FieldReport, DicError> {
+    let f = field(reference, current, options)?;
+    Ok(FieldReport {
+        found: f.points.iter().flatten().count(),
+        u_range: range(&f, |p| p.u),
+        v_range: range(&f, |p| p.v),
+        field: f,
+    })
+}

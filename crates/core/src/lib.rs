@@ -1,0 +1,32 @@
+//! # cellinject-core
+//!
+//! The library core behind every cellinject front end (the command line today; the
+//! injection workflow, the PI driver's tools and the web dashboard next). Each command
+//! is one function here that takes plain inputs (a design, images already decoded,
+//! a guarded [`cellinject_rig::Rig`] over any backend) and returns a typed report that
+//! derives `serde::Serialize`: that serialisation *is* the command's JSON, documented
+//! field by field (with units) on each report type and in `docs/json.md`.
+//!
+//! | command | function | report |
+//! |---|---|---|
+//! | `tension` | [`tension::tension`] | [`tension::TensionReport`] |
+//! | `model` | [`model::model`] | [`model::ModelReport`] |
+//! | `reproduce` | [`reproduce::reproduce`] | [`reproduce::ReproduceReport`] |
+//! | `hinge` | [`hinge::hinge`] | [`hinge::HingeReport`] |
+//! | `hinge-table` | [`hinge::table`] | [`hinge::TableReport`] |
+//! | `dic` | [`dic::points`] | [`dic::PointReport`] (a list) |
+//! | `dic field` | [`dic::field`] | [`dic::FieldReport`] |
+//! | `sim loop` | [`sim::hysteresis_loop`] | [`sim::LoopReport`] |
+//! | `sim step` | [`sim::step_response`] | [`sim::StepReport`] |
+//! | `fea ...` | crate `cellinject-fea` | its reports |
+//!
+//! **Architecture invariant:** no IO: no files, no terminal, no environment. Front ends
+//! read and write; this crate computes and validates, and its errors name the argument
+//! or key at fault.
+
+pub mod dic;
+pub mod hinge;
+pub mod model;
+pub mod reproduce;
+pub mod sim;
+pub mod tension;
