@@ -9,7 +9,7 @@ use cellinject_core::reproduce::ReproduceReport;
 use cellinject_core::tension::{TILT_ACTUATORS, TensionReport, approach_title};
 use cellinject_model::Approach;
 
-use crate::output::{Table, display_unit, number, vector, write_atomic};
+use crate::output::{Table, display_unit, number, vector};
 use crate::{Format, InputError};
 
 /// Reads and validates the description file, or returns the embedded prototype.
@@ -38,10 +38,10 @@ pub fn tension(d: &Description, approach: u8, format: Format) -> Result<()> {
     let r = cellinject_core::tension::tension(&d.name, &d.design, a)
         .context("pre-tension analysis failed")?;
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
-            println!("Pre-tension, approach {approach}: {}", approach_title(a));
-            println!("Design: {}\n", d.name);
+            outln!("Pre-tension, approach {approach}: {}", approach_title(a));
+            outln!("Design: {}\n", d.name);
             let mut table = Table::new(
                 &["quantity", "eq.", "meaning", "unit", "value"],
                 &[false, false, false, false, false],
@@ -55,15 +55,15 @@ pub fn tension(d: &Description, approach: u8, format: Format) -> Result<()> {
                     vector(&q.value, q.unit),
                 ]);
             }
-            print!("{}", table.text());
-            println!("\nMargins over the working range:");
-            print!("{}", margins_text(&r));
+            out!("{}", table.text());
+            outln!("\nMargins over the working range:");
+            out!("{}", margins_text(&r));
             if r.warnings.is_empty() {
-                println!("\nAll margins hold.");
+                outln!("\nAll margins hold.");
             } else {
-                println!();
+                outln!();
                 for w in &r.warnings {
-                    println!("warning: {w}");
+                    outln!("warning: {w}");
                 }
             }
         }
@@ -101,7 +101,7 @@ fn margins_text(r: &TensionReport) -> String {
         ]);
     }
     format!(
-        "{}End-effector offset after tensioning: {} µm\n",
+        "{}End-effector offset after tensioning, length |δX|: {} µm\n",
         table.text(),
         number(g.offset, "m")
     )
@@ -156,21 +156,21 @@ pub fn model(d: &Description, format: Format) -> Result<()> {
     let r: ModelReport =
         cellinject_core::model::model(&d.name, &d.mechanism()).context("mechanism model")?;
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
-            println!("Mechanism model of {}\n", d.name);
-            println!(
+            outln!("Mechanism model of {}\n", d.name);
+            outln!(
                 "Jacobians at the home pose (eqs. 5-7), obtained by differentiating the nonlinear kinematics:"
             );
-            print!("{}", matrix_text("J = dX/dq", &r.j, "m/rad; column 3: m/m"));
-            print!("{}", matrix_text("L = dl/dq", &r.l, "m/rad; column 3: m/m"));
-            print!("{}", matrix_text("W = dw/dq", &r.w, "rad/rad"));
+            out!("{}", matrix_text("J = dX/dq", &r.j, "m/rad; column 3: m/m"));
+            out!("{}", matrix_text("L = dl/dq", &r.l, "m/rad; column 3: m/m"));
+            out!("{}", matrix_text("W = dw/dq", &r.w, "rad/rad"));
             let b_um: Vec<Vec<f64>> = r
                 .b_l
                 .iter()
                 .map(|row| row.iter().map(|x| x * 1e6).collect())
                 .collect();
-            print!(
+            out!(
                 "{}",
                 matrix_text(
                     "B_l, compliance on the actuator axes A1, A2 (eq. 23)",
@@ -178,13 +178,13 @@ pub fn model(d: &Description, format: Format) -> Result<()> {
                     "µm/N"
                 )
             );
-            println!(
+            outln!(
                 "  (A3 is a serial axis with neither flexure nor preload: no compliance entry)\n"
             );
-            println!("Large-deflection check: constant Jacobians vs the nonlinear equilibrium");
-            print!("{}", linearisation_table(&r.linearisation).text());
+            outln!("Large-deflection check: constant Jacobians vs the nonlinear equilibrium");
+            out!("{}", linearisation_table(&r.linearisation).text());
             for l in &r.linearisation {
-                println!(
+                outln!(
                     "approach {}: out-of-plane drop of M after tensioning {} µm; equilibrium residuals {:.1e}, {:.1e}",
                     l.approach,
                     number(l.dz_tensioned, "m"),
@@ -199,6 +199,17 @@ pub fn model(d: &Description, format: Format) -> Result<()> {
 
 /// `cellinject reproduce`.
 pub fn reproduce(d: &Description, out: &Path, format: Format) -> Result<()> {
+    // The report's directory may be created; it must be writable before any work.
+    std::fs::create_dir_all(out).map_err(|e| {
+        InputError(format!(
+            "--out `{}`: cannot create the report directory: {e}",
+            out.display()
+        ))
+    })?;
+    let path = out.join("reproduce.md");
+    let mut plan = crate::files::Plan::new();
+    plan.output("--out", &path, &[crate::files::Kind::Markdown])?;
+    plan.check()?;
     let r: ReproduceReport = cellinject_core::reproduce::reproduce(&d.name, &d.design)
         .context("reproduction of the paper's figures")?;
     let mut table = Table::new(
@@ -286,33 +297,21 @@ pub fn reproduce(d: &Description, out: &Path, format: Format) -> Result<()> {
     );
     md.push_str(&linearisation_table(&r.linearisation).markdown());
 
-    std::fs::create_dir_all(out).map_err(|e| {
-        InputError(format!(
-            "--out `{}`: cannot create the report directory: {e}",
-            out.display()
-        ))
-    })?;
-    let path = out.join("reproduce.md");
-    write_atomic(&path, &md).map_err(|e| {
-        InputError(format!(
-            "--out `{}`: cannot write the report: {e}",
-            path.display()
-        ))
-    })?;
+    crate::files::write_one(&path, md.as_bytes())?;
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
-            println!(
+            outln!(
                 "Reproduction of Sec. 3.2 (eqs. 37-58), design: {}\n",
                 d.name
             );
-            print!("{}", table.text());
-            println!(
+            out!("{}", table.text());
+            outln!(
                 "\n{ok} of {n} computed figures agree with the paper (tolerance {:.1} %).",
                 r.tolerance * 100.0
             );
-            print!("{caveat}");
-            println!("Report written to {}", path.display());
+            out!("{caveat}");
+            outln!("Report written to {}", path.display());
         }
     }
     Ok(())

@@ -3,14 +3,16 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use cellinject_core::dic::{PointReport, field_report, points};
 use cellinject_dic::field::FieldOptions;
 use cellinject_dic::track::{Roi, Status, Tracker};
 use cellinject_dic::{DicError, Image, PointOptions, Shape};
+use cellinject_plot::map::{GridMap, maps_rgb, maps_svg};
 use clap::{Args, Subcommand, ValueEnum};
 
-use crate::output::{Table, write_atomic};
+use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
+use crate::output::Table;
 use crate::{Format, InputError};
 
 /// Shape function of the subsets.
@@ -33,7 +35,7 @@ impl From<ShapeArg> for Shape {
 
 /// `cellinject dic`: points, or a subcommand.
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct DicArgs {
     #[command(subcommand)]
     command: Option<DicCommand>,
@@ -45,14 +47,14 @@ pub struct DicArgs {
 #[derive(Debug, Args)]
 pub struct PointArgs {
     /// Reference image (PNG or TIFF, 8 or 16 bit; colour is converted to grey).
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, required = true, value_name = "FILE")]
     reference: Option<PathBuf>,
     /// Current image, same size.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, required = true, value_name = "FILE")]
     current: Option<PathBuf>,
     /// A point of the reference, pixels (x = column, y = row, origin at the centre of the
     /// top-left pixel); repeat for more points.
-    #[arg(long = "at", value_name = "X,Y", value_parser = parse_pair, allow_negative_numbers = true)]
+    #[arg(long = "at", required = true, value_name = "X,Y", value_parser = parse_pair, allow_negative_numbers = true)]
     at: Vec<(f64, f64)>,
     /// Subset size, pixels (odd, 7 to 401).
     #[arg(long, default_value_t = 31)]
@@ -75,6 +77,9 @@ pub struct PointArgs {
 #[derive(Debug, Subcommand)]
 pub enum DicCommand {
     /// Displacement field on a grid (reliability-guided, parallel).
+    #[command(
+        after_help = "Examples:\n  cellinject dic field --reference reference.png --current current.png --out field.csv\n  cellinject dic field --reference a.tif --current b.tif --step 10 --subset 41 --out field.csv"
+    )]
     Field {
         /// Reference image.
         #[arg(long, value_name = "FILE")]
@@ -94,18 +99,25 @@ pub enum DicCommand {
         /// Sigma of a Gaussian prefilter applied to both images, pixels (0 = none).
         #[arg(long, default_value_t = 0.0)]
         prefilter: f64,
-        /// CSV output; a displacement-map PNG is written beside it.
+        /// CSV output; maps of u and v are written beside it with the same stem, as PNG
+        /// and SVG (axes in pixels, or micrometres with `--um-per-px`).
         #[arg(long, value_name = "FILE")]
         out: PathBuf,
+        /// Micrometres per pixel: the maps' axes and colour bars in µm.
+        #[arg(long, value_name = "S")]
+        um_per_px: Option<f64>,
     },
     /// Write a pair of exact synthetic speckle images (Gaussians integrated over the
     /// pixels, Gaussian noise, 8-bit) related by a known shift and rotation.
+    #[command(
+        after_help = "Examples:\n  cellinject dic synth\n  cellinject dic synth --size 256,256 --shift -0.4,0.25 --rotation 0.5 --reference r.png --current c.png"
+    )]
     Synth {
         /// Image size: width,height.
         #[arg(long, value_delimiter = ',', num_args = 1, default_value = "512,512")]
         size: Vec<usize>,
         /// Shift of the current image: u,v pixels.
-        #[arg(long, value_parser = parse_pair, allow_negative_numbers = true, default_value = "0.25,0")]
+        #[arg(long, value_name = "U,V", value_parser = parse_pair, default_value = "0.25,0")]
         shift: (f64, f64),
         /// Rotation about the image centre, degrees.
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
@@ -124,6 +136,9 @@ pub enum DicCommand {
         current: PathBuf,
     },
     /// Follow a region through a sequence of frames.
+    #[command(
+        after_help = "Examples:\n  cellinject dic track --frames run/ --roi 300,200,65,65 --um-per-px 0.22 --out track.csv\n  cellinject dic track --frames 'run/frame_*.png' --roi 300,200,65,65 --out track.csv"
+    )]
     Track {
         /// A directory of frames (PNG/TIFF, in name order) or a pattern such as `run/*.png`.
         #[arg(long, value_name = "DIR|GLOB")]
@@ -239,7 +254,7 @@ fn run_points(a: &PointArgs) -> Result<()> {
         other => dic_error("dic", other),
     })?;
     match a.format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&res)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&res)?),
         Format::Text => {
             let mut t = Table::new(
                 &[
@@ -289,26 +304,15 @@ fn run_points(a: &PointArgs) -> Result<()> {
                     ],
                 });
             }
-            print!("{}", t.text());
+            out!("{}", t.text());
         }
     }
+    if res.iter().all(|p| matches!(p, PointReport::Missing { .. })) {
+        anyhow::bail!(
+            "no point matched: nothing to measure (no texture, or every subset left the current image)"
+        );
+    }
     Ok(())
-}
-
-/// A colour for t in [0, 1] (a perceptual blue-green-yellow ramp).
-fn ramp(t: f64) -> [u8; 3] {
-    let stops = [
-        [68.0, 1.0, 84.0],
-        [59.0, 82.0, 139.0],
-        [33.0, 145.0, 140.0],
-        [94.0, 201.0, 98.0],
-        [253.0, 231.0, 37.0],
-    ];
-    let t = t.clamp(0.0, 1.0) * 4.0;
-    let i = (t.floor() as usize).min(3);
-    let f = t - i as f64;
-    let c = |k: usize| (stops[i][k] + (stops[i + 1][k] - stops[i][k]) * f) as u8;
-    [c(0), c(1), c(2)]
 }
 
 fn check_prefilter(sigma: f64) -> Result<()> {
@@ -321,20 +325,37 @@ fn check_prefilter(sigma: f64) -> Result<()> {
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_field(
-    reference: &Path,
-    current: &Path,
+/// The settings of `dic field`.
+struct FieldArgs {
     step: usize,
     subset: usize,
     shape: ShapeArg,
     prefilter: f64,
-    out: &Path,
-) -> Result<()> {
+    um_per_px: Option<f64>,
+}
+
+fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Result<()> {
+    let FieldArgs {
+        step,
+        subset,
+        shape,
+        prefilter,
+        um_per_px,
+    } = a;
+    if let Some(s) = um_per_px
+        && !(s > 0.0 && s.is_finite())
+    {
+        return Err(InputError(format!("--um-per-px must be positive, got {s}")).into());
+    }
     if step == 0 {
         return Err(InputError("--step must be at least 1".into()).into());
     }
     check_prefilter(prefilter)?;
+    let mut plan = Plan::new();
+    plan.input("--reference", reference)
+        .input("--current", current);
+    let files = plan.companions("--out", out, &[Kind::Csv, Kind::Png, Kind::Svg])?;
+    plan.check()?;
     let (r, c) = pair(reference, current)?;
     let opts = FieldOptions {
         step,
@@ -344,11 +365,13 @@ fn run_field(
         ..FieldOptions::default()
     };
     let t0 = std::time::Instant::now();
+    let progress = crate::progress::spinner("correlating the grid");
     let report = field_report(&r, &c, &opts).map_err(|e| match e {
         DicError::SubsetSize { .. } => dic_error("--subset", e),
         other => dic_error("dic field", other),
     })?;
     let elapsed = t0.elapsed().as_secs_f64();
+    drop(progress);
     let f = &report.field;
     let mut csv =
         String::from("x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v\n");
@@ -378,56 +401,67 @@ fn run_field(
             }
         }
     }
-    write_atomic(out, &csv)
-        .map_err(|e| InputError(format!("--out `{}`: cannot write: {e}", out.display())))?;
+    let (Some(ru), Some(rv)) = (report.u_range, report.v_range) else {
+        anyhow::bail!(
+            "no grid point matched ({} tried): nothing to measure (no texture, or the images do not overlap); no file written",
+            f.nx * f.ny
+        );
+    };
     // Displacement maps: u and v side by side, each on its own colour scale.
-    let ru = report.u_range.unwrap_or((f64::INFINITY, f64::NEG_INFINITY));
-    let rv = report.v_range.unwrap_or((f64::INFINITY, f64::NEG_INFINITY));
-    let (nx, ny) = (f.nx as u32, f.ny as u32);
-    let gap = 4;
-    let mut img = image::RgbImage::from_pixel(2 * nx + gap, ny, image::Rgb([255, 255, 255]));
-    for (k, p) in f.points.iter().enumerate() {
-        let (i, j) = ((k % f.nx) as u32, (k / f.nx) as u32);
-        let (cu, cv) = match p {
-            Some(p) => {
-                let t = |v: f64, r: (f64, f64)| {
-                    if r.1 > r.0 {
-                        (v - r.0) / (r.1 - r.0)
-                    } else {
-                        0.5
-                    }
-                };
-                (ramp(t(p.u, ru)), ramp(t(p.v, rv)))
-            }
-            None => ([128, 128, 128], [128, 128, 128]),
-        };
-        img.put_pixel(i, j, image::Rgb(cu));
-        img.put_pixel(nx + gap + i, j, image::Rgb(cv));
-    }
-    let png = out.with_extension("png");
-    let tmp = out.with_extension("png.tmp");
-    img.save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(anyhow::Error::from)
-        .and_then(|()| std::fs::rename(&tmp, &png).map_err(anyhow::Error::from))
-        .map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            InputError(format!("cannot write `{}`: {e}", png.display()))
-        })?;
-    println!(
+    let (scale, unit) = match um_per_px {
+        Some(s) => (s, "µm"),
+        None => (1.0, "px"),
+    };
+    let map = |name: &str, sel: fn(&cellinject_dic::PointResult) -> f64| GridMap {
+        title: format!(
+            "{name}: displacement along {}",
+            if name == "u" { "x" } else { "y" }
+        ),
+        x_label: format!("x [{unit}]"),
+        y_label: format!("y [{unit}]"),
+        value_label: format!("{name} [{unit}]"),
+        x: (f.x0 as f64 * scale, f.step as f64 * scale),
+        y: (f.y0 as f64 * scale, f.step as f64 * scale),
+        nx: f.nx,
+        ny: f.ny,
+        values: f
+            .points
+            .iter()
+            .map(|p| p.as_ref().map(|p| sel(p) * scale))
+            .collect(),
+    };
+    let maps = [map("u", |p| p.u), map("v", |p| p.v)];
+    // Panels as wide as the image's aspect allows, at least 480 px tall.
+    let aspect = f.nx as f64 / f.ny.max(1) as f64;
+    let height = 520u32;
+    let width = ((height as f64 - 100.0) * aspect + 220.0).clamp(420.0, 1400.0) as u32;
+    let svg = maps_svg(&maps, (width, height)).context("displacement maps")?;
+    let rgb = maps_rgb(&maps, (width, height)).context("displacement maps")?;
+    let (csv_path, png, svg_path) = (&files[0], &files[1], &files[2]);
+    let mut staged = Staged::new();
+    staged.add(csv_path, csv.as_bytes())?;
+    staged.add(png, &encode_rgb(rgb, png)?)?;
+    staged.add(svg_path, svg.as_bytes())?;
+    staged.commit()?;
+    outln!(
         "{found} of {} grid points ({}x{}, step {step}) in {elapsed:.3} s ({:.0} points/s)",
         f.nx * f.ny,
         f.nx,
         f.ny,
         found as f64 / elapsed.max(1e-9)
     );
-    println!(
+    outln!(
         "u from {:.4} to {:.4} px, v from {:.4} to {:.4} px",
-        ru.0, ru.1, rv.0, rv.1
+        ru.0,
+        ru.1,
+        rv.0,
+        rv.1
     );
-    println!(
-        "wrote {} and {} (u left, v right)",
-        out.display(),
-        png.display()
+    outln!(
+        "wrote {}, {} and {} (u left, v right)",
+        csv_path.display(),
+        png.display(),
+        svg_path.display()
     );
     Ok(())
 }
@@ -525,6 +559,12 @@ fn run_track(
         return Err(InputError(format!("--min-zncc must lie in [-1, 1], got {min_zncc}")).into());
     }
     let files = frame_list(frames)?;
+    let mut plan = Plan::new();
+    for f in &files {
+        plan.input("--frames", f);
+    }
+    plan.output("--out", out, &[Kind::Csv])?;
+    plan.check()?;
     let first = load_grey(&files[0])?;
     let [x, y, width, height] = [0, 1, 2, 3].map(|i| u32::try_from(roi[i]).unwrap_or(u32::MAX));
     let roi = Roi {
@@ -537,8 +577,11 @@ fn run_track(
         Tracker::new(&first, roi, shape.into(), min_zncc).map_err(|e| dic_error("--roi", e))?;
     let mut csv = String::from("frame,file,u_px,v_px,u_m,v_m,zncc,iterations,sigma_u_px,status\n");
     let (mut tracked, mut rejected) = (0, 0);
+    let mut worst_zncc = (f64::INFINITY, f64::NEG_INFINITY);
     let t0 = std::time::Instant::now();
+    let progress = crate::progress::bar(files.len() as u64, "tracking");
     for (k, f) in files.iter().enumerate() {
+        progress.inc();
         let img = if k == 0 { first.clone() } else { load_grey(f)? };
         let p = tracker
             .track(&img)
@@ -550,6 +593,9 @@ fn run_track(
         };
         if p.status == Status::Rejected {
             rejected += 1;
+            if p.zncc.is_finite() {
+                worst_zncc = (worst_zncc.0.min(p.zncc), worst_zncc.1.max(p.zncc));
+            }
         } else {
             tracked += 1;
         }
@@ -578,18 +624,34 @@ fn run_track(
             num(p.sigma_u)
         );
     }
-    write_atomic(out, &csv)
-        .map_err(|e| InputError(format!("--out `{}`: cannot write: {e}", out.display())))?;
-    println!(
+    drop(progress);
+    if files.len() > 1 && rejected == files.len() - 1 {
+        let zncc = if worst_zncc.0 <= worst_zncc.1 {
+            format!(
+                "ZNCC from {:.3} to {:.3}, below --min-zncc {min_zncc}",
+                worst_zncc.0, worst_zncc.1
+            )
+        } else {
+            "no match at all".to_string()
+        };
+        anyhow::bail!(
+            "every frame after the first was rejected ({zncc}): nothing was tracked; no file written"
+        );
+    }
+    let mut staged = Staged::new();
+    staged.add(out, csv.as_bytes())?;
+    staged.commit()?;
+    outln!(
         "{} frames: {tracked} measured, {rejected} rejected (ZNCC below {min_zncc}); {:.1} ms per frame with file reading",
         files.len(),
         t0.elapsed().as_secs_f64() * 1e3 / files.len() as f64
     );
-    println!("wrote {}", out.display());
+    outln!("wrote {}", out.display());
     Ok(())
 }
 
-fn save_grey8(img: &Image, path: &Path) -> Result<()> {
+/// An 8-bit image in the format `path`'s extension names.
+fn encode_grey8(img: &Image, path: &Path) -> Result<Vec<u8>> {
     let data: Vec<u8> = img
         .data()
         .iter()
@@ -597,14 +659,7 @@ fn save_grey8(img: &Image, path: &Path) -> Result<()> {
         .collect();
     let buf = image::GrayImage::from_raw(img.width() as u32, img.height() as u32, data)
         .ok_or_else(|| anyhow::anyhow!("image buffer size"))?;
-    let tmp = path.with_extension("png.tmp");
-    buf.save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(anyhow::Error::from)
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(anyhow::Error::from))
-        .map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            InputError(format!("cannot write `{}`: {e}", path.display())).into()
-        })
+    encode_image(&buf, path)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -629,14 +684,22 @@ fn run_synth(
         ))
         .into());
     }
+    let mut plan = Plan::new();
+    plan.output("--reference", reference, &[Kind::Png, Kind::Tiff])?;
+    plan.output("--current", current, &[Kind::Png, Kind::Tiff])?;
+    plan.check()?;
     let mut p = cellinject_dic::synth::SpeckleParams::default_for(size[0], size[1]);
     p.noise = noise;
     let sp = cellinject_dic::synth::Speckle::new(&p, seed);
-    let r = sp.render_shifted(0.0, 0.0, 0.0, 2 * seed + 1);
-    let c = sp.render_shifted(shift.0, shift.1, rotation.to_radians(), 2 * seed + 2);
-    save_grey8(&r, reference)?;
-    save_grey8(&c, current)?;
-    println!(
+    // Two independent noise streams for any seed (wrapping: every u64 is a seed).
+    let noise_seed = |k: u64| seed.wrapping_mul(2).wrapping_add(k);
+    let r = sp.render_shifted(0.0, 0.0, 0.0, noise_seed(1));
+    let c = sp.render_shifted(shift.0, shift.1, rotation.to_radians(), noise_seed(2));
+    let mut staged = Staged::new();
+    staged.add(reference, &encode_grey8(&r, reference)?)?;
+    staged.add(current, &encode_grey8(&c, current)?)?;
+    staged.commit()?;
+    outln!(
         "wrote {} and {} ({}x{}, shift ({}, {}) px, rotation {rotation} deg about the centre, noise {noise})",
         reference.display(),
         current.display(),
@@ -660,7 +723,19 @@ pub fn run(a: &DicArgs) -> Result<()> {
             shape,
             prefilter,
             out,
-        }) => run_field(reference, current, *step, *subset, *shape, *prefilter, out),
+            um_per_px,
+        }) => run_field(
+            reference,
+            current,
+            FieldArgs {
+                step: *step,
+                subset: *subset,
+                shape: *shape,
+                prefilter: *prefilter,
+                um_per_px: *um_per_px,
+            },
+            out,
+        ),
         Some(DicCommand::Synth {
             size,
             shift,

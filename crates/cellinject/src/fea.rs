@@ -5,20 +5,23 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use cellinject_config::Description;
 use cellinject_fea::{
     Approach, DirCache, FeaError, FeaModel, FeaOptions, JointStore, Member, NoCache, PreloadKind,
 };
-use cellinject_plot::contour::{Member as PlotMember, StructurePanel, structure_svg};
+use cellinject_plot::contour::{
+    Member as PlotMember, StructurePanel, structure_rgb, structure_svg,
+};
 use clap::{Args, Subcommand};
 
-use crate::output::{Table, write_atomic};
+use crate::files::{Kind, Plan, encode_rgb, write_one};
+use crate::output::Table;
 use crate::{Format, InputError};
 
 /// `cellinject fea`: one load case, or a subcommand.
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct FeaArgs {
     #[command(subcommand)]
     command: Option<FeaCommand>,
@@ -38,13 +41,68 @@ pub struct MeshArgs {
     preload: PreloadArg,
 }
 
-/// Whether the solved joints are kept between runs.
+/// Whether the solved joints are kept between runs, and whether a solve larger than
+/// the available memory may start.
 #[derive(Debug, Clone, Copy, Args)]
 pub struct CacheArgs {
     /// Solve the joints' 3-D FEM without reading or writing the joint cache
     /// ($XDG_CACHE_HOME/cellinject, else the platform's cache directory).
     #[arg(long)]
     no_cache: bool,
+    /// Start a joint FEM even when its estimated peak memory exceeds the memory this
+    /// machine has available (it may then swap for a long time, or be killed).
+    #[arg(long)]
+    force: bool,
+}
+
+/// Memory a joint solve may use, bytes: what the machine has available (Linux:
+/// `MemAvailable`), capped by `CELLINJECT_MAX_MEMORY` (bytes) if set.
+fn available_memory() -> Option<f64> {
+    let machine = (|| {
+        let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kb * 1024.0)
+    })();
+    let cap = std::env::var("CELLINJECT_MAX_MEMORY")
+        .ok()
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|v| *v > 0.0);
+    match (machine, cap) {
+        (Some(m), Some(c)) => Some(m.min(c)),
+        (m, c) => m.or(c),
+    }
+}
+
+/// Says what the joint solves will cost when they are long, and refuses them (exit 2)
+/// when they would not fit in memory, unless `--force`.
+fn check_cost(d: &Description, levels: &[usize], cache: &CacheArgs) -> Result<()> {
+    let store = joint_store(cache);
+    let cost = cellinject_fea::cost::joints_cost(&d.structure, levels, store.as_ref())
+        .map_err(fea_error)?;
+    if cost.solves == 0 {
+        return Ok(());
+    }
+    let gb = cost.peak_bytes / 1e9;
+    if let Some(avail) = available_memory()
+        && cost.peak_bytes > avail
+        && !cache.force
+    {
+        return Err(InputError(format!(
+            "the joints' FEM at level {levels:?} ({} unknowns) needs about {gb:.1} GB of memory and {:.0} s; {:.1} GB are available: use a lower --level, or --force",
+            cost.unknowns,
+            cost.seconds,
+            avail / 1e9
+        ))
+        .into());
+    }
+    if cost.seconds > 2.0 {
+        eprintln!(
+            "solving {} joint FEM(s) of up to {} unknowns: about {:.0} s and {gb:.1} GB of memory (kept in the cache for the next run)",
+            cost.solves, cost.unknowns, cost.seconds
+        );
+    }
+    Ok(())
 }
 
 /// One static load case.
@@ -52,14 +110,14 @@ pub struct CacheArgs {
 pub struct SolveArgs {
     /// Pre-tensioning approach: 1 (assembly translation, the forces alone) or 2 (J3
     /// assembled pre-deflected by the model's Δq0).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+    #[arg(long, required = true, value_parser = clap::value_parser!(u8).range(1..=2))]
     approach: Option<u8>,
     /// Forces on the ends of the motor loops A1-J1 and A2-J2, N (negative: compressive),
     /// as the paper's F11,F12.
-    #[arg(long, value_name = "F11,F12", value_parser = parse_forces, allow_hyphen_values = true)]
+    #[arg(long, required = true, value_name = "F11,F12", value_parser = parse_forces, allow_hyphen_values = true)]
     forces: Option<[f64; 2]>,
-    /// Also draw the deformed structure coloured by displacement (SVG), like Fig. 4.
-    #[arg(long, value_name = "FILE.svg")]
+    /// Also draw the deformed structure coloured by displacement, like Fig. 4 (`.svg` or `.png`).
+    #[arg(long, value_name = "FILE.svg|FILE.png")]
     plot: Option<PathBuf>,
     #[command(flatten)]
     mesh: MeshArgs,
@@ -74,6 +132,9 @@ pub struct SolveArgs {
 #[derive(Debug, Subcommand)]
 pub enum FeaCommand {
     /// Natural frequencies and mode shapes of the assembled manipulator.
+    #[command(
+        after_help = "Examples:\n  cellinject fea modes\n  cellinject fea modes --approach 1 --count 3 --format json"
+    )]
     Modes {
         /// Pre-tensioning approach (default: the description's `twin.approach`).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
@@ -91,6 +152,9 @@ pub enum FeaCommand {
     },
     /// The paper's Tables 1 and 2 recomputed, with the cross-axis coupling and the
     /// joints' stresses against the yield strength.
+    #[command(
+        after_help = "Examples:\n  cellinject fea tables\n  cellinject fea tables --level 2 --preload torque"
+    )]
     Tables {
         #[command(flatten)]
         mesh: MeshArgs,
@@ -101,6 +165,9 @@ pub enum FeaCommand {
         format: Format,
     },
     /// The double-notched joints' stiffness from the 3-D FEM against the paper's.
+    #[command(
+        after_help = "Examples:\n  cellinject fea joints --levels 1\n  cellinject fea joints --levels 1,2 --format json"
+    )]
     Joints {
         /// Mesh levels to solve (convergence).
         #[arg(long, value_delimiter = ',', default_values_t = [1u8, 2])]
@@ -178,10 +245,15 @@ fn joint_store(c: &CacheArgs) -> Box<dyn JointStore> {
 
 /// The structural model of a description on its FEM joints.
 fn model(d: &Description, mesh: &MeshArgs, cache: &CacheArgs) -> Result<FeaModel> {
+    check_cost(d, &[mesh.level as usize], cache)?;
     let options = FeaOptions {
         level: mesh.level as usize,
         preload: mesh.preload.into(),
     };
+    let _p = crate::progress::spinner(format!(
+        "joints J1/J2 and J3: 3-D FEM at level {} (or the cache)",
+        options.level
+    ));
     FeaModel::build(
         &d.design,
         &d.structure,
@@ -199,7 +271,7 @@ fn warnings(d: &Description, all: Vec<String>) -> Vec<String> {
 
 fn print_warnings(w: &[String]) {
     for w in w {
-        println!("warning: {w}");
+        outln!("warning: {w}");
     }
 }
 
@@ -241,8 +313,11 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
     })?;
     // Refused before the joints are solved.
     cellinject_fea::check_forces(&d.design, forces).map_err(fea_error)?;
+    // The plot's file is checked before the joints are solved.
     if let Some(path) = &a.plot {
-        check_svg(path)?;
+        let mut plan = Plan::new();
+        plan.output("--plot", path, &[Kind::Svg, Kind::Png])?;
+        plan.check()?;
     }
     let m = model(d, &a.mesh, &a.cache)?;
     let case = m.solve_case(approach, forces).map_err(fea_error)?;
@@ -252,9 +327,9 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
     let mut r = case.report;
     r.warnings = warnings(d, r.warnings);
     match a.format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
-            println!(
+            outln!(
                 "Structural model, approach {}: F11 = {} N, F12 = {} N (joints: 3-D FEM level {}, J1/J2 {:.1} N·m/rad, J3 {:.1} N·m/rad)",
                 r.approach,
                 r.forces[0],
@@ -263,15 +338,16 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
                 r.joint_k_bend.j1_j2[1],
                 r.joint_k_bend.j3[1]
             );
-            println!(
+            outln!(
                 "end-effector  δx {:9.2} µm   δy {:9.2} µm   δz {:9.3} µm",
                 r.dx * 1e6,
                 r.dy * 1e6,
                 r.dz * 1e6
             );
-            println!(
+            outln!(
                 "stack forces  A1 {:8.3} N   A2 {:8.3} N",
-                r.stack_force[0], r.stack_force[1]
+                r.stack_force[0],
+                r.stack_force[1]
             );
             let mut t = Table::new(
                 &[
@@ -287,16 +363,17 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
                     j.name.to_string(),
                     format!("{:.1}", j.max_von_mises * 1e-6),
                     format!("{:.0}", r.yield_strength * 1e-6),
-                    format!("{:.2}", j.safety_factor),
+                    j.safety_factor
+                        .map_or("unloaded".to_string(), |f| format!("{f:.2}")),
                 ]);
             }
-            print!("{}", t.text());
+            out!("{}", t.text());
             for j in &r.joints {
-                if j.safety_factor < 1.0 {
-                    println!(
+                if let Some(sf) = j.safety_factor.filter(|f| *f < 1.0) {
+                    outln!(
                         "warning: {} is past its yield strength here (safety factor {:.2}, at ({:.2}, {:.2}, {:.2}) mm in the joint)",
                         j.name,
-                        j.safety_factor,
+                        sf,
                         j.at[0] * 1e3,
                         j.at[1] * 1e3,
                         j.at[2] * 1e3
@@ -305,26 +382,14 @@ fn solve_case(d: &Description, a: &SolveArgs) -> Result<()> {
             }
             print_warnings(&r.warnings);
             if let Some(p) = &a.plot {
-                println!("plot: {}", p.display());
+                outln!("plot: {}", p.display());
             }
         }
     }
     Ok(())
 }
 
-fn check_svg(path: &std::path::Path) -> Result<()> {
-    if path.extension().and_then(|e| e.to_str()) != Some("svg") {
-        return Err(InputError(format!(
-            "--plot `{}`: the drawing is written as SVG; give a .svg file",
-            path.display()
-        ))
-        .into());
-    }
-    Ok(())
-}
-
 fn plot(members: &[Member], approach: Approach, path: &std::path::Path) -> Result<()> {
-    check_svg(path)?;
     let big = members
         .iter()
         .flat_map(|m| m.rest.iter().zip(&m.displaced).map(|(r, d)| (d - r).norm()))
@@ -363,14 +428,17 @@ fn plot(members: &[Member], approach: Approach, path: &std::path::Path) -> Resul
             })
             .collect(),
     };
-    let svg = structure_svg(
-        &[
-            panel(0, "effective displacement δx, x-z plane", "δx [µm]"),
-            panel(1, "effective displacement δy, y-z plane", "δy [µm]"),
-        ],
-        (640, 560),
-    )?;
-    write_atomic(path, &svg).with_context(|| format!("writing {}", path.display()))?;
+    let panels = [
+        panel(0, "effective displacement δx, x-z plane", "δx [µm]"),
+        panel(1, "effective displacement δy, y-z plane", "δy [µm]"),
+    ];
+    let size = (680, 600);
+    let bytes = if Kind::of(path) == Some(Kind::Png) {
+        encode_rgb(structure_rgb(&panels, size)?, path)?
+    } else {
+        structure_svg(&panels, size)?.into_bytes()
+    };
+    write_one(path, &bytes)?;
     Ok(())
 }
 
@@ -386,11 +454,13 @@ fn modes(
     let mut r = m.modes(approach, count).map_err(fea_error)?;
     r.warnings = warnings(d, r.warnings);
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
-            println!(
+            outln!(
                 "Natural modes, approach {} pre-tensioned at F10 = {:?} N (sliders locked, joints from the 3-D FEM level {})",
-                r.approach, r.preload, r.mesh_level
+                r.approach,
+                r.preload,
+                r.mesh_level
             );
             let mut t = Table::new(
                 &[
@@ -414,7 +484,7 @@ fn modes(
                     ),
                 ]);
             }
-            print!("{}", t.text());
+            out!("{}", t.text());
             print_warnings(&r.warnings);
         }
     }
@@ -426,14 +496,16 @@ fn tables(d: &Description, mesh: &MeshArgs, cache: &CacheArgs, format: Format) -
     let mut r = m.tables().map_err(fea_error)?;
     r.warnings = warnings(d, r.warnings);
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
-            println!(
+            outln!(
                 "Whole-manipulator model against the paper's CAD FEA (Sec. 3.3); joints from the 3-D FEM level {} (J1/J2 {:.1}, J3 {:.1} N·m/rad)",
-                r.mesh_level, r.joint_k_bend.j1_j2[1], r.joint_k_bend.j3[1]
+                r.mesh_level,
+                r.joint_k_bend.j1_j2[1],
+                r.joint_k_bend.j3[1]
             );
             for tr in &r.tables {
-                println!("\nTable {} (approach {}):", tr.table, tr.approach);
+                outln!("\nTable {} (approach {}):", tr.table, tr.approach);
                 let mut t = Table::new(
                     &[
                         "F11, F12 [N]",
@@ -447,9 +519,9 @@ fn tables(d: &Description, mesh: &MeshArgs, cache: &CacheArgs, format: Format) -
                     &[false, true, true, true, true, true, false],
                 );
                 for c in &tr.cases {
-                    let (name, sf) = c
+                    let weakest = c
                         .weakest()
-                        .map_or(("-", f64::NAN), |j| (j.name, j.safety_factor));
+                        .and_then(|j| j.safety_factor.map(|f| (j.name, f)));
                     t.row(vec![
                         format!("{}, {}", c.f11, c.f12),
                         format!("{:.1}", c.paper.dx * 1e6),
@@ -457,18 +529,20 @@ fn tables(d: &Description, mesh: &MeshArgs, cache: &CacheArgs, format: Format) -
                         format!("{:.1}", c.paper.dy * 1e6),
                         format!("{:.1}", c.dy * 1e6),
                         format!("{:.2}", c.dz * 1e6),
-                        format!("{sf:.2} ({name})"),
+                        weakest.map_or("unloaded".to_string(), |(name, sf)| {
+                            format!("{sf:.2} ({name})")
+                        }),
                     ]);
                 }
-                print!("{}", t.text());
-                println!(
+                out!("{}", t.text());
+                outln!(
                     "largest difference {:.2} µm = {:.2} % of the largest displacement {:.1} µm (acceptance 3 %)",
                     tr.worst_difference * 1e6,
                     100.0 * tr.worst_difference / tr.largest_paper_displacement,
                     tr.largest_paper_displacement * 1e6
                 );
-                println!(
-                    "cross-axis coupling (δx from raising F12 alone): model {:.3} µm, paper {:.1} µm",
+                outln!(
+                    "cross-axis coupling (δx from raising F12 alone): model {:+.3} µm, paper {:+.1} µm",
                     tr.coupling_x * 1e6,
                     tr.paper_coupling_x * 1e6
                 );
@@ -481,13 +555,25 @@ fn tables(d: &Description, mesh: &MeshArgs, cache: &CacheArgs, format: Format) -
 
 fn joints(d: &Description, levels: &[u8], cache: &CacheArgs, format: Format) -> Result<()> {
     let levels: Vec<usize> = levels.iter().map(|&l| l as usize).collect();
-    let r = cellinject_fea::joints(&d.structure, &levels, joint_store(cache).as_ref())
-        .map_err(fea_error)?;
+    if levels.iter().any(|l| !cellinject_fea::LEVELS.contains(l)) {
+        return Err(InputError(format!(
+            "--levels: give levels between 1 and 3, e.g. 1,2 (got {levels:?})"
+        ))
+        .into());
+    }
+    check_cost(d, &levels, cache)?;
+    let r = {
+        let _p = crate::progress::spinner(format!(
+            "joints J1/J2 and J3: 3-D FEM at levels {levels:?} (or the cache)"
+        ));
+        cellinject_fea::joints(&d.structure, &levels, joint_store(cache).as_ref())
+            .map_err(fea_error)?
+    };
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
             let g = &r.geometry;
-            println!(
+            outln!(
                 "Double-notched joints by 3-D FEM: rod {:.2} mm square, fillets {:.2} mm, throat length {:.2} mm, gap {:.2} mm",
                 g.side * 1e3,
                 g.radius * 1e3,
@@ -523,8 +609,8 @@ fn joints(d: &Description, levels: &[u8], cache: &CacheArgs, format: Format) -> 
                     ]);
                 }
             }
-            print!("{}", t.text());
-            println!("stiffness in N·m/rad; the paper's acceptance: within 3 %");
+            out!("{}", t.text());
+            outln!("stiffness in N·m/rad; the paper's acceptance: within 3 %");
         }
     }
     Ok(())

@@ -6,6 +6,7 @@ use cellinject_fem::hinge2d::Plane;
 use cellinject_flexure::{FlexureError, Hinge, Material, Profile};
 use clap::{Args, ValueEnum};
 
+use crate::files::{Kind, Plan, write_one};
 use crate::output::Table;
 use crate::{Format, InputError};
 
@@ -116,8 +117,7 @@ fn export_mesh(hinge: &Hinge, m: &Material, plane: Plane, path: &std::path::Path
     let t = std::time::Instant::now();
     let mut export = core::mesh_export(hinge, m, plane).map_err(hinge_error)?;
     export.solve_seconds = t.elapsed().as_secs_f64();
-    crate::output::write_atomic(path, &serde_json::to_string(&export)?)
-        .map_err(|e| InputError(format!("--export-mesh `{}`: {e}", path.display())))?;
+    write_one(path, serde_json::to_string(&export)?.as_bytes())?;
     Ok(())
 }
 
@@ -154,12 +154,30 @@ pub fn run(a: &HingeArgs) -> Result<()> {
         MethodArg::PwSimple => Method::PwSimple,
         MethodArg::Fem => Method::Fem(plane(a.plane)),
     };
-    let r = core::hinge(&hinge, &m, method, a.angle).map_err(hinge_error)?;
+    if let Some(path) = &a.export_mesh {
+        if a.method != MethodArg::Fem {
+            return Err(InputError(
+                "--export-mesh writes the FEM's mesh: it needs --method fem".into(),
+            )
+            .into());
+        }
+        let mut plan = Plan::new();
+        plan.output("--export-mesh", path, &[Kind::Json])?;
+        plan.check()?;
+    }
+    let r = {
+        let _p = (a.method == MethodArg::Fem)
+            .then(|| crate::progress::spinner("hinge FEM at levels 1, 2 and 4"));
+        core::hinge(&hinge, &m, method, a.angle).map_err(hinge_error)?
+    };
     if let (Method::Fem(p), Some(path)) = (method, &a.export_mesh) {
         export_mesh(&hinge, &m, p, path)?;
     }
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
     match a.format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&r)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {
             let mut t = Table::new(&["quantity", "value", "unit"], &[false, true, false]);
             let mut row = |q: &str, v: String, u: &str| t.row(vec![q.into(), v, u.into()]);
@@ -218,7 +236,7 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                 );
                 row("safety factor against yield", format!("{sf:.2}"), "");
             }
-            println!(
+            outln!(
                 "{:?} hinge, t = {} mm, b = {} mm, L = {} mm ({})",
                 a.profile,
                 a.thickness * 1e3,
@@ -230,7 +248,7 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                     MethodArg::Fem => "2-D FEM for k_bend, beam integrals for the rest",
                 }
             );
-            print!("{}", t.text());
+            out!("{}", t.text());
         }
     }
     Ok(())
@@ -274,11 +292,14 @@ pub fn table(a: &TableArgs) -> Result<()> {
         poisson: a.poisson,
         ..Material::x2crni18_9()
     };
-    let rows = core::table(a.radius, a.width, &m, plane(a.plane)).map_err(hinge_error)?;
+    let rows = {
+        let _p = crate::progress::spinner("seven notches by beam integral and FEM");
+        core::table(a.radius, a.width, &m, plane(a.plane)).map_err(hinge_error)?
+    };
     match a.format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&rows)?),
+        Format::Json => outln!("{}", serde_json::to_string_pretty(&rows)?),
         Format::Text => {
-            println!(
+            outln!(
                 "Circular notch, R = {} mm, b = {} mm, E = {} GPa, plane {:?}: compliant stiffness, N·m/rad",
                 a.radius * 1e3,
                 a.width * 1e3,
@@ -308,7 +329,7 @@ pub fn table(a: &TableArgs) -> Result<()> {
                     format!("{:.1e}", r.fem_mesh_error),
                 ]);
             }
-            print!("{}", t.text());
+            out!("{}", t.text());
         }
     }
     Ok(())

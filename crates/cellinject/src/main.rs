@@ -1,23 +1,46 @@
 //! `cellinject`: the command-line front end. It reads files, parses arguments and
 //! prints; every computation lives in the library crates.
 
+/// `print!` that survives a closed pipe (`output::print`).
+macro_rules! out {
+    ($($t:tt)*) => { $crate::output::print(format_args!($($t)*)) };
+}
+
+/// `println!` that survives a closed pipe (`output::print`).
+macro_rules! outln {
+    () => { $crate::output::print(format_args!("\n")) };
+    ($($t:tt)*) => {{
+        $crate::output::print(format_args!($($t)*));
+        $crate::output::print(format_args!("\n"));
+    }};
+}
+
 mod commands;
 mod dic;
 mod fea;
+mod files;
 mod hinge;
 mod output;
+mod progress;
 mod sim;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::builder::ValueParser;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 
 /// Software for a piezo-actuated compliant micromanipulator that injects biological cells.
 ///
 /// With no command, runs `reproduce` on the embedded prototype.
 #[derive(Debug, Parser)]
-#[command(name = "cellinject", version, about, long_about)]
+#[command(
+    name = "cellinject",
+    version,
+    about,
+    long_about,
+    after_help = "Examples:\n  cellinject                      (reproduce the paper's Sec. 3.2 on the embedded prototype)\n  cellinject tension --approach 2\n  cellinject sim frame --vga --out frame.png\n\nExit codes: 0 success; 1 the computation ran but its result is not usable; 2 bad input or usage."
+)]
 struct Cli {
     /// Manipulator description file (TOML, SI units). Default: the embedded ICINCO-2012 prototype.
     #[arg(long, global = true, value_name = "FILE")]
@@ -39,6 +62,9 @@ pub enum Format {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Pre-tension analysis with one of the paper's two approaches (Sec. 2.1, 2.2).
+    #[command(
+        after_help = "Examples:\n  cellinject tension --approach 2\n  cellinject tension --approach 1 --format json > tension.json"
+    )]
     Tension {
         /// 1: assembly translation along the drive axes; 2: assembly deflection of J3.
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
@@ -48,23 +74,41 @@ enum Command {
         format: Format,
     },
     /// The mechanism model: Jacobians J, L, W, compliance B_l and the linearisation error.
+    #[command(
+        after_help = "Examples:\n  cellinject model\n  cellinject --config my-manipulator.toml model --format json"
+    )]
     Model {
         /// Output format.
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
     /// Stiffness, compliance and stress of one flexure hinge.
+    #[command(
+        after_help = "Examples:\n  cellinject hinge --profile circular --thickness 1e-3 --radius 2e-3 --width 5e-3\n  cellinject hinge --profile corner --thickness 0.5e-3 --radius 1e-3 --width 4e-3 --length 6e-3 --method fem --angle 0.01"
+    )]
     Hinge(hinge::HingeArgs),
     /// Circular notches from t/R = 0.05 to 1: beam integral, Paros-Weisbord and FEM side by side.
+    #[command(
+        after_help = "Examples:\n  cellinject hinge-table\n  cellinject hinge-table --radius 1e-3 --plane strain --format json"
+    )]
     HingeTable(hinge::TableArgs),
     /// Whole-manipulator structural model: displacements, coupling, joint stresses, modes.
+    #[command(
+        after_help = "Examples:\n  cellinject fea --approach 1 --forces -111.686,-111.686 --plot fig4.svg\n  cellinject fea tables --level 2\n  cellinject fea modes --approach 2 --count 4"
+    )]
     Fea(fea::FeaArgs),
     /// Digital image correlation: points, fields, tracking, synthetic test images.
+    #[command(
+        after_help = "Examples:\n  cellinject dic synth --shift 0.3,-0.2\n  cellinject dic --reference reference.png --current current.png --at 256,256 --at 100,100\n  cellinject dic field --reference reference.png --current current.png --out field.csv"
+    )]
     Dic(dic::DicArgs),
     /// Run the digital twin: hysteresis loops, step responses, camera frames.
     #[command(subcommand)]
     Sim(sim::SimCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
+    #[command(
+        after_help = "Examples:\n  cellinject reproduce\n  cellinject reproduce --out my-reports --format json"
+    )]
     Reproduce {
         /// Directory for the Markdown report (created if needed).
         #[arg(long, value_name = "DIR", default_value = "reports")]
@@ -112,8 +156,59 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// A number that is finite: NaN and infinities are refused where they are typed, with
+/// the option named by clap's message.
+fn finite(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("`{s}` is not a finite number"))
+    }
+}
+
+/// The command line as people type it, applied to every option of every command:
+/// numbers are finite, negative numbers need no `=` (`--forces -100,-100`,
+/// `--thickness -1e-3` reaches the real check), and lists take `1,2` or `1 2`.
+fn command() -> clap::Command {
+    fn people(cmd: clap::Command) -> clap::Command {
+        let cmd = cmd.mut_args(|a| {
+            if !a.get_action().takes_values() {
+                return a;
+            }
+            let a = if a.get_value_parser().type_id() == std::any::TypeId::of::<f64>() {
+                a.value_parser(ValueParser::new(finite))
+            } else {
+                a
+            };
+            if a.get_value_delimiter().is_some() {
+                // A list: `1,2` or `1 2` (several values after one option).
+                a.num_args(1..).allow_negative_numbers(true)
+            } else {
+                // One value: the next word, whatever it starts with (`-1e-3`, `-100,-100`;
+                // clap's own negative-number test refuses exponents like `e-3`).
+                a.allow_hyphen_values(true)
+            }
+        });
+        let names: Vec<String> = cmd
+            .get_subcommands()
+            .map(|s| s.get_name().to_string())
+            .collect();
+        names
+            .into_iter()
+            .fold(cmd, |c, n| c.mut_subcommand(n, people))
+    }
+    people(Cli::command())
+}
+
 fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
+    let parsed = command()
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m));
+    let cli = match parsed {
         Ok(cli) => cli,
         Err(e) => {
             let _ = e.print();

@@ -1,9 +1,21 @@
-//! Presentation helpers: units for people, tables for the terminal and Markdown, and
-//! crash-safe file writes.
+//! Presentation helpers: standard output that survives a closed pipe, units for people,
+//! tables for the terminal and Markdown.
 
-use std::fs;
 use std::io::Write as _;
-use std::path::Path;
+
+/// Writes to standard output. A closed pipe (the reader has gone, as with `| head`) ends
+/// the command quietly with exit code 0, as ripgrep does: every file the command writes
+/// is in place before it prints its results. Any other write error exits with 1.
+pub fn print(args: std::fmt::Arguments<'_>) {
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_fmt(args).and_then(|()| out.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: cannot write to standard output: {e}");
+        std::process::exit(1);
+    }
+}
 
 /// How a quantity in an SI unit is shown to a person: (unit label, scale, decimals).
 pub fn display_unit(si: &str) -> (&'static str, f64, usize) {
@@ -101,30 +113,6 @@ impl Table {
     }
 }
 
-/// Writes `contents` to `path` so that a crash or kill leaves either the old file or
-/// the new one, never a torn one: write a temporary file beside it, sync, rename.
-pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(contents.as_bytes())?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -149,17 +137,5 @@ mod tests {
             t.markdown(),
             "| a | value |\n|---|---|\n| long name | 1 |\n"
         );
-    }
-
-    #[test]
-    fn atomic_write_replaces_the_file_and_leaves_no_temporary() {
-        let dir = std::env::temp_dir().join(format!("cellinject-aw-{}", std::process::id()));
-        fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("r.md");
-        write_atomic(&p, "one").unwrap();
-        write_atomic(&p, "two").unwrap();
-        assert_eq!(fs::read_to_string(&p).unwrap(), "two");
-        assert_eq!(fs::read_dir(&dir).unwrap().count(), 1);
-        fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use cellinject_config::Description;
-use cellinject_core::sim::{self as core, Acquisition, SimError, StepSample};
+use cellinject_core::sim::{self as core, Acquisition, FrameSummary, SimError, StepSample};
 use cellinject_hw::{Frame, HwError};
 use cellinject_model::Approach;
 use cellinject_plot::{Chart, Series};
@@ -15,8 +15,8 @@ use cellinject_twin::devices::displacement_in;
 use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
 use clap::{Args, Subcommand};
 
-use crate::InputError;
-use crate::output::write_atomic;
+use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
+use crate::{Format, InputError};
 
 /// Options shared by every `sim` command.
 #[derive(Debug, Args)]
@@ -27,12 +27,18 @@ pub struct TwinArgs {
     /// Seed of the twin's random processes (default: the description's `twin.seed`).
     #[arg(long)]
     seed: Option<u64>,
+    /// Output format of the summary on standard output (the files are the same).
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    format: Format,
 }
 
 /// The `sim` commands.
 #[derive(Debug, Subcommand)]
 pub enum SimCommand {
     /// Drive one stack through a full hysteresis loop and nested minor loops.
+    #[command(
+        after_help = "Examples:\n  cellinject sim loop --actuator A2\n  cellinject sim loop --actuator A1 --amplitude 60 --approach 1 --out a1-loop.csv"
+    )]
     Loop {
         /// Actuator: A1, A2 or A3.
         #[arg(long, default_value = "A1")]
@@ -40,13 +46,17 @@ pub enum SimCommand {
         /// Largest voltage of the loop, V (default: the amplifier's full range).
         #[arg(long, allow_negative_numbers = true)]
         amplitude: Option<f64>,
-        /// CSV output (`time_s,voltage_v,displacement_m`); an SVG plot is written beside it.
+        /// CSV output (`time_s,voltage_v,displacement_m`); the plot is written beside it
+        /// with the same stem as SVG and PNG (`--out loop.svg` means the same three files).
         #[arg(long, default_value = "loop.csv")]
         out: PathBuf,
         #[command(flatten)]
         twin: TwinArgs,
     },
     /// Render one camera frame of the prototype's scene.
+    #[command(
+        after_help = "Examples:\n  cellinject sim frame --vga --out frame.png\n  cellinject sim frame --zoom 5 --bits 16 --volts 20,10,0 --out frame.tif"
+    )]
     Frame {
         /// Magnification (2.5 to 10).
         #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
@@ -60,16 +70,22 @@ pub enum SimCommand {
         /// PNG bit depth: 8, or 16 (the camera's 12-bit output scaled by 16).
         #[arg(long, default_value_t = 8, value_parser = parse_bits)]
         bits: u8,
+        /// Burn a scale bar into the image (an 8-bit colour figure, not data for DIC).
+        #[arg(long, conflicts_with = "bits")]
+        scale_bar: bool,
         /// Voltages of A1, A2, A3 applied before the frame, V.
         #[arg(long, value_delimiter = ',', value_name = "V1,V2,V3")]
         volts: Option<Vec<f64>>,
-        /// PNG output.
+        /// Image output: `.png`, or `.tif` for TIFF.
         #[arg(long, default_value = "frame.png")]
         out: PathBuf,
         #[command(flatten)]
         twin: TwinArgs,
     },
     /// Step response of one stack: ringing of the structure, then creep.
+    #[command(
+        after_help = "Examples:\n  cellinject sim step --voltage 50\n  cellinject sim step --actuator A3 --voltage 30 --duration 0.5 --out a3-step.csv --format json"
+    )]
     Step {
         /// Actuator: A1, A2 or A3.
         #[arg(long, default_value = "A1")]
@@ -80,7 +96,7 @@ pub enum SimCommand {
         /// Simulated duration, s.
         #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
         duration: f64,
-        /// CSV output; an SVG plot is written beside it.
+        /// CSV output; the plot is written beside it with the same stem as SVG and PNG.
         #[arg(long, default_value = "step.csv")]
         out: PathBuf,
         #[command(flatten)]
@@ -130,21 +146,48 @@ fn lock(twin: &SharedTwin) -> std::sync::MutexGuard<'_, Twin> {
     twin.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-fn write_plot(csv: &Path, charts: &[Chart], columns: usize) -> Result<PathBuf> {
-    let svg = cellinject_plot::svg(charts, columns, (720, 480)).context("plot")?;
-    let path = csv.with_extension("svg");
-    write_atomic(&path, &svg).map_err(|e| {
-        InputError(format!(
-            "--out `{}`: cannot write the plot: {e}",
-            path.display()
-        ))
-    })?;
-    Ok(path)
+/// The CSV and the plot (SVG and PNG) of a loop or step, checked before the twin runs.
+fn csv_and_plots(out: &Path) -> Result<[PathBuf; 3]> {
+    let mut plan = Plan::new();
+    let files = plan.companions("--out", out, &[Kind::Csv, Kind::Svg, Kind::Png])?;
+    plan.check()?;
+    Ok([files[0].clone(), files[1].clone(), files[2].clone()])
 }
 
-fn write_csv(path: &Path, text: &str) -> Result<()> {
-    write_atomic(path, text)
-        .map_err(|e| InputError(format!("--out `{}`: cannot write: {e}", path.display())).into())
+/// Writes the CSV and the plots together.
+fn write_csv_and_plots(
+    [csv_path, svg_path, png_path]: &[PathBuf; 3],
+    csv: &str,
+    charts: &[Chart],
+    columns: usize,
+) -> Result<()> {
+    let svg = cellinject_plot::svg(charts, columns, (720, 480)).context("plot")?;
+    let png = encode_rgb(
+        cellinject_plot::rgb(charts, columns, (720, 480)).context("plot")?,
+        png_path,
+    )?;
+    let mut staged = Staged::new();
+    staged.add(csv_path, csv.as_bytes())?;
+    staged.add(svg_path, svg.as_bytes())?;
+    staged.add(png_path, &png)?;
+    staged.commit()
+}
+
+/// A JSON summary with the files it wrote.
+#[derive(serde::Serialize)]
+struct Written<'a, T: serde::Serialize> {
+    #[serde(flatten)]
+    summary: T,
+    files: Vec<&'a Path>,
+}
+
+fn print_json<T: serde::Serialize>(summary: T, files: &[&Path]) -> Result<()> {
+    let w = Written {
+        summary,
+        files: files.to_vec(),
+    };
+    outln!("{}", serde_json::to_string_pretty(&w)?);
+    Ok(())
 }
 
 /// `sim loop`.
@@ -156,17 +199,19 @@ fn run_loop(
     args: &TwinArgs,
 ) -> Result<()> {
     let ch = channel(actuator)?;
+    let files = csv_and_plots(out)?;
     let (twin, mut rig) = build(d, args)?;
     let approach = lock(&twin).world.params().rig.approach;
+    let progress = crate::progress::spinner("the twin traces the loop");
     let r = core::hysteresis_loop(&mut rig, ch, amplitude, approach, || {
         lock(&twin).actuator_displacement(ch)
     })
     .map_err(sim_error)?;
+    drop(progress);
     let mut csv = String::from("time_s,voltage_v,displacement_m\n");
     for s in &r.samples {
         let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
     }
-    write_csv(out, &csv)?;
     let chart = Chart {
         title: format!("{}: hysteresis loop with nested minor loops", r.actuator),
         x_label: "amplifier output [V]".into(),
@@ -176,15 +221,23 @@ fn run_loop(
             points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
         }],
     };
-    let plot = write_plot(out, &[chart], 1)?;
-    println!(
+    write_csv_and_plots(&files, &csv, &[chart], 1)?;
+    if args.format == Format::Json {
+        return print_json(r.summary(), &[&files[0], &files[1], &files[2]]);
+    }
+    outln!(
         "{}: loop 0-{:.1} V, stroke {:.3} µm under load; {} samples",
         r.actuator,
         r.amplitude,
         r.stroke * 1e6,
         r.samples.len()
     );
-    println!("wrote {} and {}", out.display(), plot.display());
+    outln!(
+        "wrote {}, {} and {}",
+        files[0].display(),
+        files[1].display(),
+        files[2].display()
+    );
     Ok(())
 }
 
@@ -198,6 +251,7 @@ fn run_step(
     args: &TwinArgs,
 ) -> Result<()> {
     let ch = channel(actuator)?;
+    let files = csv_and_plots(out)?;
     let (twin, mut rig) = build(d, args)?;
     let (start, x0, dt) = {
         let t = lock(&twin);
@@ -207,6 +261,7 @@ fn run_step(
             t.world.dt(),
         )
     };
+    let progress = crate::progress::spinner(format!("the twin simulates {duration} s"));
     let r = core::step_response(&mut rig, ch, voltage, duration, dt, |t| {
         let s = lock(&twin).world.snapshot();
         let ee = s.x - x0;
@@ -218,6 +273,7 @@ fn run_step(
         }
     })
     .map_err(sim_error)?;
+    drop(progress);
     let mut csv = String::from(
         "time_s,voltage_v,displacement_m,end_effector_x_m,end_effector_y_m,end_effector_z_m\n",
     );
@@ -233,7 +289,6 @@ fn run_step(
             s.end_effector[2]
         );
     }
-    write_csv(out, &csv)?;
     let name = r.actuator;
     let um = |s: &StepSample| s.displacement * 1e6;
     let charts = [
@@ -267,10 +322,16 @@ fn run_step(
             }],
         },
     ];
-    let plot = write_plot(out, &charts, 2)?;
+    write_csv_and_plots(&files, &csv, &charts, 2)?;
     let f = lock(&twin).world.natural_frequencies();
+    if args.format == Format::Json {
+        return print_json(
+            r.summary([f[0], f[1], f[2]]),
+            &[&files[0], &files[1], &files[2]],
+        );
+    }
     let at = |t: f64| r.displacement_at(t).map(|x| x * 1e6).unwrap_or(f64::NAN);
-    println!(
+    outln!(
         "{name}: step to {voltage} V; displacement {:.3} µm at 0.1 s, {:.3} µm at {duration} s; tilt modes {:.0} Hz and {:.0} Hz, A3 axis {:.0} Hz",
         at(0.1),
         r.samples.last().map(um).unwrap_or(f64::NAN),
@@ -278,51 +339,57 @@ fn run_step(
         f[1],
         f[2]
     );
-    println!("wrote {} and {}", out.display(), plot.display());
+    outln!(
+        "wrote {}, {} and {}",
+        files[0].display(),
+        files[1].display(),
+        files[2].display()
+    );
     Ok(())
 }
 
-/// Writes a frame as an 8- or 16-bit greyscale PNG.
-pub fn write_png(frame: &Frame, bits: u8, path: &Path) -> Result<()> {
-    let shift = 16 - frame.bit_depth as u32;
-    let tmp = path.with_extension("png.tmp");
-    let result = if bits == 16 {
+/// A frame as an 8- or 16-bit greyscale image in the format `path`'s extension names.
+pub fn encode_frame(frame: &Frame, bits: u8, path: &Path) -> Result<Vec<u8>> {
+    if bits == 16 {
+        let shift = 16 - frame.bit_depth as u32;
         let data: Vec<u16> = frame.pixels.iter().map(|&v| v << shift).collect();
-        image::ImageBuffer::<image::Luma<u16>, _>::from_raw(frame.width, frame.height, data)
-            .context("frame buffer size")?
-            .save_with_format(&tmp, image::ImageFormat::Png)
+        let img =
+            image::ImageBuffer::<image::Luma<u16>, _>::from_raw(frame.width, frame.height, data)
+                .context("frame buffer size")?;
+        encode_image(&img, path)
     } else {
         let down = frame.bit_depth as u32 - 8;
         let data: Vec<u8> = frame.pixels.iter().map(|&v| (v >> down) as u8).collect();
-        image::GrayImage::from_raw(frame.width, frame.height, data)
-            .context("frame buffer size")?
-            .save_with_format(&tmp, image::ImageFormat::Png)
-    };
-    result
-        .map_err(anyhow::Error::from)
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(anyhow::Error::from))
-        .map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            InputError(format!(
-                "--out `{}`: cannot write the image: {e}",
-                path.display()
-            ))
-            .into()
-        })
+        let img = image::GrayImage::from_raw(frame.width, frame.height, data)
+            .context("frame buffer size")?;
+        encode_image(&img, path)
+    }
 }
 
-/// `sim frame`.
-#[allow(clippy::too_many_arguments)]
-fn run_frame(
-    d: &Description,
+/// How `sim frame` acquires and writes.
+struct FrameArgs {
     zoom: f64,
     vga: bool,
     crop: bool,
     bits: u8,
+    scale_bar: bool,
+}
+
+/// `sim frame`.
+fn run_frame(
+    d: &Description,
+    f: FrameArgs,
     volts: Option<&[f64]>,
     out: &Path,
     args: &TwinArgs,
 ) -> Result<()> {
+    let FrameArgs {
+        zoom,
+        vga,
+        crop,
+        bits,
+        scale_bar,
+    } = f;
     let volts = match volts {
         None => None,
         Some(&[a, b, c]) => Some([a, b, c]),
@@ -339,6 +406,9 @@ fn run_frame(
         (false, true) => Acquisition::VgaCropped,
         (false, false) => Acquisition::Full,
     };
+    let mut plan = Plan::new();
+    plan.output("--out", out, &[Kind::Png, Kind::Tiff])?;
+    plan.check()?;
     let (twin, mut rig) = build(d, args)?;
     let frame = core::frame(&mut rig, zoom, acquisition, volts).map_err(|e| match e {
         SimError::Device {
@@ -347,9 +417,29 @@ fn run_frame(
         } => InputError(format!("{what}: refused: {r}")).into(),
         other => sim_error(other),
     })?;
-    write_png(&frame, bits, out)?;
+    let bytes = if scale_bar {
+        let down = frame.bit_depth as u32 - 8;
+        let grey: Vec<u8> = frame.pixels.iter().map(|&v| (v >> down) as u8).collect();
+        let rgb = cellinject_plot::frame::with_scale_bar(
+            &grey,
+            frame.width,
+            frame.height,
+            frame.pixel_size,
+        )
+        .context("scale bar")?;
+        encode_rgb(rgb, out)?
+    } else {
+        encode_frame(&frame, bits, out)?
+    };
+    let mut staged = Staged::new();
+    staged.add(out, &bytes)?;
+    staged.commit()?;
     let tip = lock(&twin).tip();
-    println!(
+    if args.format == Format::Json {
+        let s = FrameSummary::new(&frame, zoom, Some([tip.x, tip.z, tip.depth]));
+        return print_json(s, &[out]);
+    }
+    outln!(
         "frame {}x{} at {zoom}x: {:.3} µm per pixel, field of view {:.0} x {:.0} µm; exposure {:.1} ms at t = {:.3} s",
         frame.width,
         frame.height,
@@ -359,13 +449,13 @@ fn run_frame(
         frame.exposure * 1e3,
         frame.timestamp
     );
-    println!(
+    outln!(
         "pipette tip at x = {:.3} µm, z = {:.3} µm, {:.3} µm from focus",
         tip.x * 1e6,
         tip.z * 1e6,
         tip.depth * 1e6
     );
-    println!("wrote {} ({bits}-bit PNG)", out.display());
+    outln!("wrote {} ({bits}-bit)", out.display());
     Ok(())
 }
 
@@ -390,9 +480,22 @@ pub fn run(d: &Description, cmd: &SimCommand) -> Result<()> {
             vga,
             crop,
             bits,
+            scale_bar,
             volts,
             out,
             twin,
-        } => run_frame(d, *zoom, *vga, *crop, *bits, volts.as_deref(), out, twin),
+        } => run_frame(
+            d,
+            FrameArgs {
+                zoom: *zoom,
+                vga: *vga,
+                crop: *crop,
+                bits: *bits,
+                scale_bar: *scale_bar,
+            },
+            volts.as_deref(),
+            out,
+            twin,
+        ),
     }
 }

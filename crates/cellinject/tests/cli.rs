@@ -270,7 +270,18 @@ fn each_class_of_bad_description_exits_2_naming_file_and_key() {
         );
         assert!(e.contains(msg), "{tag}: expected `{msg}` in: {e}");
         assert!(!e.contains("panicked"), "{tag}: {e}");
-        assert_eq!(e.lines().count(), 1, "{tag}: one message: {e}");
+        if tag == "syntax" {
+            // A syntax error is shown over several lines: where, the line, a caret.
+            let line = PROTOTYPE
+                .lines()
+                .position(|l| l.starts_with("name = "))
+                .unwrap()
+                + 1;
+            assert!(e.contains(&format!("line {line}")), "{e}");
+            assert!(e.contains('^') && e.lines().count() > 3, "{e}");
+        } else {
+            assert_eq!(e.lines().count(), 1, "{tag}: one message: {e}");
+        }
     }
 }
 
@@ -1184,9 +1195,9 @@ fn fea_bad_arguments_exit_2_with_a_message() {
                 "--forces",
                 "-100,-100",
                 "--plot",
-                "x.png",
+                "x.jpg",
             ],
-            ".svg",
+            ".svg or .png",
         ),
     ];
     for (args, needle) in cases {
@@ -1316,4 +1327,31 @@ fn fea_warns_when_structure_and_flexures_disagree_naming_both_keys() {
     // The prototype's own joints agree with its [flexures] within 2 %: no warning.
     let o = run(&["fea", "--approach", "2", "--forces=-100,-100"]);
     assert!(!stdout(&o).contains("warning: flexures"), "{}", stdout(&o));
+}
+
+#[test]
+fn a_joint_fem_larger_than_the_memory_is_refused_before_it_starts() {
+    let cache = tempdir("fem-memory");
+    let o = bin()
+        .env("XDG_CACHE_HOME", &cache)
+        .env("CELLINJECT_MAX_MEMORY", "500000000")
+        .args(["fea", "tables", "--level", "2"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("183600 unknowns") && e.contains("GB") && e.contains("--force"),
+        "{e}"
+    );
+    // Nothing was solved or cached.
+    assert!(fs::read_dir(&cache).map(|d| d.count() == 0).unwrap_or(true));
+    let o = bin()
+        .env("XDG_CACHE_HOME", &cache)
+        .env("CELLINJECT_MAX_MEMORY", "500000000")
+        .args(["fea", "joints", "--levels", "4"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--levels"), "{}", stderr(&o));
 }

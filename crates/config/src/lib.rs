@@ -28,9 +28,10 @@ pub const PROTOTYPE_TOML: &str = include_str!("../../../configs/prototype.toml")
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum ConfigError {
     /// The text is not valid TOML.
-    #[error("not valid TOML: {message}")]
+    #[error("not valid TOML:\n{message}")]
     Syntax {
-        /// The parser's message, with line and column.
+        /// The parser's message over several lines: line and column, the line itself
+        /// with a caret under the fault, and what is wrong.
         message: String,
     },
     /// A required key is absent.
@@ -114,7 +115,7 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
     let root: toml::Table = text
         .parse()
         .map_err(|e: toml::de::Error| ConfigError::Syntax {
-            message: e.to_string().trim().replace('\n', " | "),
+            message: e.to_string().trim_end().to_string(),
         })?;
     let mut top = Section::root(&root);
     let name = top.string("name")?;

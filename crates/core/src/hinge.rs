@@ -90,6 +90,7 @@ pub struct FemReport {
 /// | `compliance` | m/N, rad/(N·m) | 6x6, order `compliance_order` |
 /// | `fem` | | [`FemReport`], with `--method fem` |
 /// | `angle`, `stress`, `safety_factor` | rad, Pa, 1 | with `--angle` |
+/// | `warnings` | | where the hinge lies outside the range its formulas were checked over |
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct HingeReport {
     /// Profile name.
@@ -134,6 +135,8 @@ pub struct HingeReport {
     /// Yield over stress.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub safety_factor: Option<f64>,
+    /// Where the hinge lies outside the range its formulas were checked over.
+    pub warnings: Vec<String>,
 }
 
 /// Checks a material's constants, naming the flags.
@@ -230,7 +233,37 @@ pub fn hinge(
         angle: at.map(|a| a.0),
         stress: at.map(|a| a.1),
         safety_factor: at.map(|a| a.2),
+        warnings: validity_warnings(hinge, method),
     })
+}
+
+/// The range of throat over notch radius over which the circular notch's beam integral
+/// and FEM were compared (`hinge-table`, methods.md): outside it they are unchecked.
+pub const CHECKED_T_OVER_R: (f64, f64) = (0.05, 1.0);
+
+/// The simplified Paros-Weisbord formula is a thin-notch asymptote: beyond t/R = 0.2 it
+/// is more than 10 % off the beam integral (`hinge-table`).
+pub const PW_SIMPLE_T_OVER_R: f64 = 0.2;
+
+/// Warnings for a hinge outside the range where its formulas hold (it is still
+/// computed: nothing inside the range is refused, nothing outside it silently trusted).
+pub fn validity_warnings(hinge: &Hinge, method: Method) -> Vec<String> {
+    let mut out = Vec::new();
+    if let Profile::Circular { radius } = hinge.profile {
+        let tr = hinge.thickness / radius;
+        let (lo, hi) = CHECKED_T_OVER_R;
+        if !(lo..=hi).contains(&tr) {
+            out.push(format!(
+                "t/R = {tr:.3} lies outside {lo}-{hi}, the range over which the beam integral was checked against the FEM"
+            ));
+        }
+        if method == Method::PwSimple && tr > PW_SIMPLE_T_OVER_R {
+            out.push(format!(
+                "t/R = {tr:.3} is above {PW_SIMPLE_T_OVER_R}: the simplified Paros-Weisbord formula is a thin-notch approximation (over 10 % off here; see hinge-table)"
+            ));
+        }
+    }
+    out
 }
 
 /// The finest mesh of the FEM and its solve, for peer solvers (`hinge --export-mesh`).

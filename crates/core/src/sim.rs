@@ -136,6 +136,38 @@ pub fn hysteresis_loop<B: Backend>(
     })
 }
 
+impl LoopReport {
+    /// What `sim loop` reports besides its CSV.
+    pub fn summary(&self) -> LoopSummary {
+        LoopSummary {
+            actuator: self.actuator,
+            amplitude: self.amplitude,
+            stroke: self.stroke,
+            samples: self.samples.len(),
+        }
+    }
+}
+
+/// The JSON summary of `sim loop` (the samples go to its CSV).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `actuator` | | A1, A2 or A3 |
+/// | `amplitude` | V | the loop's largest voltage |
+/// | `stroke` | m | the largest displacement reached, under the mechanism's load |
+/// | `samples` | | rows of the CSV (one per millisecond) |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LoopSummary {
+    /// A1, A2 or A3.
+    pub actuator: &'static str,
+    /// V.
+    pub amplitude: f64,
+    /// m.
+    pub stroke: f64,
+    /// CSV rows.
+    pub samples: usize,
+}
+
 /// One sample of a step response.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct StepSample {
@@ -170,6 +202,49 @@ impl StepReport {
             .find(|s| s.time >= t)
             .map(|s| s.displacement)
     }
+}
+
+impl StepReport {
+    /// What `sim step` reports besides its CSV; `frequencies` are the twin's tilt modes
+    /// and A3 axis mode, Hz.
+    pub fn summary(&self, frequencies: [f64; 3]) -> StepSummary {
+        StepSummary {
+            actuator: self.actuator,
+            voltage: self.voltage,
+            duration: self.duration,
+            displacement_at_100ms: self.displacement_at(0.1),
+            displacement_final: self.samples.last().map(|s| s.displacement),
+            natural_frequencies: frequencies,
+            samples: self.samples.len(),
+        }
+    }
+}
+
+/// The JSON summary of `sim step` (the samples go to its CSV).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `actuator`, `voltage`, `duration` | –, V, s | the step |
+/// | `displacement_at_100ms` | m | the stack's displacement 0.1 s after the step (null if shorter) |
+/// | `displacement_final` | m | at the end |
+/// | `natural_frequencies` | Hz | the tilt modes about the two axes and the A3 axis |
+/// | `samples` | | rows of the CSV |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StepSummary {
+    /// A1, A2 or A3.
+    pub actuator: &'static str,
+    /// V.
+    pub voltage: f64,
+    /// s.
+    pub duration: f64,
+    /// m.
+    pub displacement_at_100ms: Option<f64>,
+    /// m.
+    pub displacement_final: Option<f64>,
+    /// Hz.
+    pub natural_frequencies: [f64; 3],
+    /// CSV rows.
+    pub samples: usize,
 }
 
 /// `sim step`: steps channel `ch` to `voltage` and records `sample(t)` every clock
@@ -211,6 +286,60 @@ pub fn step_response<B: Backend>(
         duration,
         samples,
     })
+}
+
+/// The JSON summary of `sim frame` (the pixels go to its image file).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `width`, `height` | px | the frame |
+/// | `bit_depth` | bits | significant bits of a pixel (8 or 12) |
+/// | `zoom` | | magnification |
+/// | `pixel_size` | m | one pixel in the object plane |
+/// | `field_of_view` | m | width and height in the object plane |
+/// | `exposure`, `timestamp` | s | exposure time and its start on the device's clock |
+/// | `tip` | m | the pipette tip's true position (x, z) and distance from focus, where the backend knows it (the twin) |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FrameSummary {
+    /// px.
+    pub width: u32,
+    /// px.
+    pub height: u32,
+    /// bits.
+    pub bit_depth: u8,
+    /// Magnification.
+    pub zoom: f64,
+    /// m.
+    pub pixel_size: f64,
+    /// m.
+    pub field_of_view: [f64; 2],
+    /// s.
+    pub exposure: f64,
+    /// s.
+    pub timestamp: f64,
+    /// m: x, z, depth from focus.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tip: Option<[f64; 3]>,
+}
+
+impl FrameSummary {
+    /// The summary of `frame` taken at `zoom`, with the tip's truth if known.
+    pub fn new(frame: &Frame, zoom: f64, tip: Option<[f64; 3]>) -> Self {
+        FrameSummary {
+            width: frame.width,
+            height: frame.height,
+            bit_depth: frame.bit_depth,
+            zoom,
+            pixel_size: frame.pixel_size,
+            field_of_view: [
+                frame.width as f64 * frame.pixel_size,
+                frame.height as f64 * frame.pixel_size,
+            ],
+            exposure: frame.exposure,
+            timestamp: frame.timestamp,
+            tip,
+        }
+    }
 }
 
 /// How `sim frame` acquires.

@@ -174,6 +174,10 @@ pub trait JointStore {
     fn load(&self, key: &JointKey) -> CacheLookup;
     /// Keeps `solution` as the entry for `key`, replacing any entry there.
     fn store(&self, key: &JointKey, solution: &JointSolution) -> std::io::Result<()>;
+    /// Whether an entry for `key` is there (not checked: for estimates only).
+    fn has(&self, _key: &JointKey) -> bool {
+        false
+    }
 }
 
 /// No cache: every joint is solved, nothing is read or written.
@@ -234,6 +238,10 @@ fn location(xdg_cache_home: Option<OsString>, platform: Option<PathBuf>) -> Opti
 }
 
 impl JointStore for DirCache {
+    fn has(&self, key: &JointKey) -> bool {
+        self.path_of(key).is_file()
+    }
+
     fn load(&self, key: &JointKey) -> CacheLookup {
         let path = self.path_of(key);
         let bytes = match fs::read(&path) {

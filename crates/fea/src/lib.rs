@@ -21,7 +21,7 @@
 //! };
 //! let model = FeaModel::build(&design, &params, FeaOptions::default(), store)?;
 //! let case = model.solve(Approach::DriveTranslation, [-100.0, -100.0])?;
-//! println!("δx = {} m, J3 safety {}", case.dx, case.joints[0].safety_factor);
+//! println!("δx = {} m, J3 safety {:?}", case.dx, case.joints[0].safety_factor);
 //! # Ok::<(), cellinject_fea::FeaError>(())
 //! ```
 //!
@@ -34,6 +34,7 @@
 //! drawing and choosing the cache directory belong to the caller (the binary).
 
 pub mod cache;
+pub mod cost;
 pub mod report;
 
 use cellinject_fem::FemError;
@@ -56,6 +57,10 @@ pub use report::{
 };
 
 use cache::{CacheUse, solve_cached};
+
+/// A joint's peak stress below this fraction of the yield strength is numerical noise:
+/// the joint is unloaded.
+pub const UNLOADED: f64 = 1e-9;
 
 /// The paper's bending stiffness of J1 and J2 (Sec. 3.1, eq. 35), N·m/rad: compared with
 /// only.
@@ -545,7 +550,8 @@ impl FeaModel {
             .map_err(FeaError::Equilibrium)
     }
 
-    /// Peak stresses of J3, J1, J2 at an equilibrium.
+    /// Peak stresses of J3, J1, J2 at an equilibrium. A joint whose peak stress is below
+    /// [`UNLOADED`] times the yield strength is unloaded: its safety factor is `None`.
     pub fn stresses(&self, eq: &Equilibrium) -> Vec<JointStress> {
         let y = self.material.yield_strength;
         ["J3", "J1", "J2"]
@@ -555,10 +561,13 @@ impl FeaModel {
                 let sol = if i == 0 { &self.j3 } else { &self.j12 };
                 let w: Vector6<f64> = eq.joint_wrench[i];
                 let (s, at) = sol.peak_von_mises_block(&w);
+                // Below 1e-9 of the yield strength a stress measures rounding, not load:
+                // the joint is unloaded and has no safety factor.
+                let unloaded = s < UNLOADED * y;
                 JointStress {
                     name,
                     max_von_mises: s,
-                    safety_factor: y / s,
+                    safety_factor: (!unloaded).then(|| y / s),
                     at,
                 }
             })

@@ -12,7 +12,7 @@ use crate::cache::CacheStatus;
 /// |---|---|---|
 /// | `name` | – | `"J3"`, `"J1"` or `"J2"` |
 /// | `max_von_mises` | Pa | largest von Mises stress between the joint's end sections |
-/// | `safety_factor` | – | yield strength / `max_von_mises` |
+/// | `safety_factor` | – | yield strength / `max_von_mises`; `null` when the joint is unloaded (stress below 1e-9 of the yield strength) |
 /// | `at` | m | where the peak lies, in the joint's frame (`[x, y, z]`) |
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct JointStress {
@@ -21,7 +21,7 @@ pub struct JointStress {
     /// Pa, largest von Mises stress.
     pub max_von_mises: f64,
     /// Yield strength over the peak stress.
-    pub safety_factor: f64,
+    pub safety_factor: Option<f64>,
     /// m, where the peak lies (joint frame).
     pub at: [f64; 3],
 }
@@ -188,7 +188,11 @@ impl TableCase {
     pub fn weakest(&self) -> Option<&JointStress> {
         self.joints
             .iter()
-            .min_by(|a, b| a.safety_factor.total_cmp(&b.safety_factor))
+            .filter(|j| j.safety_factor.is_some())
+            .min_by(|a, b| {
+                let f = |j: &JointStress| j.safety_factor.unwrap_or(f64::INFINITY);
+                f(a).total_cmp(&f(b))
+            })
     }
 }
 

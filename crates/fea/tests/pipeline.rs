@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use cellinject_fea::{
     Approach, CacheStatus, DirCache, FeaError, FeaModel, FeaOptions, JointKey, JointStore, NoCache,
-    PreloadKind, StructureParams, joint_geometry, joints, material,
+    PreloadKind, StructureParams, UNLOADED, joint_geometry, joints, material,
 };
 use cellinject_model::{Design, prototype};
 use serde_json::Value;
@@ -438,7 +438,7 @@ fn modes_joints_and_the_material_come_from_the_same_joints() {
     let base = &w.solve["joints"];
     for (i, js) in s.joints.iter().enumerate() {
         let f = base[i]["safety_factor"].as_f64().unwrap();
-        assert!((js.safety_factor / f - 2.0).abs() < 1e-12);
+        assert!((js.safety_factor.unwrap() / f - 2.0).abs() < 1e-12);
     }
     // The paper's torque set-up for approach 2 is named in the tables report.
     let torque = FeaModel::build(
@@ -455,4 +455,35 @@ fn modes_joints_and_the_material_come_from_the_same_joints() {
     assert_eq!(t["approach2_preload"], "torque");
     assert_eq!(t["tables"][0], w.tables["tables"][0]);
     fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_unloaded_joint_has_no_safety_factor() {
+    // Approach 1 with both forces at zero: the structure is free of load, every stress
+    // is rounding, and no safety factor (1e29 before) is reported.
+    let (dir, cache) = seeded("unloaded");
+    let m = FeaModel::build(&design(), &params(), FeaOptions::default(), &cache).unwrap();
+    let r = m.solve(Approach::DriveTranslation, [0.0, 0.0]).unwrap();
+    for j in &r.joints {
+        assert!(
+            j.max_von_mises < UNLOADED * r.yield_strength,
+            "{}: {}",
+            j.name,
+            j.max_von_mises
+        );
+        assert_eq!(j.safety_factor, None, "{}", j.name);
+    }
+    let v = serde_json::to_value(&r).unwrap();
+    assert!(v["joints"][0]["safety_factor"].is_null());
+    // Under load, every joint has one.
+    let loaded = m
+        .solve(Approach::DriveTranslation, [-100.0, -100.0])
+        .unwrap();
+    assert!(
+        loaded
+            .joints
+            .iter()
+            .all(|j| j.safety_factor.is_some_and(|f| f > 1.0))
+    );
+    let _ = fs::remove_dir_all(dir);
 }

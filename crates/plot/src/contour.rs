@@ -1,9 +1,11 @@
 //! Deformed-structure drawings coloured by a displacement component, like the contour
 //! screens of a CAD package's FEA (the paper's Fig. 4).
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::{PlotError, register_font};
+use crate::style::{self, err};
+use crate::{PlotError, Rgb, register_font};
 
 /// A member drawn as a polyline, at rest (grey) and displaced (coloured).
 #[derive(Debug, Clone, PartialEq)]
@@ -35,38 +37,12 @@ pub struct StructurePanel {
     pub members: Vec<Member>,
 }
 
-/// Blue → cyan → green → yellow → red, for t in [0, 1].
-pub fn rainbow(t: f64) -> RGBColor {
-    let t = if t.is_finite() {
-        t.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let stops = [
-        (0.0, (48.0, 18.0, 180.0)),
-        (0.25, (30.0, 150.0, 230.0)),
-        (0.5, (60.0, 190.0, 80.0)),
-        (0.75, (240.0, 200.0, 40.0)),
-        (1.0, (210.0, 30.0, 30.0)),
-    ];
-    let k = stops
-        .windows(2)
-        .position(|w| t <= w[1].0)
-        .unwrap_or(stops.len() - 2);
-    let (a, b) = (stops[k], stops[k + 1]);
-    let f = (t - a.0) / (b.0 - a.0);
-    let mix = |x: f64, y: f64| (x + (y - x) * f).round() as u8;
-    RGBColor(mix(a.1.0, b.1.0), mix(a.1.1, b.1.1), mix(a.1.2, b.1.2))
-}
-
-/// Renders panels side by side, each with its own colour bar, into one SVG document.
-pub fn structure_svg(panels: &[StructurePanel], panel: (u32, u32)) -> Result<String, PlotError> {
-    register_font();
-    let mut out = String::new();
+fn draw_structure<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    panels: &[StructurePanel],
+    panel: (u32, u32),
+) -> Result<(), PlotError> {
     {
-        let size = (panel.0 * panels.len().max(1) as u32, panel.1);
-        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
-        let err = |e: &dyn std::fmt::Display| PlotError::Drawing(e.to_string());
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let areas = root.split_evenly((1, panels.len().max(1)));
         for (p, area) in panels.iter().zip(areas.iter()) {
@@ -110,18 +86,22 @@ pub fn structure_svg(panels: &[StructurePanel], panel: (u32, u32)) -> Result<Str
                     (a.0.min(v), a.1.max(v))
                 });
             let span = if vmax > vmin { vmax - vmin } else { 1.0 };
-            let (plot_area, bar_area) = area.split_horizontally(panel.0 - 110);
+            let (plot_area, bar_area) =
+                area.split_horizontally(panel.0.saturating_sub(style::COLOUR_BAR_WIDTH));
             let mut c = ChartBuilder::on(&plot_area)
-                .caption(&p.title, ("sans-serif", 17))
-                .margin(10)
-                .x_label_area_size(40)
-                .y_label_area_size(60)
+                .caption(&p.title, style::title())
+                .margin(style::MARGIN)
+                .x_label_area_size(style::X_LABEL_AREA)
+                .y_label_area_size(style::Y_LABEL_AREA)
                 .build_cartesian_2d(cx - hw..cx + hw, cy - hh..cy + hh)
                 .map_err(|e| err(&e))?;
             c.configure_mesh()
                 .x_desc(p.x_label.as_str())
                 .y_desc(p.y_label.as_str())
-                .label_style(("sans-serif", 12))
+                .label_style(style::label())
+                .axis_desc_style(style::label())
+                .x_labels(style::TICKS)
+                .y_labels(style::TICKS)
                 .light_line_style(WHITE)
                 .draw()
                 .map_err(|e| err(&e))?;
@@ -135,56 +115,77 @@ pub fn structure_svg(panels: &[StructurePanel], panel: (u32, u32)) -> Result<Str
             for m in &p.members {
                 for (k, seg) in m.displaced.windows(2).enumerate() {
                     let v = 0.5 * (m.values[k] + m.values[(k + 1).min(m.values.len() - 1)]);
-                    let col = rainbow((v - vmin) / span);
+                    let col = style::colour_map((v - vmin) / span);
                     c.draw_series(std::iter::once(PathElement::new(
                         vec![seg[0], seg[1]],
                         col.stroke_width(m.width.max(1)),
                     )))
                     .map_err(|e| err(&e))?;
                 }
-                if let Some(&first) = m.displaced.last() {
-                    c.draw_series(std::iter::once(Text::new(
-                        m.name.clone(),
-                        first,
-                        ("sans-serif", 12).into_font(),
-                    )))
-                    .map_err(|e| err(&e))?;
+            }
+            // Labels: each member's name where it overlaps no other label, trying points
+            // along the member (middle first) and sides of it.
+            let mut placed: Vec<(i32, i32, i32, i32)> = Vec::new();
+            for m in &p.members {
+                let n = m.displaced.len();
+                if n == 0 {
+                    continue;
                 }
-            }
-            // Colour bar.
-            let (bw, bh) = bar_area.dim_in_pixel();
-            let (top, bottom) = (40i32, bh as i32 - 50);
-            let n = 64;
-            for i in 0..n {
-                let t0 = i as f64 / n as f64;
-                let y_hi = bottom - ((bottom - top) as f64 * (t0 + 1.0 / n as f64)) as i32;
-                let y_lo = bottom - ((bottom - top) as f64 * t0) as i32;
-                bar_area
-                    .draw(&Rectangle::new(
-                        [(12, y_hi), (36, y_lo)],
-                        rainbow(t0 + 0.5 / n as f64).filled(),
-                    ))
+                let (w, h) = (7 * m.name.chars().count() as i32 + 4, 16);
+                let candidates = [n / 2, n - 1, 0, n / 4, 3 * n / 4];
+                let offsets = [(8, -8), (8, 10), (-w - 8, -8), (-w - 8, 10)];
+                let spot = candidates.iter().flat_map(|&k| {
+                    let (px, py) = c.backend_coord(&m.displaced[k.min(n - 1)]);
+                    offsets.iter().map(move |&(dx, dy)| (px + dx, py + dy))
+                });
+                let free = |(x, y): (i32, i32), placed: &[(i32, i32, i32, i32)]| {
+                    placed
+                        .iter()
+                        .all(|&(a, b, c2, d)| x + w < a || x > c2 || y + h < b || y > d)
+                };
+                let chosen = spot.clone().find(|&q| free(q, &placed));
+                // Every spot taken: the first one (a crowded drawing still names all).
+                let Some((x, y)) = chosen.or_else(|| spot.clone().next()) else {
+                    continue;
+                };
+                placed.push((x, y, x + w, y + h));
+                root.draw(&Text::new(m.name.clone(), (x, y), style::label()))
                     .map_err(|e| err(&e))?;
             }
-            let style = ("sans-serif", 12).into_font();
-            for (t, v) in [(0.0, vmin), (0.5, 0.5 * (vmin + vmax)), (1.0, vmax)] {
-                let y = bottom - ((bottom - top) as f64 * t) as i32;
-                bar_area
-                    .draw(&Text::new(format!("{v:.3}"), (40, y - 6), style.clone()))
-                    .map_err(|e| err(&e))?;
-            }
-            bar_area
-                .draw(&Text::new(
-                    p.value_label.clone(),
-                    (4, 14),
-                    ("sans-serif", 12).into_font(),
-                ))
-                .map_err(|e| err(&e))?;
-            let _ = bw;
+            style::colour_bar(&bar_area, vmin, vmax, &p.value_label)?;
         }
+    }
+    Ok(())
+}
+
+/// Renders panels side by side, each with its own colour bar, into one SVG document.
+pub fn structure_svg(panels: &[StructurePanel], panel: (u32, u32)) -> Result<String, PlotError> {
+    register_font();
+    let mut out = String::new();
+    {
+        let size = (panel.0 * panels.len().max(1) as u32, panel.1);
+        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
+        draw_structure(&root, panels, panel)?;
         root.present().map_err(|e| err(&e))?;
     }
     Ok(out)
+}
+
+/// The same drawing as [`structure_svg`], as RGB pixels for the caller to encode as PNG.
+pub fn structure_rgb(panels: &[StructurePanel], panel: (u32, u32)) -> Result<Rgb, PlotError> {
+    register_font();
+    let size = (panel.0 * panels.len().max(1) as u32, panel.1);
+    let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        draw_structure(&root, panels, panel)?;
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(Rgb {
+        width: size.0,
+        height: size.1,
+        data: buf,
+    })
 }
 
 #[cfg(test)]
@@ -209,12 +210,5 @@ mod tests {
         };
         let s = structure_svg(&[p], (600, 400)).unwrap();
         assert!(s.starts_with("<svg") && s.contains("δy [µm]") && s.contains("beam"));
-    }
-
-    #[test]
-    fn the_colour_map_runs_from_blue_to_red() {
-        let (lo, hi) = (rainbow(0.0), rainbow(1.0));
-        assert!(lo.2 > lo.0 && hi.0 > hi.2);
-        assert_eq!(rainbow(f64::NAN), rainbow(0.0));
     }
 }

@@ -1,16 +1,24 @@
 //! # cellinject-plot
 //!
-//! Line charts as SVG strings, for the reports and CSV companions of cellinject's
-//! commands. Text is laid out with DejaVu Sans, embedded in the crate, so a fresh
-//! machine needs no font library.
+//! The plots of cellinject's commands: line charts ([`svg`], [`rgb`]), maps of a
+//! quantity over a grid ([`map`]) and deformed-structure drawings ([`contour`]), each
+//! as an SVG document or an RGB pixel buffer the caller encodes as PNG. One style
+//! ([`style`]) for all: fonts, margins, ticks, colours, colour map and colour bars.
+//! Text is laid out with DejaVu Sans, embedded in the crate, so a fresh machine needs no
+//! font library.
 //!
-//! **Architecture invariant:** plotting returns text; it writes no file.
+//! **Architecture invariant:** plotting returns text or pixels; it writes no file.
 
 use std::sync::OnceLock;
 
 pub mod contour;
+pub mod frame;
+pub mod map;
+pub mod style;
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
+use style::err;
 use thiserror::Error;
 
 /// The embedded font (DejaVu Sans, Bitstream Vera licence: assets/fonts/DejaVu-LICENSE.txt).
@@ -60,15 +68,6 @@ fn register_font() {
     });
 }
 
-const COLORS: [RGBColor; 6] = [
-    RGBColor(31, 119, 180),
-    RGBColor(214, 39, 40),
-    RGBColor(44, 160, 44),
-    RGBColor(148, 103, 189),
-    RGBColor(255, 127, 14),
-    RGBColor(23, 190, 207),
-];
-
 /// Closed interval (low, high).
 type Range = (f64, f64);
 
@@ -100,60 +99,106 @@ fn bounds(chart: &Chart) -> Result<(Range, Range), PlotError> {
     Ok(((xr.0, xr.1.max(xr.0 + f64::EPSILON)), pad(yr)))
 }
 
+fn draw_charts<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    charts: &[Chart],
+    columns: usize,
+) -> Result<(), PlotError> {
+    let rows = charts.len().div_ceil(columns);
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let areas = root.split_evenly((rows.max(1), columns));
+    for (chart, area) in charts.iter().zip(areas.iter()) {
+        let ((x0, x1), (y0, y1)) = bounds(chart)?;
+        let mut c = ChartBuilder::on(area)
+            .caption(&chart.title, style::title())
+            .margin(style::MARGIN)
+            .x_label_area_size(style::X_LABEL_AREA)
+            .y_label_area_size(style::Y_LABEL_AREA)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| err(&e))?;
+        c.configure_mesh()
+            .x_desc(chart.x_label.as_str())
+            .y_desc(chart.y_label.as_str())
+            .label_style(style::label())
+            .axis_desc_style(style::label())
+            .x_labels(style::TICKS)
+            .y_labels(style::TICKS)
+            .draw()
+            .map_err(|e| err(&e))?;
+        for (k, s) in chart.series.iter().enumerate() {
+            let color = style::LINES[k % style::LINES.len()];
+            c.draw_series(LineSeries::new(
+                s.points
+                    .iter()
+                    .copied()
+                    .filter(|(x, y)| x.is_finite() && y.is_finite()),
+                color.stroke_width(2),
+            ))
+            .map_err(|e| err(&e))?
+            .label(s.name.as_str())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+        }
+        if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
+            c.configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font(style::label())
+                .draw()
+                .map_err(|e| err(&e))?;
+        }
+    }
+    Ok(())
+}
+
+fn grid_size(n: usize, columns: usize, panel: (u32, u32)) -> (u32, u32) {
+    let rows = n.div_ceil(columns).max(1);
+    (panel.0 * columns as u32, panel.1 * rows as u32)
+}
+
 /// Renders panels side by side (`columns` per row) into one SVG document.
 pub fn svg(charts: &[Chart], columns: usize, panel: (u32, u32)) -> Result<String, PlotError> {
     register_font();
     let columns = columns.max(1);
-    let rows = charts.len().div_ceil(columns);
-    let size = (panel.0 * columns as u32, panel.1 * rows.max(1) as u32);
     let mut out = String::new();
     {
+        let size = grid_size(charts.len(), columns, panel);
         let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
-        let err = |e: &dyn std::fmt::Display| PlotError::Drawing(e.to_string());
-        root.fill(&WHITE).map_err(|e| err(&e))?;
-        let areas = root.split_evenly((rows.max(1), columns));
-        for (chart, area) in charts.iter().zip(areas.iter()) {
-            let ((x0, x1), (y0, y1)) = bounds(chart)?;
-            let mut c = ChartBuilder::on(area)
-                .caption(&chart.title, ("sans-serif", 18))
-                .margin(12)
-                .x_label_area_size(42)
-                .y_label_area_size(72)
-                .build_cartesian_2d(x0..x1, y0..y1)
-                .map_err(|e| err(&e))?;
-            c.configure_mesh()
-                .x_desc(chart.x_label.as_str())
-                .y_desc(chart.y_label.as_str())
-                .label_style(("sans-serif", 13))
-                .draw()
-                .map_err(|e| err(&e))?;
-            for (k, s) in chart.series.iter().enumerate() {
-                let color = COLORS[k % COLORS.len()];
-                c.draw_series(LineSeries::new(
-                    s.points
-                        .iter()
-                        .copied()
-                        .filter(|(x, y)| x.is_finite() && y.is_finite()),
-                    color.stroke_width(2),
-                ))
-                .map_err(|e| err(&e))?
-                .label(s.name.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-                });
-            }
-            if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
-                c.configure_series_labels()
-                    .background_style(WHITE.mix(0.85))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 13))
-                    .draw()
-                    .map_err(|e| err(&e))?;
-            }
-        }
+        draw_charts(&root, charts, columns)?;
         root.present().map_err(|e| err(&e))?;
     }
     Ok(out)
+}
+
+/// The same panels as [`svg`], as RGB pixels (width, height, rows from the top) for the
+/// caller to encode as PNG.
+pub fn rgb(charts: &[Chart], columns: usize, panel: (u32, u32)) -> Result<Rgb, PlotError> {
+    register_font();
+    let columns = columns.max(1);
+    let size = grid_size(charts.len(), columns, panel);
+    let mut buf = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        draw_charts(&root, charts, columns)?;
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(Rgb {
+        width: size.0,
+        height: size.1,
+        data: buf,
+    })
+}
+
+/// A rendered picture: 8-bit RGB, rows from the top.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rgb {
+    /// Columns.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// `width * height * 3` bytes.
+    pub data: Vec<u8>,
 }
 
 #[cfg(test)]

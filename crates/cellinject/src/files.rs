@@ -1,0 +1,413 @@
+//! Files a command writes: planned and checked before any computation, then written
+//! together at the end, atomically.
+//!
+//! The rules (README, "Files"): a command never replaces a file it reads, nor one of its
+//! own outputs with another; companion files share the stem of `--out` and carry their
+//! own extensions; an image's format follows its extension; a file output's directory
+//! must exist and be writable before the work starts; a command that fails leaves no
+//! half-set of outputs behind (every file is staged as a temporary beside its target and
+//! all are renamed only once all are written).
+
+use std::fs;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+
+use crate::InputError;
+
+/// What a file holds, as its extension says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// Comma-separated values (`.csv`).
+    Csv,
+    /// Scalable vector graphics (`.svg`).
+    Svg,
+    /// Portable network graphics (`.png`).
+    Png,
+    /// TIFF (`.tif`, `.tiff`).
+    Tiff,
+    /// JSON (`.json`).
+    Json,
+    /// Markdown (`.md`).
+    Markdown,
+}
+
+impl Kind {
+    /// The kind an extension names, if any.
+    pub fn of(path: &Path) -> Option<Kind> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "csv" => Kind::Csv,
+            "svg" => Kind::Svg,
+            "png" => Kind::Png,
+            "tif" | "tiff" => Kind::Tiff,
+            "json" => Kind::Json,
+            "md" => Kind::Markdown,
+            _ => return None,
+        })
+    }
+
+    /// The extension written for this kind.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Kind::Csv => "csv",
+            Kind::Svg => "svg",
+            Kind::Png => "png",
+            Kind::Tiff => "tif",
+            Kind::Json => "json",
+            Kind::Markdown => "md",
+        }
+    }
+}
+
+fn names(kinds: &[Kind]) -> String {
+    let v: Vec<String> = kinds
+        .iter()
+        .map(|k| format!(".{}", k.extension()))
+        .collect();
+    v.join(" or ")
+}
+
+/// The absolute form of a path that may not exist yet: its directory resolved (links
+/// followed), its file name kept; if the file exists, the file resolved too.
+fn resolved(path: &Path) -> Option<PathBuf> {
+    if let Ok(p) = fs::canonicalize(path) {
+        return Some(p);
+    }
+    let name = path.file_name()?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    Some(fs::canonicalize(dir).ok()?.join(name))
+}
+
+/// One planned output.
+#[derive(Debug, Clone)]
+struct Planned {
+    arg: String,
+    path: PathBuf,
+}
+
+/// The outputs of one command, checked together before it computes anything.
+#[derive(Debug, Default)]
+pub struct Plan {
+    outputs: Vec<Planned>,
+    inputs: Vec<(String, PathBuf)>,
+}
+
+impl Plan {
+    /// An empty plan.
+    pub fn new() -> Self {
+        Plan::default()
+    }
+
+    /// A file the command reads (`arg` names it in messages).
+    pub fn input(&mut self, arg: &str, path: &Path) -> &mut Self {
+        self.inputs.push((arg.to_string(), path.to_path_buf()));
+        self
+    }
+
+    /// One output of one of `kinds` (its extension must name one).
+    pub fn output(&mut self, arg: &str, path: &Path, kinds: &[Kind]) -> Result<PathBuf> {
+        match Kind::of(path) {
+            Some(k) if kinds.contains(&k) => {}
+            _ => {
+                return Err(InputError(format!(
+                    "{arg} `{}`: give a {} file (the format follows the extension)",
+                    path.display(),
+                    names(kinds)
+                ))
+                .into());
+            }
+        }
+        self.outputs.push(Planned {
+            arg: arg.to_string(),
+            path: path.to_path_buf(),
+        });
+        Ok(path.to_path_buf())
+    }
+
+    /// Companion outputs: `out`'s stem with each of `kinds`' extensions. `out` must end
+    /// in one of them (or have no extension); `--out loop.svg` and `--out loop.csv` both
+    /// mean `loop.csv` + `loop.svg`.
+    pub fn companions(&mut self, arg: &str, out: &Path, kinds: &[Kind]) -> Result<Vec<PathBuf>> {
+        if out.extension().is_some() && !matches!(Kind::of(out), Some(k) if kinds.contains(&k)) {
+            return Err(InputError(format!(
+                "{arg} `{}`: this command writes {}; give a path ending in one of them",
+                out.display(),
+                names(kinds)
+            ))
+            .into());
+        }
+        if out.file_stem().is_none_or(|s| s.is_empty()) {
+            return Err(InputError(format!("{arg} `{}`: not a file name", out.display())).into());
+        }
+        Ok(kinds
+            .iter()
+            .map(|k| {
+                let p = out.with_extension(k.extension());
+                self.outputs.push(Planned {
+                    arg: arg.to_string(),
+                    path: p.clone(),
+                });
+                p
+            })
+            .collect())
+    }
+
+    /// Checks the plan: no two outputs on one path, no output on an input, every
+    /// output's directory exists and is writable, no output is a directory.
+    pub fn check(&self) -> Result<()> {
+        let mut seen: Vec<(PathBuf, &Planned)> = Vec::new();
+        for o in &self.outputs {
+            let Some(r) = resolved(&o.path) else {
+                let dir = o
+                    .path
+                    .parent()
+                    .filter(|d| !d.as_os_str().is_empty())
+                    .unwrap_or(Path::new("."));
+                return Err(InputError(format!(
+                    "{} `{}`: the directory `{}` does not exist (it is not created)",
+                    o.arg,
+                    o.path.display(),
+                    dir.display()
+                ))
+                .into());
+            };
+            if r.is_dir() {
+                return Err(InputError(format!(
+                    "{} `{}` is a directory; give a file name",
+                    o.arg,
+                    o.path.display()
+                ))
+                .into());
+            }
+            if let Some((_, other)) = seen.iter().find(|(p, _)| *p == r) {
+                return Err(InputError(format!(
+                    "{} `{}` and {} `{}` are the same file: one would replace the other",
+                    other.arg,
+                    other.path.display(),
+                    o.arg,
+                    o.path.display()
+                ))
+                .into());
+            }
+            for (arg, input) in &self.inputs {
+                if resolved(input).as_ref() == Some(&r) {
+                    return Err(InputError(format!(
+                        "{} `{}` is the input {arg} `{}`: refusing to replace a file the command reads",
+                        o.arg,
+                        o.path.display(),
+                        input.display()
+                    ))
+                    .into());
+                }
+            }
+            writable(&r).map_err(|e| {
+                InputError(format!(
+                    "{} `{}`: cannot write in its directory: {e}",
+                    o.arg,
+                    o.path.display()
+                ))
+            })?;
+            seen.push((r, o));
+        }
+        Ok(())
+    }
+}
+
+/// Whether a file can be created beside `path` (a probe file, removed at once).
+fn writable(path: &Path) -> std::io::Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let probe = dir.join(format!(".cellinject-probe-{}", std::process::id()));
+    fs::File::create(&probe)?;
+    fs::remove_file(&probe)
+}
+
+fn temporary(path: &Path) -> PathBuf {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    dir.join(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+/// Files written as temporaries beside their targets, renamed into place together by
+/// [`Staged::commit`]; dropped uncommitted, the temporaries are removed and the targets
+/// left as they were.
+#[derive(Debug, Default)]
+pub struct Staged {
+    files: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staged {
+    /// Nothing staged yet.
+    pub fn new() -> Self {
+        Staged::default()
+    }
+
+    /// Writes `bytes` to a temporary beside `path` and syncs it.
+    pub fn add(&mut self, path: &Path, bytes: &[u8]) -> Result<()> {
+        let tmp = temporary(path);
+        let r = (|| {
+            let mut f = fs::File::create(&tmp)?;
+            f.write_all(bytes)?;
+            f.sync_all()
+        })();
+        if let Err(e) = r {
+            let _ = fs::remove_file(&tmp);
+            return Err(InputError(format!("cannot write `{}`: {e}", path.display())).into());
+        }
+        self.files.push((tmp, path.to_path_buf()));
+        Ok(())
+    }
+
+    /// Renames every temporary onto its target.
+    pub fn commit(mut self) -> Result<()> {
+        let files = std::mem::take(&mut self.files);
+        for (i, (tmp, path)) in files.iter().enumerate() {
+            if let Err(e) = fs::rename(tmp, path) {
+                for (t, _) in &files[i..] {
+                    let _ = fs::remove_file(t);
+                }
+                return Err(InputError(format!("cannot write `{}`: {e}", path.display())).into());
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.files {
+            let _ = fs::remove_file(tmp);
+        }
+    }
+}
+
+/// Writes one file atomically (temporary, sync, rename).
+pub fn write_one(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut s = Staged::new();
+    s.add(path, bytes)?;
+    s.commit()
+}
+
+/// Encodes an image in the format its path's extension names (PNG or TIFF).
+pub fn encode_image<P, C>(img: &image::ImageBuffer<P, C>, path: &Path) -> Result<Vec<u8>>
+where
+    P: image::Pixel + image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    let format = match Kind::of(path) {
+        Some(Kind::Png) => image::ImageFormat::Png,
+        Some(Kind::Tiff) => image::ImageFormat::Tiff,
+        _ => {
+            return Err(InputError(format!(
+                "`{}`: images are written as .png or .tif",
+                path.display()
+            ))
+            .into());
+        }
+    };
+    let mut buf = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut buf, format)
+        .map_err(|e| anyhow::anyhow!("encoding `{}`: {e}", path.display()))?;
+    Ok(buf.into_inner())
+}
+
+/// A rendered plot encoded in the format its path names (PNG or TIFF).
+pub fn encode_rgb(rgb: cellinject_plot::Rgb, path: &Path) -> Result<Vec<u8>> {
+    let img = image::RgbImage::from_raw(rgb.width, rgb.height, rgb.data)
+        .ok_or_else(|| anyhow::anyhow!("plot buffer size"))?;
+    encode_image(&img, path)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    fn dir(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("cellinject-files-{tag}-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&d);
+        fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn companions_share_the_stem_and_collisions_are_refused() {
+        let d = dir("companions");
+        let mut p = Plan::new();
+        let out = p
+            .companions("--out", &d.join("loop.svg"), &[Kind::Csv, Kind::Svg])
+            .unwrap();
+        assert_eq!(out, vec![d.join("loop.csv"), d.join("loop.svg")]);
+        p.check().unwrap();
+        assert!(
+            Plan::new()
+                .companions("--out", &d.join("loop.txt"), &[Kind::Csv, Kind::Svg])
+                .is_err()
+        );
+        // An output on an input, and two outputs on one file.
+        let input = d.join("in.png");
+        fs::write(&input, b"x").unwrap();
+        let mut p = Plan::new();
+        p.input("--reference", &input);
+        p.output("--out", &d.join("./in.png"), &[Kind::Png])
+            .unwrap();
+        assert!(p.check().unwrap_err().to_string().contains("--reference"));
+        let mut p = Plan::new();
+        p.output("--reference", &d.join("a.png"), &[Kind::Png])
+            .unwrap();
+        p.output("--current", &d.join("a.png"), &[Kind::Png])
+            .unwrap();
+        assert!(p.check().unwrap_err().to_string().contains("same file"));
+        // A missing directory is not created.
+        let mut p = Plan::new();
+        p.output("--out", &d.join("no/such/x.csv"), &[Kind::Csv])
+            .unwrap();
+        assert!(
+            p.check()
+                .unwrap_err()
+                .to_string()
+                .contains("does not exist")
+        );
+        assert!(!d.join("no").exists());
+        // The format follows the extension.
+        assert!(
+            Plan::new()
+                .output("--out", &d.join("f.jpg"), &[Kind::Png])
+                .is_err()
+        );
+        fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn an_uncommitted_stage_leaves_the_targets_untouched() {
+        let d = dir("staged");
+        let a = d.join("a.csv");
+        fs::write(&a, b"old").unwrap();
+        {
+            let mut s = Staged::new();
+            s.add(&a, b"new").unwrap();
+            s.add(&d.join("b.svg"), b"new").unwrap();
+            // Dropped: the computation failed after staging.
+        }
+        assert_eq!(fs::read(&a).unwrap(), b"old");
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 1);
+        let mut s = Staged::new();
+        s.add(&a, b"new").unwrap();
+        s.commit().unwrap();
+        assert_eq!(fs::read(&a).unwrap(), b"new");
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 1);
+        fs::remove_dir_all(&d).unwrap();
+    }
+}

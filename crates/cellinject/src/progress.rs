@@ -1,0 +1,60 @@
+//! Long work says so: a spinner or a bar on standard error while a command computes,
+//! only when standard error is a terminal (never in a pipe, a log or a test).
+
+use std::io::IsTerminal as _;
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// A progress indicator that disappears when dropped.
+pub struct Progress(Option<ProgressBar>);
+
+fn shown() -> bool {
+    std::io::stderr().is_terminal()
+}
+
+/// An indeterminate spinner with a message and the elapsed time.
+pub fn spinner(message: impl Into<String>) -> Progress {
+    if !shown() {
+        return Progress(None);
+    }
+    let pb = ProgressBar::new_spinner();
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        pb.set_style(style);
+    }
+    pb.set_message(message.into());
+    pb.enable_steady_tick(Duration::from_millis(120));
+    Progress(Some(pb))
+}
+
+/// A bar over `len` steps of `what`.
+pub fn bar(len: u64, what: impl Into<String>) -> Progress {
+    if !shown() {
+        return Progress(None);
+    }
+    let pb = ProgressBar::new(len);
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:32}] {pos}/{len} ({elapsed}, {eta} left)")
+    {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_message(what.into());
+    Progress(Some(pb))
+}
+
+impl Progress {
+    /// One more step done.
+    pub fn inc(&self) {
+        if let Some(pb) = &self.0 {
+            pb.inc(1);
+        }
+    }
+}
+
+impl Drop for Progress {
+    fn drop(&mut self) {
+        if let Some(pb) = &self.0 {
+            pb.finish_and_clear();
+        }
+    }
+}

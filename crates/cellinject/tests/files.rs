@@ -1,0 +1,456 @@
+//! The rules of "Files, exit codes and output" (README), each over the commands that
+//! write files or take numbers: nothing an input or another output is replaced, a bad
+//! output path is refused before any computation, failures leave no half-set of files,
+//! formats follow extensions, the same inputs give the same bytes, numbers are typed as
+//! people type them and NaN is refused with the option named.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("cellinject-files-{tag}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cellinject"))
+        .current_dir(dir)
+        .env("XDG_CACHE_HOME", dir.join("cache"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn err(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn files(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != "cache")
+        .collect();
+    v.sort();
+    v
+}
+
+/// A speckle pair in `d`.
+fn pair(d: &Path) {
+    let o = run(
+        d,
+        &[
+            "dic",
+            "synth",
+            "--size",
+            "96,96",
+            "--shift",
+            "0.3,-0.2",
+            "--reference",
+            "reference.png",
+            "--current",
+            "current.png",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+}
+
+#[test]
+fn no_output_replaces_an_input_or_another_output() {
+    let d = dir("collide");
+    pair(&d);
+    let reference = fs::read(d.join("reference.png")).unwrap();
+    // `--out reference.csv`: its companion map would be reference.png, the input.
+    for out in ["reference.csv", "reference.png", "reference.svg"] {
+        let o = run(
+            &d,
+            &[
+                "dic",
+                "field",
+                "--reference",
+                "reference.png",
+                "--current",
+                "current.png",
+                "--out",
+                out,
+            ],
+        );
+        assert_eq!(o.status.code(), Some(2), "{out}: {}", err(&o));
+        assert!(err(&o).contains("--reference"), "{}", err(&o));
+    }
+    assert_eq!(fs::read(d.join("reference.png")).unwrap(), reference);
+    // Two outputs on one path.
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "synth",
+            "--reference",
+            "same.png",
+            "--current",
+            "./same.png",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(err(&o).contains("same file"), "{}", err(&o));
+    // A frame list that holds the output is refused too (the CSV cannot be a frame, but
+    // a frame may not be written over by a companion either).
+    fs::create_dir_all(d.join("frames")).unwrap();
+    fs::copy(d.join("reference.png"), d.join("frames/a.png")).unwrap();
+    fs::copy(d.join("current.png"), d.join("frames/b.png")).unwrap();
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "track",
+            "--frames",
+            "frames",
+            "--roi",
+            "30,30,33,33",
+            "--out",
+            "frames/a.csv",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    // Companions share the stem: `--out loop.svg` writes loop.csv, .svg and .png.
+    let o = run(
+        &d,
+        &["sim", "loop", "--amplitude", "5", "--out", "loop.svg"],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    for f in ["loop.csv", "loop.svg", "loop.png"] {
+        assert!(d.join(f).is_file(), "{f}");
+    }
+    let o = run(
+        &d,
+        &["sim", "loop", "--amplitude", "5", "--out", "loop.txt"],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    let _ = fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_bad_output_directory_is_refused_before_any_computation() {
+    let d = dir("nodir");
+    pair(&d);
+    fs::write(d.join("plain.txt"), "x").unwrap();
+    for (args, arg) in [
+        (
+            vec![
+                "fea",
+                "--approach",
+                "1",
+                "--forces",
+                "-100,-100",
+                "--plot",
+                "no/x.svg",
+            ],
+            "--plot",
+        ),
+        (vec!["sim", "loop", "--out", "no/loop.csv"], "--out"),
+        (
+            vec!["sim", "step", "--voltage", "5", "--out", "plain.txt/s.csv"],
+            "--out",
+        ),
+        (vec!["sim", "frame", "--out", "no/frame.png"], "--out"),
+        (
+            vec![
+                "dic",
+                "field",
+                "--reference",
+                "reference.png",
+                "--current",
+                "current.png",
+                "--out",
+                "no/f.csv",
+            ],
+            "--out",
+        ),
+        (
+            vec![
+                "dic",
+                "synth",
+                "--reference",
+                "no/r.png",
+                "--current",
+                "c2.png",
+            ],
+            "--reference",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "leaf",
+                "--thickness",
+                "1e-3",
+                "--width",
+                "5e-3",
+                "--length",
+                "4e-3",
+                "--method",
+                "fem",
+                "--export-mesh",
+                "no/m.json",
+            ],
+            "--export-mesh",
+        ),
+    ] {
+        let o = run(&d, &args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", err(&o));
+        assert!(err(&o).contains(arg), "{args:?}: {}", err(&o));
+        assert!(!d.join("no").exists(), "{args:?} created the directory");
+    }
+    // The fea refusal came before the joints were solved: nothing in the cache.
+    assert!(
+        fs::read_dir(d.join("cache/cellinject"))
+            .map(|e| e.count() == 0)
+            .unwrap_or(true)
+    );
+    let _ = fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_failed_command_leaves_no_half_set_and_exits_1() {
+    let d = dir("textureless");
+    let flat = image::GrayImage::from_pixel(96, 96, image::Luma([90]));
+    flat.save(d.join("a.png")).unwrap();
+    flat.save(d.join("b.png")).unwrap();
+    let before = files(&d);
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "field",
+            "--reference",
+            "a.png",
+            "--current",
+            "b.png",
+            "--out",
+            "f.csv",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert!(err(&o).contains("no grid point matched"), "{}", err(&o));
+    assert_eq!(files(&d), before, "files were left behind");
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "--reference",
+            "a.png",
+            "--current",
+            "b.png",
+            "--at",
+            "48,48",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    let _ = fs::remove_dir_all(&d);
+}
+
+#[test]
+fn formats_follow_extensions_and_the_same_inputs_give_the_same_bytes() {
+    let d = dir("formats");
+    let o = run(&d, &["sim", "frame", "--vga", "--out", "f.tif"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let tif = fs::read(d.join("f.tif")).unwrap();
+    assert!(
+        tif.starts_with(b"II*\0") || tif.starts_with(b"MM\0*"),
+        "not a TIFF"
+    );
+    let o = run(&d, &["sim", "frame", "--vga", "--out", "f.png"]);
+    assert!(o.status.success());
+    assert!(fs::read(d.join("f.png")).unwrap().starts_with(b"\x89PNG"));
+    for bad in ["f.jpg", "f.bmp", "f"] {
+        let o = run(&d, &["sim", "frame", "--vga", "--out", bad]);
+        assert_eq!(o.status.code(), Some(2), "{bad}");
+        assert!(!d.join(bad).exists());
+    }
+    // Twice the same loop: the same bytes in every file (no timestamps).
+    let a = dir("formats-a");
+    let b = dir("formats-b");
+    for x in [&a, &b] {
+        let o = run(x, &["sim", "loop", "--amplitude", "5", "--out", "l.csv"]);
+        assert!(o.status.success());
+    }
+    for f in ["l.csv", "l.svg", "l.png"] {
+        assert_eq!(
+            fs::read(a.join(f)).unwrap(),
+            fs::read(b.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    for x in [d, a, b] {
+        let _ = fs::remove_dir_all(x);
+    }
+}
+
+#[test]
+fn numbers_are_typed_as_people_type_them() {
+    let d = dir("numbers");
+    // Negative numbers without `=` reach the real check, not clap's "unexpected argument".
+    let o = run(
+        &d,
+        &[
+            "hinge",
+            "--profile",
+            "circular",
+            "--thickness",
+            "-1e-3",
+            "--radius",
+            "2e-3",
+            "--width",
+            "5e-3",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(err(&o).contains("--thickness -0.001"), "{}", err(&o));
+    let o = run(
+        &d,
+        &[
+            "fea",
+            "--approach",
+            "1",
+            "--forces",
+            "-100,-100",
+            "--format",
+            "json",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "synth",
+            "--size",
+            "64",
+            "64",
+            "--shift",
+            "-0.4,0.25",
+            "--rotation",
+            "-0.5",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    // Lists take `1,2` and `1 2`.
+    for levels in [vec!["1,1"], vec!["1", "1"]] {
+        let mut args = vec!["fea", "joints", "--levels"];
+        args.extend(levels);
+        let o = run(&d, &args);
+        assert!(o.status.success(), "{args:?}: {}", err(&o));
+    }
+    // NaN and infinities are refused with the option named.
+    for (args, opt) in [
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "leaf",
+                "--thickness",
+                "nan",
+                "--width",
+                "1",
+                "--length",
+                "1",
+            ],
+            "--thickness",
+        ),
+        (vec!["hinge-table", "--radius", "inf"], "--radius"),
+        (vec!["sim", "step", "--voltage", "NaN"], "--voltage"),
+        (vec!["sim", "frame", "--zoom", "-inf"], "--zoom"),
+        (vec!["sim", "frame", "--volts", "1,nan,3"], "--volts"),
+        (vec!["sim", "loop", "--amplitude", "nan"], "--amplitude"),
+        (vec!["dic", "synth", "--noise", "nan"], "--noise"),
+        (vec!["dic", "synth", "--shift", "nan,0"], "--shift"),
+        (
+            vec![
+                "dic",
+                "track",
+                "--frames",
+                ".",
+                "--roi",
+                "1,1,9,9",
+                "--out",
+                "t.csv",
+                "--um-per-px",
+                "inf",
+            ],
+            "--um-per-px",
+        ),
+        (
+            vec!["fea", "--approach", "1", "--forces", "nan,-1"],
+            "--forces",
+        ),
+        (
+            vec![
+                "hinge",
+                "--profile",
+                "circular",
+                "--thickness",
+                "1e-3",
+                "--radius",
+                "2e-3",
+                "--width",
+                "5e-3",
+                "--angle",
+                "nan",
+            ],
+            "--angle",
+        ),
+    ] {
+        let o = run(&d, &args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", err(&o));
+        assert!(err(&o).contains(opt), "{args:?}: {}", err(&o));
+    }
+    let _ = fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_hinge_outside_the_checked_range_is_computed_with_a_warning() {
+    let d = dir("validity");
+    // t/R = 1.5: computed, with a warning citing the range, on standard error.
+    let o = run(
+        &d,
+        &[
+            "hinge",
+            "--profile",
+            "circular",
+            "--thickness",
+            "3e-3",
+            "--radius",
+            "2e-3",
+            "--width",
+            "5e-3",
+            "--format",
+            "json",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(err(&o).contains("0.05-1"), "{}", err(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["warnings"][0].as_str().unwrap().contains("t/R"));
+    // Inside the range: no warning.
+    let o = run(
+        &d,
+        &[
+            "hinge",
+            "--profile",
+            "circular",
+            "--thickness",
+            "1e-3",
+            "--radius",
+            "2e-3",
+            "--width",
+            "5e-3",
+        ],
+    );
+    assert!(o.status.success() && err(&o).is_empty(), "{}", err(&o));
+    let _ = fs::remove_dir_all(&d);
+}

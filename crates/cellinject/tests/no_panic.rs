@@ -1,0 +1,422 @@
+//! No panic reaches a user: every subcommand (found from `--help`, so a new one is
+//! covered at once) runs with each of its options set, in turn, to values drawn from
+//! the option's domain and its edges (negative, zero, NaN, infinities, garbage, paths
+//! that collide or do not exist). Every run must end with exit code 0, 1 or 2, print no
+//! panic or backtrace, and, with `--format json` and exit 0, print one JSON document.
+//! Costly settings are bounded by their own value lists, and each run has a timeout.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+fn bin(dir: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_cellinject"));
+    c.current_dir(dir)
+        .env("XDG_CACHE_HOME", dir.join("cache"))
+        .env_remove("RUST_BACKTRACE")
+        .stdin(Stdio::null());
+    c
+}
+
+fn help(dir: &Path, path: &[String]) -> String {
+    let o = bin(dir).args(path).arg("--help").output().unwrap();
+    assert!(o.status.success(), "{path:?} --help");
+    String::from_utf8(o.stdout).unwrap()
+}
+
+/// Subcommand names of a help text ("Commands:" section, `help` left out).
+fn subcommands(help: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut inside = false;
+    for l in help.lines() {
+        if l.starts_with("Commands:") {
+            inside = true;
+            continue;
+        }
+        if inside {
+            if !l.starts_with("  ") {
+                break;
+            }
+            let name = l.split_whitespace().next().unwrap_or("");
+            if !name.is_empty() && name != "help" {
+                out.push(name.to_string());
+            }
+        }
+    }
+    out
+}
+
+/// An option of a help text: its long name, whether it takes a value, and its possible
+/// values if clap lists them.
+#[derive(Debug, Clone)]
+struct Opt {
+    name: String,
+    takes_value: bool,
+    possible: Vec<String>,
+}
+
+fn options(help: &str) -> Vec<Opt> {
+    let lines: Vec<&str> = help.lines().collect();
+    let mut out: Vec<Opt> = Vec::new();
+    for (i, l) in lines.iter().enumerate() {
+        let t = l.trim_start();
+        let t = t
+            .strip_prefix("-h, ")
+            .or_else(|| t.strip_prefix("-V, "))
+            .unwrap_or(t);
+        let Some(rest) = t.strip_prefix("--") else {
+            continue;
+        };
+        let name: String = rest
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '-')
+            .collect();
+        if name.is_empty() || name == "help" || name == "version" {
+            continue;
+        }
+        let takes_value = rest[name.len()..].trim_start().starts_with('<');
+        // "[possible values: a, b]" may follow within the option's description.
+        let mut possible = Vec::new();
+        for d in lines.iter().skip(i + 1).take(8) {
+            if d.trim_start().starts_with("--") {
+                break;
+            }
+            if let Some(p) = d.split("[possible values: ").nth(1) {
+                possible = p
+                    .trim_end_matches(']')
+                    .split(", ")
+                    .map(|s| s.to_string())
+                    .collect();
+            }
+        }
+        out.push(Opt {
+            name,
+            takes_value,
+            possible,
+        });
+    }
+    out
+}
+
+/// Values tried for an option: bounded lists for the options that set how much work
+/// is done, file paths for the file options, else the edges of a number's domain.
+fn values(opt: &Opt) -> Vec<String> {
+    let v = |xs: &[&str]| xs.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    let mut out = match opt.name.as_str() {
+        "level" => v(&["0", "1", "4", "x", "nan"]),
+        "levels" => v(&["0", "1", "4", "1,4", "x", ""]),
+        "duration" => v(&["0", "-1", "nan", "inf", "0.02", "1e9"]),
+        "size" => v(&["0,0", "16,16", "a,b", "-16,16", "16", "1e9,1e9"]),
+        "count" => v(&["0", "1", "1000", "-1"]),
+        "step" => v(&["0", "64", "-1", "x", "1e300"]),
+        "subset" => v(&["0", "7", "9999", "x", "-31"]),
+        "search" => v(&["0", "1", "100000", "-5"]),
+        "amplitude" => v(&["0", "-5", "nan", "inf", "1e9", "5"]),
+        "seed" => v(&["0", "18446744073709551615", "-1", "x"]),
+        "config" => v(&["missing.toml", "bad.toml", "r.png"]),
+        "frames" => v(&["", "missing", "frames/*.png", "frames/*.tif", "r.png"]),
+        "out" | "reference" | "current" | "plot" | "export-mesh" => v(&[
+            "",
+            "r.png",
+            "no/dir/x.csv",
+            "x.jpg",
+            ".",
+            "out.svg",
+            "out.png",
+            "out.csv",
+            "out.json",
+        ]),
+        "at" => v(&["32,32", "-5,-5", "1e9,0", "nan,1", "1", ""]),
+        "roi" => v(&["16,16,33,33", "0,0,0,0", "60,60,33,33", "1,2", "-1,0,5,5"]),
+        "volts" => v(&["1,2,3", "-1,0,0", "nan,0,0", "1,2", "200,0,0"]),
+        "forces" => v(&["0,0", "-100,-100", "5,-5", "-1e9,0", "nan,0", "x"]),
+        "shift" => v(&["0,0", "-0.4,0.25", "1e9,0", "nan,0", "x"]),
+        _ => v(&["-1", "0", "1e-300", "1e300", "nan", "inf", "-inf", "abc"]),
+    };
+    out.extend(opt.possible.iter().cloned());
+    out.push("x".into());
+    out
+}
+
+/// A valid, cheap invocation of each command (the options under test replace these).
+fn baseline(path: &[String]) -> Vec<&'static str> {
+    let p: Vec<&str> = path.iter().map(|s| s.as_str()).collect();
+    match p.as_slice() {
+        ["tension"] => vec!["--approach", "1"],
+        ["hinge"] => vec![
+            "--profile",
+            "circular",
+            "--thickness",
+            "1e-3",
+            "--radius",
+            "2e-3",
+            "--width",
+            "5e-3",
+        ],
+        ["fea"] => vec!["--approach", "1", "--forces", "-100,-100"],
+        ["fea", "joints"] => vec!["--levels", "1"],
+        ["dic"] => vec![
+            "--reference",
+            "r.png",
+            "--current",
+            "c.png",
+            "--at",
+            "32,32",
+        ],
+        ["dic", "field"] => vec![
+            "--reference",
+            "r.png",
+            "--current",
+            "c.png",
+            "--out",
+            "f.csv",
+            "--step",
+            "8",
+        ],
+        ["dic", "synth"] => vec![
+            "--size",
+            "64,64",
+            "--reference",
+            "s1.png",
+            "--current",
+            "s2.png",
+        ],
+        ["dic", "track"] => vec![
+            "--frames",
+            "frames",
+            "--roi",
+            "16,16,33,33",
+            "--out",
+            "t.csv",
+        ],
+        ["sim", "loop"] => vec!["--amplitude", "5", "--out", "l.csv"],
+        ["sim", "step"] => vec!["--voltage", "5", "--duration", "0.01", "--out", "s.csv"],
+        ["sim", "frame"] => vec!["--vga", "--out", "fr.png"],
+        ["reproduce"] => vec!["--out", "rep"],
+        _ => vec![],
+    }
+}
+
+/// `base` with option `name` set to `value` (replacing it if present).
+fn with(base: &[&str], name: &str, value: Option<&str>) -> Vec<String> {
+    let flag = format!("--{name}");
+    let mut out = Vec::new();
+    let mut skip = false;
+    for (i, a) in base.iter().enumerate() {
+        if skip {
+            skip = false;
+            continue;
+        }
+        if *a == flag {
+            // The baselines give every valued option its value as the next word.
+            skip = base.get(i + 1).is_some_and(|v| !v.starts_with("--"));
+            continue;
+        }
+        out.push(a.to_string());
+    }
+    out.push(flag);
+    if let Some(v) = value {
+        out.push(v.to_string());
+    }
+    out
+}
+
+struct Run {
+    args: Vec<String>,
+    code: Option<i32>,
+    stdout: String,
+    stderr: String,
+    timed_out: bool,
+}
+
+fn run(dir: &Path, args: &[String], limit: Duration) -> Run {
+    let mut child = bin(dir)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Read the pipes on threads so that a chatty child cannot block on a full pipe.
+    let mut so = child.stdout.take().unwrap();
+    let mut se = child.stderr.take().unwrap();
+    let ho = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = std::io::Read::read_to_string(&mut so, &mut s);
+        s
+    });
+    let he = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = std::io::Read::read_to_string(&mut se, &mut s);
+        s
+    });
+    let start = Instant::now();
+    let mut timed_out = false;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > limit {
+            timed_out = true;
+            let _ = child.kill();
+            break child.wait().unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    Run {
+        args: args.to_vec(),
+        code: status.code(),
+        stdout: ho.join().unwrap(),
+        stderr: he.join().unwrap(),
+        timed_out,
+    }
+}
+
+fn setup(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("cellinject-{tag}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&dir);
+    fs::create_dir_all(dir.join("frames")).unwrap();
+    fs::write(dir.join("bad.toml"), "name = ").unwrap();
+    let o = bin(&dir)
+        .args(["dic", "synth", "--size", "64,64", "--shift", "0.3,-0.2"])
+        .args(["--reference", "r.png", "--current", "c.png"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (f, to) in [("r.png", "frames/0.png"), ("c.png", "frames/1.png")] {
+        fs::copy(dir.join(f), dir.join(to)).unwrap();
+    }
+    dir
+}
+
+#[test]
+fn no_argument_list_makes_any_command_panic() {
+    let dir = setup("nopanic");
+    // Every command path, from the help texts.
+    let mut paths: Vec<Vec<String>> = Vec::new();
+    let mut todo: Vec<Vec<String>> = vec![Vec::new()];
+    while let Some(p) = todo.pop() {
+        let h = help(&dir, &p);
+        let subs = subcommands(&h);
+        if !p.is_empty() {
+            paths.push(p.clone());
+        }
+        for s in subs {
+            let mut q = p.clone();
+            q.push(s);
+            todo.push(q);
+        }
+    }
+    paths.sort();
+    assert!(paths.len() >= 16, "{paths:?}");
+    let mut cases: Vec<Vec<String>> = Vec::new();
+    let mut per_command: BTreeMap<String, usize> = BTreeMap::new();
+    for p in &paths {
+        let before = cases.len();
+        let base = baseline(p);
+        let mut start = p.clone();
+        start.extend(base.iter().map(|s| s.to_string()));
+        cases.push(start);
+        for o in options(&help(&dir, p)) {
+            let vals: Vec<Option<String>> = if o.takes_value {
+                values(&o).into_iter().map(Some).collect()
+            } else {
+                vec![None]
+            };
+            for v in vals {
+                let mut args = p.clone();
+                args.extend(with(&base, &o.name, v.as_deref()));
+                cases.push(args);
+            }
+        }
+        per_command.insert(p.join(" "), cases.len() - before);
+    }
+    eprintln!(
+        "{} argument lists over {} commands: {per_command:?}",
+        cases.len(),
+        paths.len()
+    );
+    // Two at a time (the machine has two cores).
+    let queue = Arc::new(Mutex::new(cases));
+    let failures = Arc::new(Mutex::new(Vec::<String>::new()));
+    let workers: Vec<_> = (0..2)
+        .map(|_| {
+            let (queue, failures, dir) = (queue.clone(), failures.clone(), dir.clone());
+            std::thread::spawn(move || {
+                loop {
+                    let Some(args) = queue.lock().unwrap().pop() else {
+                        break;
+                    };
+                    let r = run(&dir, &args, Duration::from_secs(60));
+                    let mut bad = Vec::new();
+                    if r.timed_out {
+                        bad.push("timed out after 60 s".to_string());
+                    }
+                    if !matches!(r.code, Some(0..=2)) && !r.timed_out {
+                        bad.push(format!("exit code {:?}", r.code));
+                    }
+                    if r.stderr.contains("panicked") || r.stderr.contains("RUST_BACKTRACE") {
+                        bad.push("a panic".into());
+                    }
+                    let json = r
+                        .args
+                        .windows(2)
+                        .any(|w| w[0] == "--format" && w[1] == "json");
+                    if json
+                        && r.code == Some(0)
+                        && serde_json::from_str::<serde_json::Value>(&r.stdout).is_err()
+                    {
+                        bad.push("standard output is not one JSON document".into());
+                    }
+                    if !bad.is_empty() {
+                        failures.lock().unwrap().push(format!(
+                            "cellinject {}: {}\n{}",
+                            r.args.join(" "),
+                            bad.join(", "),
+                            r.stderr.lines().take(4).collect::<Vec<_>>().join("\n")
+                        ));
+                    }
+                }
+            })
+        })
+        .collect();
+    for w in workers {
+        w.join().unwrap();
+    }
+    let f = failures.lock().unwrap();
+    let _ = fs::remove_dir_all(&dir);
+    assert!(f.is_empty(), "{} failures:\n{}", f.len(), f.join("\n\n"));
+}
+
+#[test]
+fn a_closed_pipe_ends_every_printing_command_quietly() {
+    let dir = setup("closedpipe");
+    for args in [
+        vec!["reproduce", "--out", "rep"],
+        vec!["tension", "--approach", "1"],
+        vec!["model", "--format", "json"],
+        vec!["hinge-table"],
+    ] {
+        let mut child = bin(&dir)
+            .args(&args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Close the reading end at once, like `| head -0`.
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            matches!(o.status.code(), Some(0)),
+            "{args:?}: {:?}\n{err}",
+            o.status
+        );
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    let _ = fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,85 @@
+//! Camera frames for a figure: the grey image with a scale bar burnt in.
+
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use crate::style::{self, err};
+use crate::{PlotError, Rgb, register_font};
+
+/// `grey` (8-bit, row-major, `width` x `height`) as RGB with a scale bar in the lower
+/// right corner: a round length (1, 2 or 5 µm times a power of ten) about a fifth of the
+/// width, white with a black outline, labelled above. `pixel_size` is the object-plane
+/// size of a pixel, m.
+pub fn with_scale_bar(
+    grey: &[u8],
+    width: u32,
+    height: u32,
+    pixel_size: f64,
+) -> Result<Rgb, PlotError> {
+    register_font();
+    if grey.len() != width as usize * height as usize
+        || !(pixel_size.is_finite() && pixel_size > 0.0)
+    {
+        return Err(PlotError::Drawing(format!(
+            "frame of {width}x{height} with {} pixels and pixel size {pixel_size}",
+            grey.len()
+        )));
+    }
+    let mut data: Vec<u8> = grey.iter().flat_map(|&g| [g, g, g]).collect();
+    {
+        let root = BitMapBackend::with_buffer(&mut data, (width, height)).into_drawing_area();
+        let um = style::round_length(0.2 * width as f64 * pixel_size * 1e6);
+        let len = (um * 1e-6 / pixel_size).round() as i32;
+        let (w, h) = (width as i32, height as i32);
+        let thick = (h / 80).max(4);
+        let margin = (w / 40).max(8);
+        let (x1, y1) = (w - margin, h - margin);
+        let (x0, y0) = (x1 - len, y1 - thick);
+        root.draw(&Rectangle::new(
+            [(x0 - 1, y0 - 1), (x1 + 1, y1 + 1)],
+            BLACK.filled(),
+        ))
+        .map_err(|e| err(&e))?;
+        root.draw(&Rectangle::new([(x0, y0), (x1, y1)], WHITE.filled()))
+            .map_err(|e| err(&e))?;
+        let label = if um >= 1.0 {
+            format!("{um:.0} µm")
+        } else {
+            format!("{:.0} nm", um * 1e3)
+        };
+        let size = (h / 28).clamp(12, 40);
+        let text = ("sans-serif", size)
+            .into_font()
+            .color(&WHITE)
+            .pos(Pos::new(HPos::Center, VPos::Bottom));
+        root.draw(&Text::new(label, ((x0 + x1) / 2, y0 - 4), text))
+            .map_err(|e| err(&e))?;
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(Rgb {
+        width,
+        height,
+        data,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_bar_has_its_round_length_in_pixels() {
+        // 640 px of 0.88 µm: a fifth is 113 µm, so the bar is 100 µm = 114 px.
+        let g = vec![60u8; 640 * 480];
+        let rgb = with_scale_bar(&g, 640, 480, 0.88e-6).unwrap();
+        let row = 480 - 16 - 2; // inside the bar
+        let white: Vec<usize> = (0..640)
+            .filter(|&x| rgb.data[(row * 640 + x) * 3] == 255)
+            .collect();
+        let n = white.len() as i32;
+        assert!((n - 114).abs() <= 2, "{n}");
+        assert_eq!(style::round_length(113.0), 100.0);
+        assert_eq!(style::round_length(0.3), 0.2);
+        assert!(with_scale_bar(&g, 10, 10, 1e-6).is_err());
+    }
+}
