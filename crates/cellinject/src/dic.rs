@@ -4,7 +4,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use cellinject_core::dic::{PointReport, field_report, points};
+use cellinject_core::dic::{PointReport, SynthSummary, TrackSummary, field_report, points};
 use cellinject_dic::field::FieldOptions;
 use cellinject_dic::track::{Roi, Status, Tracker};
 use cellinject_dic::{DicError, Image, PointOptions, Shape};
@@ -12,7 +12,7 @@ use cellinject_plot::map::{GridMap, maps_rgb, maps_svg};
 use clap::{Args, Subcommand, ValueEnum};
 
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
-use crate::output::Table;
+use crate::output::{Table, print_json};
 use crate::{Format, InputError};
 
 /// Shape function of the subsets.
@@ -106,6 +106,9 @@ pub enum DicCommand {
         /// Micrometres per pixel: the maps' axes and colour bars in µm.
         #[arg(long, value_name = "S")]
         um_per_px: Option<f64>,
+        /// Output format of the summary (the files are the same).
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
     },
     /// Write a pair of exact synthetic speckle images (Gaussians integrated over the
     /// pixels, Gaussian noise, 8-bit) related by a known shift and rotation.
@@ -128,12 +131,15 @@ pub enum DicCommand {
         /// Seed of the pattern and the noise.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Reference image output (PNG).
+        /// Reference image output (`.png` or `.tif`).
         #[arg(long, default_value = "reference.png")]
         reference: PathBuf,
-        /// Current image output (PNG).
+        /// Current image output (`.png` or `.tif`).
         #[arg(long, default_value = "current.png")]
         current: PathBuf,
+        /// Output format of the summary.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
     },
     /// Follow a region through a sequence of frames.
     #[command(
@@ -158,6 +164,9 @@ pub enum DicCommand {
         /// CSV output.
         #[arg(long, value_name = "FILE")]
         out: PathBuf,
+        /// Output format of the summary (the CSV is the same).
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
     },
 }
 
@@ -332,6 +341,7 @@ struct FieldArgs {
     shape: ShapeArg,
     prefilter: f64,
     um_per_px: Option<f64>,
+    format: Format,
 }
 
 fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Result<()> {
@@ -341,6 +351,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         shape,
         prefilter,
         um_per_px,
+        format,
     } = a;
     if let Some(s) = um_per_px
         && !(s > 0.0 && s.is_finite())
@@ -443,6 +454,9 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
     staged.add(png, &encode_rgb(rgb, png)?)?;
     staged.add(svg_path, svg.as_bytes())?;
     staged.commit()?;
+    if format == Format::Json {
+        return print_json(report.summary(), &[csv_path, png, svg_path]);
+    }
     outln!(
         "{found} of {} grid points ({}x{}, step {step}) in {elapsed:.3} s ({:.0} points/s)",
         f.nx * f.ny,
@@ -546,6 +560,7 @@ fn run_track(
     min_zncc: f64,
     shape: ShapeArg,
     out: &Path,
+    format: Format,
 ) -> Result<()> {
     if roi.len() != 4 {
         return Err(InputError(format!("--roi takes X,Y,W,H, got {} numbers", roi.len())).into());
@@ -641,6 +656,15 @@ fn run_track(
     let mut staged = Staged::new();
     staged.add(out, csv.as_bytes())?;
     staged.commit()?;
+    if format == Format::Json {
+        let s = TrackSummary {
+            frames: files.len(),
+            measured: tracked,
+            rejected,
+            min_zncc,
+        };
+        return print_json(s, &[out]);
+    }
     outln!(
         "{} frames: {tracked} measured, {rejected} rejected (ZNCC below {min_zncc}); {:.1} ms per frame with file reading",
         files.len(),
@@ -662,16 +686,23 @@ fn encode_grey8(img: &Image, path: &Path) -> Result<Vec<u8>> {
     encode_image(&buf, path)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_synth(
-    size: &[usize],
+/// The settings of `dic synth`.
+struct SynthArgs {
     shift: (f64, f64),
     rotation: f64,
     noise: f64,
     seed: u64,
-    reference: &Path,
-    current: &Path,
-) -> Result<()> {
+    format: Format,
+}
+
+fn run_synth(size: &[usize], a: SynthArgs, reference: &Path, current: &Path) -> Result<()> {
+    let SynthArgs {
+        shift,
+        rotation,
+        noise,
+        seed,
+        format,
+    } = a;
     if size.len() != 2 || size[0] < 16 || size[1] < 16 || size[0] > 20000 || size[1] > 20000 {
         return Err(InputError(format!(
             "--size takes WIDTH,HEIGHT between 16 and 20000, got {size:?}"
@@ -699,6 +730,16 @@ fn run_synth(
     staged.add(reference, &encode_grey8(&r, reference)?)?;
     staged.add(current, &encode_grey8(&c, current)?)?;
     staged.commit()?;
+    if format == Format::Json {
+        let s = SynthSummary {
+            size: (size[0], size[1]),
+            shift,
+            rotation,
+            noise,
+            seed,
+        };
+        return print_json(s, &[reference, current]);
+    }
     outln!(
         "wrote {} and {} ({}x{}, shift ({}, {}) px, rotation {rotation} deg about the centre, noise {noise})",
         reference.display(),
@@ -724,6 +765,7 @@ pub fn run(a: &DicArgs) -> Result<()> {
             prefilter,
             out,
             um_per_px,
+            format,
         }) => run_field(
             reference,
             current,
@@ -733,6 +775,7 @@ pub fn run(a: &DicArgs) -> Result<()> {
                 shape: *shape,
                 prefilter: *prefilter,
                 um_per_px: *um_per_px,
+                format: *format,
             },
             out,
         ),
@@ -744,7 +787,19 @@ pub fn run(a: &DicArgs) -> Result<()> {
             seed,
             reference,
             current,
-        }) => run_synth(size, *shift, *rotation, *noise, *seed, reference, current),
+            format,
+        }) => run_synth(
+            size,
+            SynthArgs {
+                shift: *shift,
+                rotation: *rotation,
+                noise: *noise,
+                seed: *seed,
+                format: *format,
+            },
+            reference,
+            current,
+        ),
         Some(DicCommand::Track {
             frames,
             roi,
@@ -752,7 +807,8 @@ pub fn run(a: &DicArgs) -> Result<()> {
             min_zncc,
             shape,
             out,
-        }) => run_track(frames, roi, *um_per_px, *min_zncc, *shape, out),
+            format,
+        }) => run_track(frames, roi, *um_per_px, *min_zncc, *shape, out, *format),
     }
 }
 

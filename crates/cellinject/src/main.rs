@@ -103,7 +103,10 @@ enum Command {
     )]
     Dic(dic::DicArgs),
     /// Run the digital twin: hysteresis loops, step responses, camera frames.
-    #[command(subcommand)]
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject sim loop --actuator A2\n  cellinject sim step --voltage 50 --duration 0.5\n  cellinject sim frame --vga --scale-bar --out frame.png"
+    )]
     Sim(sim::SimCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     #[command(

@@ -2,6 +2,7 @@
 //! tables for the terminal and Markdown.
 
 use std::io::Write as _;
+use std::path::Path;
 
 /// Writes to standard output. A closed pipe (the reader has gone, as with `| head`) ends
 /// the command quietly with exit code 0, as ripgrep does: every file the command writes
@@ -15,6 +16,23 @@ pub fn print(args: std::fmt::Arguments<'_>) {
         eprintln!("error: cannot write to standard output: {e}");
         std::process::exit(1);
     }
+}
+
+/// A JSON summary with the files it wrote.
+#[derive(serde::Serialize)]
+struct Written<'a, T: serde::Serialize> {
+    #[serde(flatten)]
+    summary: T,
+    files: Vec<&'a Path>,
+}
+
+pub fn print_json<T: serde::Serialize>(summary: T, files: &[&Path]) -> anyhow::Result<()> {
+    let w = Written {
+        summary,
+        files: files.to_vec(),
+    };
+    print(format_args!("{}\n", serde_json::to_string_pretty(&w)?));
+    Ok(())
 }
 
 /// How a quantity in an SI unit is shown to a person: (unit label, scale, decimals).

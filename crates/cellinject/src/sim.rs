@@ -16,6 +16,7 @@ use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
 use clap::{Args, Subcommand};
 
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
+use crate::output::print_json;
 use crate::{Format, InputError};
 
 /// Options shared by every `sim` command.
@@ -93,7 +94,8 @@ pub enum SimCommand {
         /// Step voltage, V.
         #[arg(long, allow_negative_numbers = true)]
         voltage: f64,
-        /// Simulated duration, s.
+        /// Simulated duration, s (up to 3600; sampled every step for 50 ms, then every
+        /// millisecond, or every duration/100000 s for runs over 100 s).
         #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
         duration: f64,
         /// CSV output; the plot is written beside it with the same stem as SVG and PNG.
@@ -171,23 +173,6 @@ fn write_csv_and_plots(
     staged.add(svg_path, svg.as_bytes())?;
     staged.add(png_path, &png)?;
     staged.commit()
-}
-
-/// A JSON summary with the files it wrote.
-#[derive(serde::Serialize)]
-struct Written<'a, T: serde::Serialize> {
-    #[serde(flatten)]
-    summary: T,
-    files: Vec<&'a Path>,
-}
-
-fn print_json<T: serde::Serialize>(summary: T, files: &[&Path]) -> Result<()> {
-    let w = Written {
-        summary,
-        files: files.to_vec(),
-    };
-    outln!("{}", serde_json::to_string_pretty(&w)?);
-    Ok(())
 }
 
 /// `sim loop`.
@@ -330,11 +315,19 @@ fn run_step(
             &[&files[0], &files[1], &files[2]],
         );
     }
-    let at = |t: f64| r.displacement_at(t).map(|x| x * 1e6).unwrap_or(f64::NAN);
+    // Only what was measured is printed: no NaN for a run shorter than 0.1 s.
+    let at_100ms = r
+        .displacement_at(0.1)
+        .filter(|_| duration >= 0.1)
+        .map(|x| format!("{:.3} µm at 0.1 s, ", x * 1e6))
+        .unwrap_or_default();
+    let last = r
+        .samples
+        .last()
+        .map(|s| format!("{:.3} µm at {duration} s", um(s)))
+        .unwrap_or_else(|| "no sample".into());
     outln!(
-        "{name}: step to {voltage} V; displacement {:.3} µm at 0.1 s, {:.3} µm at {duration} s; tilt modes {:.0} Hz and {:.0} Hz, A3 axis {:.0} Hz",
-        at(0.1),
-        r.samples.last().map(um).unwrap_or(f64::NAN),
+        "{name}: step to {voltage} V; displacement {at_100ms}{last}; tilt modes {:.0} Hz and {:.0} Hz, A3 axis {:.0} Hz",
         f[0],
         f[1],
         f[2]

@@ -420,3 +420,48 @@ fn a_closed_pipe_ends_every_printing_command_quietly() {
     }
     let _ = fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn every_help_has_an_example_and_the_usage_marks_required_options() {
+    let dir = std::env::temp_dir().join(format!("cellinject-helps-{}", std::process::id()));
+    fs::create_dir_all(&dir).unwrap();
+    let mut todo: Vec<Vec<String>> = vec![Vec::new()];
+    let mut seen = 0;
+    while let Some(p) = todo.pop() {
+        let h = help(&dir, &p);
+        seen += 1;
+        assert!(
+            h.contains("Examples:\n  cellinject"),
+            "{p:?} has no example:\n{h}"
+        );
+        for s in subcommands(&h) {
+            let mut q = p.clone();
+            q.push(s);
+            todo.push(q);
+        }
+    }
+    assert!(seen >= 17, "{seen}");
+    for (path, required) in [
+        (
+            vec!["fea"],
+            vec!["--approach <APPROACH>", "--forces <F11,F12>"],
+        ),
+        (
+            vec!["dic"],
+            vec!["--reference <FILE>", "--current <FILE>", "--at <X,Y>"],
+        ),
+        (
+            vec!["hinge"],
+            vec!["--profile <PROFILE>", "--thickness <THICKNESS>"],
+        ),
+        (vec!["sim", "step"], vec!["--voltage <VOLTAGE>"]),
+    ] {
+        let p: Vec<String> = path.iter().map(|s| s.to_string()).collect();
+        let h = help(&dir, &p);
+        let usage = h.lines().find(|l| l.starts_with("Usage:")).unwrap();
+        for r in required {
+            assert!(usage.contains(r), "{path:?}: {usage}");
+        }
+    }
+    let _ = fs::remove_dir_all(&dir);
+}

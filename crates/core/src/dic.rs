@@ -169,3 +169,87 @@ pub fn field_report(
         field: f,
     })
 }
+
+/// The JSON summary of `dic field` (the points go to its CSV).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `points`, `found` | | grid points, of which matched |
+/// | `nx`, `ny`, `step` | –, –, px | the grid |
+/// | `u_range`, `v_range` | px | smallest and largest displacement over the matched points |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FieldSummary {
+    /// Grid points.
+    pub points: usize,
+    /// Matched.
+    pub found: usize,
+    /// Columns.
+    pub nx: usize,
+    /// Rows.
+    pub ny: usize,
+    /// px.
+    pub step: usize,
+    /// px.
+    pub u_range: Option<(f64, f64)>,
+    /// px.
+    pub v_range: Option<(f64, f64)>,
+}
+
+impl FieldReport {
+    /// What `dic field` reports besides its CSV.
+    pub fn summary(&self) -> FieldSummary {
+        let f = &self.field;
+        FieldSummary {
+            points: f.nx * f.ny,
+            found: self.found,
+            nx: f.nx,
+            ny: f.ny,
+            step: f.step,
+            u_range: self.u_range,
+            v_range: self.v_range,
+        }
+    }
+}
+
+/// The JSON summary of `dic track` (the frames go to its CSV).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `frames` | | frames read |
+/// | `measured` | | tracked or recovered (the first frame included) |
+/// | `rejected` | | below `min_zncc` |
+/// | `min_zncc` | 1 | the threshold |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrackSummary {
+    /// Frames.
+    pub frames: usize,
+    /// Measured.
+    pub measured: usize,
+    /// Rejected.
+    pub rejected: usize,
+    /// Threshold.
+    pub min_zncc: f64,
+}
+
+/// The JSON summary of `dic synth`.
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `size` | px | width, height |
+/// | `shift` | px | the current image's shift (u, v) |
+/// | `rotation` | degrees | about the image centre |
+/// | `noise` | grey levels | rms |
+/// | `seed` | | of the pattern and the noise |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SynthSummary {
+    /// px.
+    pub size: (usize, usize),
+    /// px.
+    pub shift: (f64, f64),
+    /// Degrees.
+    pub rotation: f64,
+    /// Grey levels.
+    pub noise: f64,
+    /// Seed.
+    pub seed: u64,
+}

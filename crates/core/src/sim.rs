@@ -248,7 +248,9 @@ pub struct StepSummary {
 }
 
 /// `sim step`: steps channel `ch` to `voltage` and records `sample(t)` every clock
-/// step `dt` for 50 ms, then every millisecond, for `duration` seconds.
+/// step `dt` for 50 ms, then every millisecond (every `duration`/100000 s for runs over
+/// 100 s, so that no run records more than about 100,000 samples), for `duration`
+/// seconds.
 pub fn step_response<B: Backend>(
     rig: &mut Rig<B>,
     ch: usize,
@@ -277,7 +279,8 @@ pub fn step_response<B: Backend>(
         duration,
         dt,
         fast: 0.05,
-        slow_period: 1e-3,
+        // At most ~100,000 rows after the ringing, whatever the duration.
+        slow_period: (duration / 1e5).max(1e-3),
     };
     let samples = programs::step_response(&mut rig.piezo[ch], name, &mut rig.clock, &plan, sample)?;
     Ok(StepReport {

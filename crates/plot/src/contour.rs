@@ -102,6 +102,8 @@ fn draw_structure<DB: DrawingBackend>(
                 .axis_desc_style(style::label())
                 .x_labels(style::TICKS)
                 .y_labels(style::TICKS)
+                .x_label_formatter(&style::tick_formatter(cx - hw, cx + hw))
+                .y_label_formatter(&style::tick_formatter(cy - hh, cy + hh))
                 .light_line_style(WHITE)
                 .draw()
                 .map_err(|e| err(&e))?;

@@ -123,6 +123,8 @@ fn draw_charts<DB: DrawingBackend>(
             .axis_desc_style(style::label())
             .x_labels(style::TICKS)
             .y_labels(style::TICKS)
+            .x_label_formatter(&style::tick_formatter(x0, x1))
+            .y_label_formatter(&style::tick_formatter(y0, y1))
             .draw()
             .map_err(|e| err(&e))?;
         for (k, s) in chart.series.iter().enumerate() {

@@ -75,6 +75,8 @@ fn draw_map<DB: DrawingBackend>(
         .axis_desc_style(style::label())
         .x_labels(style::TICKS)
         .y_labels(style::TICKS)
+        .x_label_formatter(&style::tick_formatter(x0, x1))
+        .y_label_formatter(&style::tick_formatter(y0, y1))
         .disable_mesh()
         .draw()
         .map_err(|e| err(&e))?;

@@ -183,6 +183,24 @@ pub fn round_length(target: f64) -> f64 {
         .unwrap_or(p)
 }
 
+/// Labels for the ticks of an axis from `lo` to `hi`: as many decimals as the tick step
+/// needs (none for a step of 10), and no negative zero.
+pub fn tick_formatter(lo: f64, hi: f64) -> impl Fn(&f64) -> String {
+    let (a, b) = if lo <= hi { (lo, hi) } else { (hi, lo) };
+    let d = decimals(a, b);
+    move |v: &f64| {
+        let s = format!("{v:.d$}");
+        if s.trim_start_matches('-')
+            .chars()
+            .all(|c| c == '0' || c == '.')
+        {
+            s.trim_start_matches('-').to_string()
+        } else {
+            s
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,6 +218,14 @@ mod tests {
             "{t:?}"
         );
         assert_eq!(ticks(1.0, 1.0, 5), vec![1.0]);
+    }
+
+    #[test]
+    fn tick_labels_have_the_decimals_of_their_step() {
+        let f = tick_formatter(0.0, 200.0);
+        assert_eq!((f(&50.0), f(&-0.0)), ("50".to_string(), "0".to_string()));
+        let g = tick_formatter(9.12, 9.24);
+        assert_eq!(g(&9.14), "9.14");
     }
 
     #[test]
