@@ -12,7 +12,7 @@ use cellinject_plot::map::{GridMap, maps_rgb, maps_svg};
 use clap::{Args, Subcommand, ValueEnum};
 
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
-use crate::output::{Table, print_json};
+use crate::output::{Table, fixed, print_json};
 use crate::{Format, InputError};
 
 /// Shape function of the subsets.
@@ -68,6 +68,9 @@ pub struct PointArgs {
     /// Sigma of a Gaussian prefilter applied to both images, pixels (0 = none).
     #[arg(long, default_value_t = 0.0)]
     prefilter: f64,
+    /// A point whose ZNCC falls below this, or that does not converge, has no match.
+    #[arg(long, default_value_t = 0.8)]
+    min_zncc: f64,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
@@ -150,7 +153,13 @@ pub enum DicCommand {
         #[arg(long, value_name = "DIR|GLOB")]
         frames: String,
         /// Region to follow in the first frame: x,y,width,height (pixels).
-        #[arg(long, value_name = "X,Y,W,H", value_delimiter = ',', num_args = 1)]
+        #[arg(
+            long,
+            required = true,
+            value_name = "X,Y,W,H",
+            value_delimiter = ',',
+            num_args = 1
+        )]
         roi: Vec<usize>,
         /// Micrometres per pixel, to report metres as well.
         #[arg(long, value_name = "S")]
@@ -257,7 +266,14 @@ fn run_points(a: &PointArgs) -> Result<()> {
         prefilter: a.prefilter,
         ..PointOptions::default()
     };
-    let res = points(&r, &c, &a.at, &opts).map_err(|e| match e {
+    if !(-1.0..=1.0).contains(&a.min_zncc) {
+        return Err(InputError(format!(
+            "--min-zncc must lie in [-1, 1], got {}",
+            a.min_zncc
+        ))
+        .into());
+    }
+    let res = points(&r, &c, &a.at, &opts, a.min_zncc).map_err(|e| match e {
         DicError::SubsetSize { .. } => dic_error("--subset", e),
         DicError::SubsetOutside { .. } => dic_error("--at", e),
         other => dic_error("dic", other),
@@ -294,17 +310,17 @@ fn run_points(a: &PointArgs) -> Result<()> {
                     } => vec![
                         format!("{x}"),
                         format!("{y}"),
-                        format!("{u:.4}"),
-                        format!("{v:.4}"),
-                        format!("{zncc:.4}"),
+                        fixed(u, 4),
+                        fixed(v, 4),
+                        fixed(zncc, 4),
                         format!("{iterations}{}", if converged { "" } else { "!" }),
                         format!("{sigma_u:.4}"),
                         format!("{sigma_v:.4}"),
                     ],
-                    PointReport::Missing { x, y, .. } => vec![
+                    PointReport::Missing { x, y, error, .. } => vec![
                         format!("{x}"),
                         format!("{y}"),
-                        "no match".into(),
+                        error.to_string(),
                         String::new(),
                         String::new(),
                         String::new(),
@@ -318,7 +334,8 @@ fn run_points(a: &PointArgs) -> Result<()> {
     }
     if res.iter().all(|p| matches!(p, PointReport::Missing { .. })) {
         anyhow::bail!(
-            "no point matched: nothing to measure (no texture, or every subset left the current image)"
+            "no point matched reliably (ZNCC at least {} and converged): nothing to measure",
+            a.min_zncc
         );
     }
     Ok(())
@@ -614,14 +631,17 @@ fn run_track(
         } else {
             tracked += 1;
         }
+        // Below 1e-9 px a displacement is rounding (the reference frame against itself).
+        let clean = |v: f64| if v.abs() < 1e-9 { 0.0 } else { v };
         let m = |v: f64| {
             um_per_px
-                .map(|s| format!("{:.6e}", v * s * 1e-6))
+                .filter(|_| v.is_finite())
+                .map(|s| format!("{:.6e}", clean(v) * s * 1e-6))
                 .unwrap_or_default()
         };
         let num = |v: f64| {
             if v.is_finite() {
-                format!("{v:.6}")
+                fixed(clean(v), 6)
             } else {
                 String::new()
             }

@@ -139,9 +139,9 @@ pub enum FeaCommand {
         /// Pre-tensioning approach (default: the description's `twin.approach`).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
         approach: Option<u8>,
-        /// How many modes to list.
-        #[arg(long, default_value_t = 8)]
-        count: usize,
+        /// How many modes to list (1 to 16: the model has 16 coordinates).
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=16))]
+        count: u64,
         #[command(flatten)]
         mesh: MeshArgs,
         #[command(flatten)]
@@ -288,7 +288,14 @@ pub fn run(d: &Description, a: &FeaArgs) -> Result<()> {
             mesh,
             cache,
             format,
-        }) => modes(d, approach_arg(*approach, d), *count, mesh, cache, *format),
+        }) => modes(
+            d,
+            approach_arg(*approach, d),
+            *count as usize,
+            mesh,
+            cache,
+            *format,
+        ),
         Some(FeaCommand::Tables {
             mesh,
             cache,

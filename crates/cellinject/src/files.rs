@@ -141,8 +141,23 @@ impl Plan {
             ))
             .into());
         }
-        if out.file_stem().is_none_or(|s| s.is_empty()) {
-            return Err(InputError(format!("{arg} `{}`: not a file name", out.display())).into());
+        if out
+            .file_stem()
+            .is_none_or(|s| s.is_empty() || s.to_string_lossy().starts_with('.'))
+        {
+            return Err(InputError(format!(
+                "{arg} `{}`: give a file name with a stem (e.g. `run.csv`)",
+                out.display()
+            ))
+            .into());
+        }
+        if out.is_dir() {
+            return Err(InputError(format!(
+                "{arg} `{}` is a directory; give a file name in it (e.g. `{}`)",
+                out.display(),
+                out.join(format!("out.{}", kinds[0].extension())).display()
+            ))
+            .into());
         }
         Ok(kinds
             .iter()

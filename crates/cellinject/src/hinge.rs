@@ -90,7 +90,17 @@ pub struct HingeArgs {
 }
 
 fn need(v: Option<f64>, flag: &str, profile: &str) -> Result<f64> {
-    v.ok_or_else(|| InputError(format!("--{flag} is required for a {profile} hinge")).into())
+    let article = if profile.starts_with(['a', 'e', 'i', 'o', 'u']) {
+        "an"
+    } else {
+        "a"
+    };
+    v.ok_or_else(|| {
+        InputError(format!(
+            "--{flag} is required for {article} {profile} hinge"
+        ))
+        .into()
+    })
 }
 
 fn hinge_error(e: HingeError) -> anyhow::Error {
@@ -139,6 +149,20 @@ pub fn run(a: &HingeArgs) -> Result<()> {
             length: need(a.length, "length", "leaf")?,
         },
     };
+    // An option the profile does not use is said, not silently dropped.
+    let unused = match a.profile {
+        ProfileArg::Circular => a.length.map(|_| ("length", "its length is 2R")),
+        ProfileArg::Leaf => a
+            .radius
+            .map(|_| ("radius", "a straight leaf has no notch radius")),
+        _ => None,
+    };
+    if let Some((flag, why)) = unused {
+        eprintln!(
+            "warning: --{flag} is not used by a {:?} hinge: {why}",
+            a.profile
+        );
+    }
     let hinge = Hinge {
         profile,
         thickness: a.thickness,
@@ -300,11 +324,14 @@ pub fn table(a: &TableArgs) -> Result<()> {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&rows)?),
         Format::Text => {
             outln!(
-                "Circular notch, R = {} mm, b = {} mm, E = {} GPa, plane {:?}: compliant stiffness, N·m/rad",
+                "Circular notch, R = {} mm, b = {} mm, E = {} GPa, plane {}: compliant stiffness, N·m/rad",
                 a.radius * 1e3,
                 a.width * 1e3,
                 a.youngs * 1e-9,
-                a.plane
+                match a.plane {
+                    PlaneArg::Stress => "stress",
+                    PlaneArg::Strain => "strain",
+                }
             );
             let mut t = Table::new(
                 &[

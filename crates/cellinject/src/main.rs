@@ -53,9 +53,9 @@ struct Cli {
 /// Output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Format {
-    /// A readable table (µm, mN·m).
+    /// Text for people: tables and summaries in display units (µm, mN·m, px).
     Text,
-    /// JSON, SI units.
+    /// One JSON document: SI units, pixels for image quantities (docs/json.md).
     Json,
 }
 
@@ -138,16 +138,34 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     // Only the commands that use a description read one: `dic` and `hinge` never fail
     // on a bad `--config`.
     let description = || commands::load_description(cli.config.as_deref());
+    // Commands that never read a description say so rather than ignore --config.
+    let unused_config = || {
+        if let Some(c) = &cli.config {
+            eprintln!(
+                "warning: --config `{}` is not used by this command (it reads no manipulator description)",
+                c.display()
+            );
+        }
+    };
     match cli.command {
         Some(Command::Tension { approach, format }) => {
             commands::tension(&description()?, approach, format)
         }
         Some(Command::Model { format }) => commands::model(&description()?, format),
         Some(Command::Sim(cmd)) => sim::run(&description()?, &cmd),
-        Some(Command::Dic(args)) => dic::run(&args),
+        Some(Command::Dic(args)) => {
+            unused_config();
+            dic::run(&args)
+        }
         Some(Command::Fea(args)) => fea::run(&description()?, &args),
-        Some(Command::Hinge(args)) => hinge::run(&args),
-        Some(Command::HingeTable(args)) => hinge::table(&args),
+        Some(Command::Hinge(args)) => {
+            unused_config();
+            hinge::run(&args)
+        }
+        Some(Command::HingeTable(args)) => {
+            unused_config();
+            hinge::table(&args)
+        }
         Some(Command::Reproduce { out, format }) => {
             commands::reproduce(&description()?, &out, format)
         }

@@ -47,6 +47,16 @@ pub fn display_unit(si: &str) -> (&'static str, f64, usize) {
     }
 }
 
+/// `x` with `digits` decimals and no negative zero.
+pub fn fixed(x: f64, digits: usize) -> String {
+    let s = format!("{x:.digits$}");
+    if s.starts_with('-') && s[1..].chars().all(|c| c == '0' || c == '.') {
+        s[1..].to_string()
+    } else {
+        s
+    }
+}
+
 /// A number in display units, with no negative zero.
 pub fn number(x: f64, si: &str) -> String {
     let (_, scale, digits) = display_unit(si);

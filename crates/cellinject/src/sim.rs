@@ -307,7 +307,10 @@ fn run_step(
             }],
         },
     ];
-    write_csv_and_plots(&files, &csv, &charts, 2)?;
+    // A run that ends within the ringing has no creep to show: one panel.
+    let creep = charts[1].series[0].points.len() >= 2;
+    let charts = if creep { &charts[..] } else { &charts[..1] };
+    write_csv_and_plots(&files, &csv, charts, charts.len())?;
     let f = lock(&twin).world.natural_frequencies();
     if args.format == Format::Json {
         return print_json(

@@ -200,6 +200,7 @@ fn a_bad_output_directory_is_refused_before_any_computation() {
             ],
             "--export-mesh",
         ),
+        (vec!["reproduce", "--out", "plain.txt/rep"], "--out"),
     ] {
         let o = run(&d, &args);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", err(&o));
@@ -452,5 +453,75 @@ fn a_hinge_outside_the_checked_range_is_computed_with_a_warning() {
         ],
     );
     assert!(o.status.success() && err(&o).is_empty(), "{}", err(&o));
+    let _ = fs::remove_dir_all(&d);
+}
+
+#[test]
+fn what_a_newcomer_tried_is_answered() {
+    let d = dir("newcomer");
+    // A current image shifted far beyond the search: no reliable match, exit 1.
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "synth",
+            "--size",
+            "128,128",
+            "--shift",
+            "1000,0",
+            "--reference",
+            "a.png",
+            "--current",
+            "b.png",
+        ],
+    );
+    assert!(o.status.success());
+    let o = run(
+        &d,
+        &[
+            "dic",
+            "--reference",
+            "a.png",
+            "--current",
+            "b.png",
+            "--at",
+            "64,64",
+            "--format",
+            "json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v[0]["u"].is_null(), "{v}");
+    // A step shorter than the ringing window has one panel, not an error.
+    let o = run(
+        &d,
+        &[
+            "sim",
+            "step",
+            "--voltage",
+            "50",
+            "--duration",
+            "0.03",
+            "--out",
+            "s.csv",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    // `--out` naming a directory, or a name without a stem, is refused.
+    fs::create_dir_all(d.join("sub")).unwrap();
+    for out in ["sub", ".csv"] {
+        let o = run(&d, &["sim", "loop", "--amplitude", "5", "--out", out]);
+        assert_eq!(o.status.code(), Some(2), "{out}: {}", err(&o));
+    }
+    // `--config` on a command that reads none is said, not silently dropped.
+    let o = run(
+        &d,
+        &["--config", "none.toml", "hinge-table", "--format", "json"],
+    );
+    assert!(o.status.success());
+    assert!(err(&o).contains("--config"), "{}", err(&o));
+    let o = run(&d, &["fea", "modes", "--count", "0"]);
+    assert_eq!(o.status.code(), Some(2));
     let _ = fs::remove_dir_all(&d);
 }

@@ -110,18 +110,34 @@ impl PointReport {
     }
 }
 
-/// `cellinject dic`: correlates each of `at` (reference pixels) into `current`.
+/// `cellinject dic`: correlates each of `at` (reference pixels) into `current`. A
+/// result that did not converge or whose ZNCC is below `min_zncc` is not a measurement:
+/// it is reported as [`PointReport::Missing`], with its ZNCC in the reason.
 pub fn points(
     reference: &Image,
     current: &Image,
     at: &[(f64, f64)],
     options: &PointOptions,
+    min_zncc: f64,
 ) -> Result<Vec<PointReport>, DicError> {
     let res = correlate_points(reference, current, at, options)?;
     Ok(at
         .iter()
         .zip(&res)
-        .map(|(&p, r)| PointReport::new(p, r))
+        .map(|(&p, r)| match r {
+            Some(q) if !(q.converged && q.zncc >= min_zncc) => {
+                let mut m = PointReport::new(p, &None);
+                if let PointReport::Missing { error, .. } = &mut m {
+                    *error = if q.converged {
+                        "no reliable match: the ZNCC is below --min-zncc"
+                    } else {
+                        "no reliable match: the correlation did not converge"
+                    };
+                }
+                m
+            }
+            _ => PointReport::new(p, r),
+        })
         .collect())
 }
 
@@ -155,13 +171,20 @@ fn range(f: &Field, sel: fn(&PointResult) -> f64) -> Option<(f64, f64)> {
     })
 }
 
-/// `cellinject dic field`: the full field on a grid.
+/// `cellinject dic field`: the full field on a grid; points that did not converge or
+/// fall below `options.min_zncc` are left out (no number is reported for them).
 pub fn field_report(
     reference: &Image,
     current: &Image,
     options: &FieldOptions,
 ) -> Result<FieldReport, DicError> {
-    let f = field(reference, current, options)?;
+    let mut f = field(reference, current, options)?;
+    // Only converged points at or above the ZNCC threshold are measurements.
+    for p in &mut f.points {
+        if p.is_some_and(|q| !(q.converged && q.zncc >= options.min_zncc)) {
+            *p = None;
+        }
+    }
     Ok(FieldReport {
         found: f.points.iter().flatten().count(),
         u_range: range(&f, |p| p.u),

@@ -29,7 +29,8 @@ pub struct TrackPoint {
     pub u: f64,
     /// Along y.
     pub v: f64,
-    /// ZNCC of the match.
+    /// ZNCC of the match; for a rejected frame, the best ZNCC an attempt reached (0
+    /// if none converged to anything).
     pub zncc: f64,
     /// IC-GN iterations.
     pub iterations: usize,
@@ -141,9 +142,12 @@ impl Tracker {
             None => (0.0, 0.0),
         };
         let mut status = Status::Tracked;
-        let mut res = self
-            .attempt(frame, guess)
-            .filter(|r| r.zncc >= self.min_zncc);
+        let mut best = 0.0f64;
+        let mut res = self.attempt(frame, guess);
+        if let Some(r) = &res {
+            best = best.max(r.zncc);
+        }
+        let mut res = res.take().filter(|r| r.zncc >= self.min_zncc);
         if res.is_none() {
             // The prediction failed: search the neighbourhood by FFT, then refine. The
             // frame window is addressed so that the reference crop's origin sits at
@@ -167,9 +171,11 @@ impl Tracker {
             );
             if let Some(hit) = hit {
                 let guess = ((hit.u - sx) as f64, (hit.v - sy) as f64);
-                res = self
-                    .attempt(frame, guess)
-                    .filter(|p| p.zncc >= self.min_zncc);
+                let again = self.attempt(frame, guess);
+                if let Some(r) = &again {
+                    best = best.max(r.zncc);
+                }
+                res = again.filter(|p| p.zncc >= self.min_zncc);
                 status = Status::Recovered;
             }
         }
@@ -191,7 +197,7 @@ impl Tracker {
             None => TrackPoint {
                 u: f64::NAN,
                 v: f64::NAN,
-                zncc: 0.0,
+                zncc: if best.is_finite() { best } else { 0.0 },
                 iterations: 0,
                 sigma_u: f64::NAN,
                 status: Status::Rejected,

@@ -129,12 +129,15 @@ fn draw_charts<DB: DrawingBackend>(
             .map_err(|e| err(&e))?;
         for (k, s) in chart.series.iter().enumerate() {
             let color = style::LINES[k % style::LINES.len()];
+            // Thick polylines are joined with mitres, which shoot far out of the panel
+            // where a dense, noisy series turns back on itself: dense series are thin.
+            let width = if s.points.len() > style::DENSE { 1 } else { 2 };
             c.draw_series(LineSeries::new(
                 s.points
                     .iter()
                     .copied()
                     .filter(|(x, y)| x.is_finite() && y.is_finite()),
-                color.stroke_width(2),
+                color.stroke_width(width),
             ))
             .map_err(|e| err(&e))?
             .label(s.name.as_str())

@@ -17,6 +17,8 @@ pub const Y_LABEL_AREA: u32 = 76;
 pub const TICKS: usize = 8;
 /// Width of a colour bar with its ticks and label, px.
 pub const COLOUR_BAR_WIDTH: u32 = 120;
+/// Points above which a line series is drawn one pixel wide.
+pub const DENSE: usize = 1000;
 /// Where a map has no value.
 pub const MISSING: RGBColor = RGBColor(200, 200, 200);
 
