@@ -112,6 +112,7 @@ fn hinge_error(e: HingeError) -> anyhow::Error {
         }) => InputError(format!("--{name} {value}: {reason}")).into(),
         HingeError::Flexure(other) => InputError(format!("--method: {other}")).into(),
         HingeError::Fem(e) => anyhow::anyhow!("hinge FEM: {e}"),
+        e @ HingeError::NotFinite { .. } => InputError(e.to_string()).into(),
     }
 }
 
@@ -252,13 +253,18 @@ pub fn run(a: &HingeArgs) -> Result<()> {
                 );
                 row("beam / FEM", format!("{:.4}", c.beam_over_fem), "");
             }
-            if let (Some(th), Some(s), Some(sf)) = (r.angle, r.stress, r.safety_factor) {
+            if let (Some(th), Some(s)) = (r.angle, r.stress) {
                 row(
                     "stress at --angle",
                     format!("{:.2} at {:.3} mrad", s * 1e-6, th * 1e3),
                     "MPa",
                 );
-                row("safety factor against yield", format!("{sf:.2}"), "");
+                row(
+                    "safety factor against yield",
+                    r.safety_factor
+                        .map_or("unloaded".into(), |sf| format!("{sf:.2}")),
+                    "",
+                );
             }
             outln!(
                 "{:?} hinge, t = {} mm, b = {} mm, L = {} mm ({})",

@@ -362,6 +362,14 @@ fn no_argument_list_makes_any_command_panic() {
                     if r.stderr.contains("panicked") || r.stderr.contains("RUST_BACKTRACE") {
                         bad.push("a panic".into());
                     }
+                    // No result is printed as a non-finite number.
+                    let non_finite = r
+                        .stdout
+                        .split(|c: char| c.is_whitespace() || ",;:()[]{}=\"".contains(c))
+                        .any(|t| matches!(t, "NaN" | "nan" | "inf" | "-inf" | "Infinity"));
+                    if non_finite {
+                        bad.push("a non-finite number on standard output".into());
+                    }
                     let json = r
                         .args
                         .windows(2)

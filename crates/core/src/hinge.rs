@@ -16,6 +16,24 @@ pub enum HingeError {
     /// The FEM failed.
     #[error("hinge FEM: {0}")]
     Fem(#[from] FemError),
+    /// A result is not a finite number: the dimensions or constants are out of all
+    /// physical scale (they are metres and pascals).
+    #[error(
+        "{quantity} is not a finite number for these dimensions and material: check their units (m, Pa)"
+    )]
+    NotFinite {
+        /// Which result.
+        quantity: &'static str,
+    },
+}
+
+/// Refuses a non-finite result, naming it.
+fn finite(quantity: &'static str, v: f64) -> Result<f64, HingeError> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(HingeError::NotFinite { quantity })
+    }
 }
 
 /// How the compliant bending stiffness is computed.
@@ -201,10 +219,31 @@ pub fn hinge(
     let kt = hinge.stress_concentration();
     let stress_per_rad = kt * 6.0 * k_bend / (hinge.width * hinge.thickness.powi(2));
     let c = hinge.compliance(m);
+    finite("k_bend", k_bend)?;
+    finite("the throat stress per radian", stress_per_rad)?;
+    finite("the rotation at yield", m.yield_strength / stress_per_rad)?;
+    for (q, v) in [
+        ("k_bend_off", hinge.k_bend_off(m)),
+        ("k_axial", hinge.k_axial(m)),
+        ("k_torsion", hinge.k_torsion(m)),
+    ] {
+        finite(q, v)?;
+    }
+    if (0..6).any(|r| (0..6).any(|k| !c[(r, k)].is_finite())) {
+        return Err(HingeError::NotFinite {
+            quantity: "the compliance",
+        });
+    }
+    // At a rotation that stresses the throat by less than 1e-9 of the yield strength
+    // there is no safety factor to report (it would be rounding over rounding).
     let at = angle.map(|th| {
         let s = stress_per_rad * th.abs();
-        (th, s, m.yield_strength / s)
+        let sf = (s >= 1e-9 * m.yield_strength).then(|| m.yield_strength / s);
+        (th, s, sf)
     });
+    if let Some((_, s, _)) = at {
+        finite("the stress at --angle", s)?;
+    }
     Ok(HingeReport {
         profile: profile_name(&hinge.profile),
         method: method.name(),
@@ -232,7 +271,7 @@ pub fn hinge(
         }),
         angle: at.map(|a| a.0),
         stress: at.map(|a| a.1),
-        safety_factor: at.map(|a| a.2),
+        safety_factor: at.and_then(|a| a.2),
         warnings: validity_warnings(hinge, method),
     })
 }
@@ -385,6 +424,15 @@ pub fn table(
             let beam = h.k_bend(m);
             let pw = paros_weisbord_simplified(&h, m)?;
             let c = hinge2d::converge(&h, m, plane, &MeshDensity::default())?;
+            for (q, v) in [
+                ("k_beam", beam),
+                ("k_pw_simple", pw),
+                ("k_fem", c.k_bend),
+                ("beam / FEM", beam / c.k_bend),
+                ("PW / FEM", pw / c.k_bend),
+            ] {
+                finite(q, v)?;
+            }
             Ok(TableRow {
                 t_over_r: tr,
                 k_beam: beam,
