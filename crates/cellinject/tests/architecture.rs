@@ -106,6 +106,7 @@ fn the_twin_is_its_own_crate_and_only_simulators_depend_on_it() {
         "cellinject-rig",
         "cellinject-core",
         "cellinject-fea",
+        "cellinject-hysteresis",
     ] {
         assert!(all.contains_key(name), "{name} is missing");
         assert!(
@@ -176,6 +177,7 @@ fn the_hardware_vocabulary_depends_on_nothing_of_ours() {
         "cellinject-structure",
         "cellinject-numeric",
         "cellinject-simparams",
+        "cellinject-hysteresis",
     ] {
         let c = closure(&all, name);
         for bad in [

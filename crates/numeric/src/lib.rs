@@ -4,15 +4,18 @@
 //! everywhere: the seeded random generator ([`Rng`], bit-exact so that the twin's
 //! digests hold), the error function ([`erf`], [`erfc`], [`normal_cdf`]) and a damped
 //! Newton solve of two equations in two unknowns with a finite-difference Jacobian
-//! ([`newton2`]).
+//! ([`newton2`]), and non-negative least squares ([`nnls_gram`], Lawson-Hanson) for
+//! identifying hysteresis weights.
 //!
 //! **Architecture invariant:** pure functions of their arguments; no IO, no global
 //! state but lazily built constant tables.
 
 mod newton;
+pub mod nnls;
 pub mod rng;
 
 pub use newton::{Newton2, Newton2Error, Newton2Options, newton2};
+pub use nnls::{NnlsError, nnls_gram};
 pub use rng::Rng;
 
 /// The error function erf(x) (libm's, correctly rounded to within 1 ulp).

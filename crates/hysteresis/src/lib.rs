@@ -1,0 +1,223 @@
+//! # cellinject-hysteresis
+//!
+//! Rate-independent hysteresis models of piezo actuators, their identification from
+//! measured (voltage, displacement) data and their inversion for feedforward
+//! compensation: the discrete Preisach model ([`preisach`], the default) and the
+//! Prandtl-Ishlinskii model with its closed-form inverse and an asymmetric variant
+//! ([`pi`]); logarithmic creep compensation ([`creep`]).
+//!
+//! Every model is a [`Model`]: it keeps its own memory, can [`Model::peek`] the output an
+//! input would give without committing it, and is inverted sample by sample by
+//! [`inverse`] (bisection on the input, exact to the model's precision because each
+//! model's output is continuous and non-decreasing in the input from any state).
+//! Identification reports its fit error ([`Fit`]); inversion reports its residual and
+//! refuses a target outside the model's reach ([`HysteresisError::OutOfReach`]).
+//!
+//! **Architecture invariant:** pure computation on numbers: no IO, no time, no devices;
+//! a model's step allocates nothing.
+
+pub mod creep;
+pub mod pi;
+pub mod preisach;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+pub use pi::PrandtlIshlinskii;
+pub use preisach::Preisach;
+
+/// Why a model could not be built, identified or inverted.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum HysteresisError {
+    /// A parameter or data set out of its domain.
+    #[error("{what}: {reason}")]
+    Invalid {
+        /// What.
+        what: &'static str,
+        /// Why.
+        reason: String,
+    },
+    /// The least-squares solver failed.
+    #[error("identification: {0}")]
+    Solver(String),
+    /// The target output cannot be reached within the input range.
+    #[error(
+        "sample {index}: the target {target:e} lies outside the model's reach [{min:e}, {max:e}] from its state"
+    )]
+    OutOfReach {
+        /// Sample index.
+        index: usize,
+        /// The target.
+        target: f64,
+        /// Lowest output reachable.
+        min: f64,
+        /// Highest output reachable.
+        max: f64,
+    },
+}
+
+/// An input range (e.g. an amplifier's 0-100 V), normalised to [0, 1] by the models.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Range {
+    /// Lowest input.
+    pub min: f64,
+    /// Highest input.
+    pub max: f64,
+}
+
+impl Range {
+    /// (u − min) / (max − min).
+    pub fn normalise(&self, u: f64) -> f64 {
+        (u - self.min) / (self.max - self.min)
+    }
+
+    /// The inverse of [`Range::normalise`].
+    pub fn denormalise(&self, x: f64) -> f64 {
+        self.min + x * (self.max - self.min)
+    }
+}
+
+/// A hysteresis operator with memory.
+pub trait Model {
+    /// Back to the relaxed state at the bottom of the range.
+    fn reset(&mut self);
+    /// The input range.
+    fn range(&self) -> Range;
+    /// Moves the input to `u` and returns the output.
+    fn apply(&mut self, u: f64) -> f64;
+    /// The output `u` would give from the current state, without changing it.
+    fn peek(&self, u: f64) -> f64;
+    /// The output now.
+    fn output(&self) -> f64;
+    /// The input now.
+    fn input(&self) -> f64;
+}
+
+/// A fitted model and how well it fits the data it was fitted on.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Fit<M> {
+    /// The model, reset to its relaxed state.
+    pub model: M,
+    /// RMS of model − data, output units.
+    pub rms: f64,
+    /// Largest |model − data|.
+    pub max: f64,
+    /// The data's span of outputs (max − min), for relative figures.
+    pub span: f64,
+    /// Samples.
+    pub samples: usize,
+}
+
+impl<M: Model + Clone> Fit<M> {
+    /// Replays the data through `model` from its relaxed state and measures the error.
+    pub fn measure(mut model: M, inputs: &[f64], outputs: &[f64]) -> Result<Self, HysteresisError> {
+        model.reset();
+        let (mut s2, mut max) = (0.0, 0.0f64);
+        for (&u, &y) in inputs.iter().zip(outputs) {
+            let e = model.apply(u) - y;
+            s2 += e * e;
+            max = max.max(e.abs());
+        }
+        model.reset();
+        let lo = outputs.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = outputs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        Ok(Fit {
+            model,
+            rms: (s2 / inputs.len() as f64).sqrt(),
+            max,
+            span: hi - lo,
+            samples: inputs.len(),
+        })
+    }
+}
+
+/// Refuses identification data that cannot identify anything.
+pub fn check_data(inputs: &[f64], outputs: &[f64], range: &Range) -> Result<(), HysteresisError> {
+    let bad = |reason: String| HysteresisError::Invalid {
+        what: "identification data",
+        reason,
+    };
+    if inputs.len() != outputs.len() {
+        return Err(bad(format!(
+            "{} inputs but {} outputs",
+            inputs.len(),
+            outputs.len()
+        )));
+    }
+    if inputs.len() < 100 {
+        return Err(bad(format!(
+            "{} samples: give at least 100, with reversals (a few thousand are enough)",
+            inputs.len()
+        )));
+    }
+    if !(range.max > range.min && range.min.is_finite() && range.max.is_finite()) {
+        return Err(bad(format!("input range [{}, {}]", range.min, range.max)));
+    }
+    if let Some(k) = inputs.iter().chain(outputs).position(|v| !v.is_finite()) {
+        return Err(bad(format!(
+            "sample {} is not a finite number",
+            k % inputs.len()
+        )));
+    }
+    let reversals = inputs
+        .windows(3)
+        .filter(|w| (w[1] - w[0]) * (w[2] - w[1]) < 0.0)
+        .count();
+    if reversals < 2 {
+        return Err(bad(format!(
+            "{reversals} reversals of the input: hysteresis needs rising and falling branches"
+        )));
+    }
+    Ok(())
+}
+
+/// Inverse of a model, sample by sample: the inputs that make `model` (from its current
+/// state) follow `targets`, each found by bisection on the input range to `tolerance`
+/// (relative to the reachable span); the model's state follows. Returns the inputs and
+/// the largest residual |output − target|. A target outside what the input range can
+/// reach from the state is refused, not clipped.
+pub fn inverse<M: Model>(
+    model: &mut M,
+    targets: &[f64],
+    out: &mut Vec<f64>,
+) -> Result<f64, HysteresisError> {
+    out.clear();
+    let r = model.range();
+    let mut worst = 0.0f64;
+    for (index, &yd) in targets.iter().enumerate() {
+        let u = inverse_step(model, yd, r).map_err(|(min, max)| HysteresisError::OutOfReach {
+            index,
+            target: yd,
+            min,
+            max,
+        })?;
+        let y = model.apply(u);
+        worst = worst.max((y - yd).abs());
+        out.push(u);
+    }
+    Ok(worst)
+}
+
+/// One inverse step without allocation: the input in `range` whose output from the
+/// current state is `target`, or the reachable (min, max) if none is.
+pub fn inverse_step<M: Model + ?Sized>(
+    model: &M,
+    target: f64,
+    range: Range,
+) -> Result<f64, (f64, f64)> {
+    let (mut lo, mut hi) = (range.min, range.max);
+    let (ylo, yhi) = (model.peek(lo), model.peek(hi));
+    let slack = 1e-9 * (yhi - ylo).abs().max(1e-300);
+    if !target.is_finite() || target < ylo - slack || target > yhi + slack {
+        return Err((ylo, yhi));
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if model.peek(mid) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Ok(0.5 * (lo + hi))
+}
