@@ -20,6 +20,7 @@ mod dic;
 mod fea;
 mod files;
 mod hinge;
+mod hysteresis;
 mod output;
 mod progress;
 mod sim;
@@ -108,6 +109,12 @@ enum Command {
         after_help = "Examples:\n  cellinject sim loop --actuator A2\n  cellinject sim step --voltage 50 --duration 0.5\n  cellinject sim frame --vga --scale-bar --out frame.png"
     )]
     Sim(sim::SimCommand),
+    /// Hysteresis models of the stacks: identification data, fits, inverses.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject hysteresis identify --actuator A1 --out ident.csv\n  cellinject hysteresis fit --data ident.csv --out model.json\n  cellinject hysteresis invert --model model.json --trajectory desired.csv --out command.csv"
+    )]
+    Hysteresis(hysteresis::HysteresisCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     #[command(
         after_help = "Examples:\n  cellinject reproduce\n  cellinject reproduce --out my-reports --format json"
@@ -158,6 +165,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             dic::run(&args)
         }
         Some(Command::Fea(args)) => fea::run(&description()?, &args),
+        Some(Command::Hysteresis(cmd)) => hysteresis::run(description, &cmd),
         Some(Command::Hinge(args)) => {
             unused_config();
             hinge::run(&args)

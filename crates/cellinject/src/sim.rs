@@ -120,7 +120,7 @@ fn channel(name: &str) -> Result<usize> {
 }
 
 /// Builds the twin of the description and its guarded rig.
-fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig<TwinBackend>)> {
+pub(crate) fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig<TwinBackend>)> {
     let mut p = TwinParams {
         rig: d.rig,
         sim: d.sim,

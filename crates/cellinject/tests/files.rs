@@ -525,3 +525,120 @@ fn what_a_newcomer_tried_is_answered() {
     assert_eq!(o.status.code(), Some(2));
     let _ = fs::remove_dir_all(&d);
 }
+
+#[test]
+fn hysteresis_identify_fit_invert_round_trip_and_refusals() {
+    let d = dir("hysteresis");
+    let o = run(
+        &d,
+        &[
+            "hysteresis",
+            "identify",
+            "--samples",
+            "2000",
+            "--out",
+            "ident.csv",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    let o = run(
+        &d,
+        &[
+            "hysteresis",
+            "fit",
+            "--data",
+            "ident.csv",
+            "--out",
+            "model.json",
+            "--format",
+            "json",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["model"]["model"], "preisach");
+    // The twin's stacks are Preisach operators with creep: the fit is close.
+    assert!(v["rms_relative"].as_f64().unwrap() < 0.01, "{v}");
+    for f in ["model.json", "model.svg", "model.png"] {
+        assert!(d.join(f).is_file(), "{f}");
+    }
+    let mut traj = String::from("time_s,displacement_m\n");
+    for k in 0..200 {
+        let t = k as f64 * 1e-3;
+        traj += &format!("{t},{}\n", (6.0 + 4.0 * (30.0 * t).sin()) * 1e-6);
+    }
+    fs::write(d.join("desired.csv"), &traj).unwrap();
+    let o = run(
+        &d,
+        &[
+            "hysteresis",
+            "invert",
+            "--model",
+            "model.json",
+            "--trajectory",
+            "desired.csv",
+            "--out",
+            "cmd.csv",
+        ],
+    );
+    assert!(o.status.success(), "{}", err(&o));
+    let cmd = fs::read_to_string(d.join("cmd.csv")).unwrap();
+    assert_eq!(cmd.lines().count(), 201);
+    assert!(cmd.lines().skip(1).all(|l| {
+        let v: f64 = l.split(',').nth(1).unwrap().parse().unwrap();
+        (0.0..=100.0).contains(&v)
+    }));
+    // Out of reach: refused with the sample named, no command file.
+    fs::write(
+        d.join("far.csv"),
+        "time_s,displacement_m\n0,1e-6\n0.001,1e-3\n",
+    )
+    .unwrap();
+    let o = run(
+        &d,
+        &[
+            "hysteresis",
+            "invert",
+            "--model",
+            "model.json",
+            "--trajectory",
+            "far.csv",
+            "--out",
+            "far-cmd.csv",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    assert!(err(&o).contains("sample 1"), "{}", err(&o));
+    assert!(!d.join("far-cmd.csv").exists());
+    // Bad data: the line is named; too little data is refused.
+    fs::write(
+        d.join("bad.csv"),
+        "time_s,voltage_v,displacement_m\n0,1,2\n0,x,3\n",
+    )
+    .unwrap();
+    let o = run(
+        &d,
+        &["hysteresis", "fit", "--data", "bad.csv", "--out", "b.json"],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(err(&o).contains("line 3"), "{}", err(&o));
+    fs::write(
+        d.join("short.csv"),
+        "time_s,voltage_v,displacement_m\n0,1,2e-6\n0.1,2,3e-6\n",
+    )
+    .unwrap();
+    let o = run(
+        &d,
+        &[
+            "hysteresis",
+            "fit",
+            "--data",
+            "short.csv",
+            "--out",
+            "s.json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(err(&o).contains("at least 100"), "{}", err(&o));
+    let _ = fs::remove_dir_all(&d);
+}

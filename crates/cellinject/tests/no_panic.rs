@@ -111,13 +111,25 @@ fn values(opt: &Opt) -> Vec<String> {
         "level" => v(&["0", "1", "4", "x", "nan"]),
         "levels" => v(&["0", "1", "4", "1,4", "x", ""]),
         "duration" => v(&["0", "-1", "nan", "inf", "0.02", "1e9"]),
-        "size" => v(&["0,0", "16,16", "a,b", "-16,16", "16", "1e9,1e9"]),
+        // dic synth's WIDTH,HEIGHT and hysteresis fit's grid size share the name.
+        "size" => v(&["0,0", "16,16", "a,b", "-16,16", "16", "1e9,1e9", "1", "61"]),
         "count" => v(&["0", "1", "1000", "-1"]),
         "step" => v(&["0", "64", "-1", "x", "1e300"]),
         "subset" => v(&["0", "7", "9999", "x", "-31"]),
         "search" => v(&["0", "1", "100000", "-5"]),
         "amplitude" => v(&["0", "-5", "nan", "inf", "1e9", "5"]),
         "seed" => v(&["0", "18446744073709551615", "-1", "x"]),
+        "samples" => v(&["200", "100", "1e9", "-1", "x"]),
+        "data" | "model" | "trajectory" => v(&[
+            "",
+            "missing.csv",
+            "r.png",
+            "bad.toml",
+            "ident.csv",
+            "m0.json",
+            "desired.csv",
+            "far.csv",
+        ]),
         "config" => v(&["missing.toml", "bad.toml", "r.png"]),
         "frames" => v(&["", "missing", "frames/*.png", "frames/*.tif", "r.png"]),
         "out" | "reference" | "current" | "plot" | "export-mesh" => v(&[
@@ -198,6 +210,16 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ["sim", "step"] => vec!["--voltage", "5", "--duration", "0.01", "--out", "s.csv"],
         ["sim", "frame"] => vec!["--vga", "--out", "fr.png"],
         ["reproduce"] => vec!["--out", "rep"],
+        ["hysteresis", "identify"] => vec!["--samples", "300", "--out", "id.csv"],
+        ["hysteresis", "fit"] => vec!["--data", "ident.csv", "--size", "6", "--out", "m.json"],
+        ["hysteresis", "invert"] => vec![
+            "--model",
+            "m0.json",
+            "--trajectory",
+            "desired.csv",
+            "--out",
+            "cmd.csv",
+        ],
         _ => vec![],
     }
 }
@@ -290,6 +312,47 @@ fn setup(tag: &str) -> PathBuf {
     for (f, to) in [("r.png", "frames/0.png"), ("c.png", "frames/1.png")] {
         fs::copy(dir.join(f), dir.join(to)).unwrap();
     }
+    // Hysteresis data, a model and trajectories (one out of reach).
+    for args in [
+        vec![
+            "hysteresis",
+            "identify",
+            "--samples",
+            "600",
+            "--out",
+            "ident.csv",
+        ],
+        vec![
+            "hysteresis",
+            "fit",
+            "--data",
+            "ident.csv",
+            "--size",
+            "8",
+            "--out",
+            "m0.json",
+        ],
+    ] {
+        let o = bin(&dir).args(&args).output().unwrap();
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let traj = |scale: f64| {
+        let mut s = String::from("time_s,displacement_m\n");
+        for k in 0..50 {
+            s += &format!(
+                "{},{}\n",
+                k as f64 * 1e-3,
+                scale * (5.0 + 0.1 * k as f64) * 1e-6
+            );
+        }
+        s
+    };
+    fs::write(dir.join("desired.csv"), traj(1.0)).unwrap();
+    fs::write(dir.join("far.csv"), traj(100.0)).unwrap();
     dir
 }
 

@@ -26,6 +26,7 @@
 
 pub mod dic;
 pub mod hinge;
+pub mod hysteresis;
 pub mod model;
 pub mod reproduce;
 pub mod sim;

@@ -221,3 +221,73 @@ pub fn inverse_step<M: Model + ?Sized>(
     }
     Ok(0.5 * (lo + hi))
 }
+
+/// Any of the models, as saved in a model file (`"model": "preisach" | "pi"`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case")]
+pub enum AnyModel {
+    /// Discrete Preisach.
+    Preisach(Preisach),
+    /// Prandtl-Ishlinskii (classical or asymmetric).
+    Pi(PrandtlIshlinskii),
+}
+
+impl Model for AnyModel {
+    fn reset(&mut self) {
+        match self {
+            AnyModel::Preisach(m) => m.reset(),
+            AnyModel::Pi(m) => m.reset(),
+        }
+    }
+    fn range(&self) -> Range {
+        match self {
+            AnyModel::Preisach(m) => m.range(),
+            AnyModel::Pi(m) => m.range(),
+        }
+    }
+    fn apply(&mut self, u: f64) -> f64 {
+        match self {
+            AnyModel::Preisach(m) => m.apply(u),
+            AnyModel::Pi(m) => m.apply(u),
+        }
+    }
+    fn peek(&self, u: f64) -> f64 {
+        match self {
+            AnyModel::Preisach(m) => m.peek(u),
+            AnyModel::Pi(m) => m.peek(u),
+        }
+    }
+    fn output(&self) -> f64 {
+        match self {
+            AnyModel::Preisach(m) => m.output(),
+            AnyModel::Pi(m) => m.output(),
+        }
+    }
+    fn input(&self) -> f64 {
+        match self {
+            AnyModel::Preisach(m) => m.input(),
+            AnyModel::Pi(m) => m.input(),
+        }
+    }
+}
+
+/// A rich identification excitation of `n` samples on `range`: a full rise, then
+/// oscillations whose amplitude and centre vary, so that reversals of every size and
+/// at every level occur (first-order reversal curves and nested minor loops).
+pub fn excitation(range: Range, n: usize) -> Vec<f64> {
+    let tau = 2.0 * std::f64::consts::PI;
+    (0..n)
+        .map(|k| {
+            let t = k as f64 / n.max(1) as f64;
+            let x = if t < 0.05 {
+                t / 0.05
+            } else {
+                let s = (t - 0.05) / 0.95;
+                let centre = 0.5 + 0.25 * (tau * 1.3 * s).sin();
+                let amp = 0.48 * (1.0 - 0.85 * s) * (0.5 + 0.5 * (tau * 2.1 * s).cos());
+                centre + amp * (tau * 23.0 * s).cos()
+            };
+            range.denormalise(x.clamp(0.0, 1.0))
+        })
+        .collect()
+}

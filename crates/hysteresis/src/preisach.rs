@@ -2,8 +2,10 @@
 //! triangle β ≤ α of the normalised input, piecewise constant on an n x n grid of cells
 //! (weights μ ≥ 0), so that the output is exactly
 //!
-//! y(t) = y₀ + Σ_cells μ_c · area(c ∩ S⁺(t))
+//! y(t) = y₀ + a₁·x(t) + a₂·x(t)² + Σ_cells μ_c · area(c ∩ S⁺(t))
 //!
+//! with a reversible part a₁x + a₂x² (a₁, a₂ ≥ 0: relays of a finite grid cannot be
+//! reversible, and real stacks have a large reversible share)
 //! where S⁺ is the set of relays that are up (Mayergoyz, *Mathematical Models of
 //! Hysteresis*, 1991, ch. 1). S⁺ follows from the memory of alternating dominant extrema
 //! M₁ > M₂ > … and m₁ < m₂ < … (wiping-out: a new extremum erases the smaller ones):
@@ -179,6 +181,8 @@ pub struct Preisach {
     pub n: usize,
     /// Output at negative saturation (every relay down), in output units.
     pub offset: f64,
+    /// Reversible part: coefficients of x and x² (x the normalised input), ≥ 0.
+    pub reversible: [f64; 2],
     /// Weights of the cells (i, j), j ≤ i, row by row: α cell i, β cell j.
     pub weights: Vec<f64>,
     #[serde(skip)]
@@ -211,6 +215,7 @@ impl Preisach {
         range: Range,
         n: usize,
         offset: f64,
+        reversible: [f64; 2],
         weights: Vec<f64>,
     ) -> Result<Self, HysteresisError> {
         if weights.len() != weight_count(n) {
@@ -223,7 +228,11 @@ impl Preisach {
                 ),
             });
         }
-        if weights.iter().any(|w| !w.is_finite() || *w < 0.0) {
+        if weights
+            .iter()
+            .chain(&reversible)
+            .any(|w| !w.is_finite() || *w < 0.0)
+        {
             return Err(HysteresisError::Invalid {
                 what: "weights",
                 reason: "weights must be finite and non-negative".into(),
@@ -233,6 +242,7 @@ impl Preisach {
             range,
             n,
             offset,
+            reversible,
             weights,
             memory: Memory::default(),
         })
@@ -246,7 +256,10 @@ impl Preisach {
     }
 
     fn output_at(&self, memory: &Memory) -> f64 {
+        let x = memory.input();
         self.offset
+            + self.reversible[0] * x
+            + self.reversible[1] * x * x
             + cells(self.n)
                 .zip(&self.weights)
                 .map(|((a0, a1, b0, b1), w)| {
@@ -282,15 +295,18 @@ impl Preisach {
                 reason: format!("{n}: use 2 to 60"),
             });
         }
-        let k = weight_count(n) + 1; // + offset
+        let k = weight_count(n) + 3; // offset, x, x², weights
         let mut g = DMatrix::<f64>::zeros(k, k);
         let mut h = DVector::<f64>::zeros(k);
         let mut memory = Memory::default();
         let mut row = vec![0.0; k];
         for (&u, &y) in inputs.iter().zip(outputs) {
             memory.apply(range.normalise(u));
-            Self::regressors(n, &memory, &mut row[1..]);
+            let x = memory.input();
+            Self::regressors(n, &memory, &mut row[3..]);
             row[0] = 1.0;
+            row[1] = x;
+            row[2] = x * x;
             for a in 0..k {
                 if row[a] == 0.0 {
                     continue;
@@ -309,7 +325,7 @@ impl Preisach {
         }
         let x = cellinject_numeric::nnls_gram(&g, &h, &[0])
             .map_err(|e| HysteresisError::Solver(e.to_string()))?;
-        let model = Preisach::new(range, n, x[0], x.as_slice()[1..].to_vec())?;
+        let model = Preisach::new(range, n, x[0], [x[1], x[2]], x.as_slice()[3..].to_vec())?;
         crate::Fit::measure(model, inputs, outputs)
     }
 }
@@ -398,7 +414,7 @@ mod tests {
             max: 100.0,
         };
         let w: Vec<f64> = (0..weight_count(8)).map(|k| 1.0 + (k % 5) as f64).collect();
-        let mut p = Preisach::new(range, 8, 0.0, w).unwrap();
+        let mut p = Preisach::new(range, 8, 0.0, [1.0, 0.5], w).unwrap();
         p.apply(70.0);
         let y = p.apply(40.0);
         p.apply(60.0);

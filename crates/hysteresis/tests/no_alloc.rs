@@ -20,7 +20,7 @@ fn steps_and_inverse_steps_allocate_nothing() {
     let w: Vec<f64> = (0..n * (n + 1) / 2)
         .map(|k| 1e-7 * (1 + k % 3) as f64)
         .collect();
-    let mut p = Preisach::new(range, n, 0.0, w).unwrap();
+    let mut p = Preisach::new(range, n, 0.0, [1e-6, 0.0], w).unwrap();
     let mut pi = PrandtlIshlinskii::new(
         range,
         0.0,

@@ -1,0 +1,399 @@
+//! `cellinject hysteresis identify | fit | invert`: identification data from the twin,
+//! models fitted to any (voltage, displacement) CSV, and the voltages that make an
+//! actuator follow a trajectory; each plots what it did.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use cellinject_config::Description;
+use cellinject_core::hysteresis::{self as core, Kind};
+use cellinject_hysteresis::{AnyModel, HysteresisError, Model, Range};
+use cellinject_plot::{Chart, Series};
+use clap::{Subcommand, ValueEnum};
+
+use crate::files::{Kind as FileKind, Plan, Staged, encode_rgb};
+use crate::output::print_json;
+use crate::{Format, InputError};
+
+/// Model classes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ModelArg {
+    /// Discrete Preisach (the default): relay density on a grid, with a reversible part.
+    Preisach,
+    /// Classical Prandtl-Ishlinskii (play operators).
+    Pi,
+    /// Prandtl-Ishlinskii with a quadratic input term (asymmetric loops).
+    PiAsym,
+}
+
+/// `hysteresis` subcommands.
+#[derive(Debug, Subcommand)]
+pub enum HysteresisCommand {
+    /// Drive one stack of the twin through a rich excitation (reversals of every size)
+    /// and record time, voltage and displacement for `hysteresis fit`.
+    #[command(
+        after_help = "Examples:\n  cellinject hysteresis identify --actuator A1 --out ident.csv\n  cellinject hysteresis identify --actuator A2 --samples 6000 --approach 1 --out a2.csv"
+    )]
+    Identify {
+        /// Actuator: A1, A2 or A3.
+        #[arg(long, default_value = "A1")]
+        actuator: String,
+        /// Samples of the excitation (one per millisecond).
+        #[arg(long, default_value_t = 4000, value_parser = clap::value_parser!(u64).range(200..=200_000))]
+        samples: u64,
+        /// CSV output (`time_s,voltage_v,displacement_m`); its plot beside it (SVG, PNG).
+        #[arg(long, default_value = "ident.csv")]
+        out: PathBuf,
+        #[command(flatten)]
+        twin: crate::sim::TwinArgs,
+    },
+    /// Fit a hysteresis model to `time_s,voltage_v,displacement_m` data (from
+    /// `identify` or a real actuator), starting relaxed at 0 V.
+    #[command(
+        after_help = "Examples:\n  cellinject hysteresis fit --data ident.csv --out model.json\n  cellinject hysteresis fit --data ident.csv --model pi-asym --size 16 --out pi.json"
+    )]
+    Fit {
+        /// The data (CSV with a header).
+        #[arg(long, value_name = "FILE.csv")]
+        data: PathBuf,
+        /// Model class.
+        #[arg(long, value_enum, default_value_t = ModelArg::Preisach)]
+        model: ModelArg,
+        /// Grid cells per axis (Preisach) or plays (PI).
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(2..=60))]
+        size: u64,
+        /// Highest input voltage of the model's range (default: the data's highest).
+        #[arg(long)]
+        v_max: Option<f64>,
+        /// Model output (JSON); the measured and modelled loops are plotted beside it.
+        #[arg(long, value_name = "FILE.json")]
+        out: PathBuf,
+        /// Output format of the summary.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+    },
+    /// The voltages that make a modelled actuator, relaxed at 0 V, follow a trajectory.
+    #[command(
+        after_help = "Examples:\n  cellinject hysteresis invert --model model.json --trajectory desired.csv --out command.csv"
+    )]
+    Invert {
+        /// A model from `hysteresis fit`.
+        #[arg(long, value_name = "FILE.json")]
+        model: PathBuf,
+        /// The desired trajectory: CSV `time_s,displacement_m` with a header.
+        #[arg(long, value_name = "FILE.csv")]
+        trajectory: PathBuf,
+        /// Output: CSV `time_s,voltage_v` (one row per input row); the desired and
+        /// predicted trajectories are plotted beside it.
+        #[arg(long, value_name = "FILE.csv")]
+        out: PathBuf,
+        /// Output format of the summary.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+    },
+}
+
+/// Reads a numeric CSV with a header, checking the column names.
+fn read_csv(path: &Path, arg: &str, columns: &[&str]) -> Result<Vec<Vec<f64>>> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| InputError(format!("{arg} `{}`: cannot read: {e}", path.display())))?;
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or("");
+    let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
+    let idx: Vec<usize> = columns
+        .iter()
+        .map(|c| {
+            names.iter().position(|n| n == c).ok_or_else(|| {
+                InputError(format!(
+                    "{arg} `{}`: no column `{c}` in the header `{header}` (expected {})",
+                    path.display(),
+                    columns.join(",")
+                ))
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let mut rows = Vec::new();
+    for (k, line) in lines.enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let cells: Vec<&str> = line.split(',').collect();
+        let row = idx
+            .iter()
+            .map(|&i| {
+                cells
+                    .get(i)
+                    .and_then(|c| c.trim().parse::<f64>().ok())
+                    .filter(|v| v.is_finite())
+            })
+            .collect::<Option<Vec<f64>>>()
+            .ok_or_else(|| {
+                InputError(format!(
+                    "{arg} `{}`, line {}: not {} finite numbers: `{line}`",
+                    path.display(),
+                    k + 2,
+                    columns.len()
+                ))
+            })?;
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+fn hysteresis_error(arg: &str, e: HysteresisError) -> anyhow::Error {
+    match e {
+        HysteresisError::Solver(_) => anyhow::anyhow!("{e}"),
+        e => InputError(format!("{arg}: {e}")).into(),
+    }
+}
+
+fn write_with_plots(
+    files: &[PathBuf],
+    main: &[u8],
+    charts: &[Chart],
+    columns: usize,
+) -> Result<()> {
+    let svg = cellinject_plot::svg(charts, columns, (720, 480)).context("plot")?;
+    let rgb = cellinject_plot::rgb(charts, columns, (720, 480)).context("plot")?;
+    let mut staged = Staged::new();
+    staged.add(&files[0], main)?;
+    staged.add(&files[1], svg.as_bytes())?;
+    staged.add(&files[2], &encode_rgb(rgb, &files[2])?)?;
+    staged.commit()
+}
+
+/// Runs `hysteresis`.
+pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> Result<()> {
+    match cmd {
+        HysteresisCommand::Identify {
+            actuator,
+            samples,
+            out,
+            twin,
+        } => {
+            let mut plan = Plan::new();
+            let files =
+                plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
+            plan.check()?;
+            let d = d()?;
+            let ch = cellinject_core::sim::channel(actuator).ok_or_else(|| {
+                InputError(format!("--actuator must be A1, A2 or A3, got `{actuator}`"))
+            })?;
+            let (tw, mut rig) = crate::sim::build(&d, twin)?;
+            let progress = crate::progress::spinner("the twin runs the excitation");
+            let r = core::identify(&mut rig, ch, *samples as usize, 1e-3, || {
+                tw.lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .actuator_displacement(ch)
+            })
+            .map_err(|e| InputError(e.to_string()))?;
+            drop(progress);
+            let mut csv = String::from("time_s,voltage_v,displacement_m\n");
+            for s in &r.samples {
+                let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
+            }
+            let chart = Chart {
+                title: format!("{}: identification excitation", r.actuator),
+                x_label: "amplifier command [V]".into(),
+                y_label: "stack displacement [µm]".into(),
+                series: vec![Series {
+                    name: r.actuator.into(),
+                    points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
+                }],
+            };
+            write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
+            outln!(
+                "{}: {} samples up to {:.1} V (the safety envelope's limit), 1 ms apart",
+                r.actuator,
+                r.samples.len(),
+                r.v_max
+            );
+            outln!(
+                "wrote {}, {} and {}",
+                files[0].display(),
+                files[1].display(),
+                files[2].display()
+            );
+            Ok(())
+        }
+        HysteresisCommand::Fit {
+            data,
+            model,
+            size,
+            v_max,
+            out,
+            format,
+        } => {
+            let mut plan = Plan::new();
+            plan.input("--data", data);
+            let files = plan.companions(
+                "--out",
+                out,
+                &[FileKind::Json, FileKind::Svg, FileKind::Png],
+            )?;
+            plan.check()?;
+            let rows = read_csv(data, "--data", &["voltage_v", "displacement_m"])?;
+            let volts: Vec<f64> = rows.iter().map(|r| r[0]).collect();
+            let disp: Vec<f64> = rows.iter().map(|r| r[1]).collect();
+            let top = v_max.unwrap_or_else(|| volts.iter().copied().fold(0.0, f64::max));
+            if !(top.is_finite() && top > 0.0)
+                || volts.iter().any(|v| *v < -1e-9 || *v > top + 1e-9)
+            {
+                return Err(InputError(format!(
+                    "--data: the voltages must lie in [0, {top}] V (--v-max)"
+                ))
+                .into());
+            }
+            let kind = match model {
+                ModelArg::Preisach => Kind::Preisach,
+                ModelArg::Pi => Kind::Pi,
+                ModelArg::PiAsym => Kind::PiAsymmetric,
+            };
+            let r = {
+                let _p = crate::progress::spinner("fitting");
+                core::fit(
+                    kind,
+                    *size as usize,
+                    Range { min: 0.0, max: top },
+                    &volts,
+                    &disp,
+                )
+                .map_err(|e| hysteresis_error("--data", e))?
+            };
+            // Measured and modelled loops.
+            let mut m = r.model.clone();
+            m.reset();
+            let modelled: Vec<(f64, f64)> = volts.iter().map(|v| (*v, m.apply(*v) * 1e6)).collect();
+            let chart = Chart {
+                title: format!(
+                    "{:?} fit: RMS {:.1} nm ({:.2} % of the span)",
+                    model,
+                    r.rms * 1e9,
+                    100.0 * r.rms_relative
+                ),
+                x_label: "voltage [V]".into(),
+                y_label: "displacement [µm]".into(),
+                series: vec![
+                    Series {
+                        name: "measured".into(),
+                        points: volts
+                            .iter()
+                            .zip(&disp)
+                            .map(|(v, y)| (*v, y * 1e6))
+                            .collect(),
+                    },
+                    Series {
+                        name: "model".into(),
+                        points: modelled,
+                    },
+                ],
+            };
+            let json = serde_json::to_string_pretty(&r.model)?;
+            write_with_plots(&files, json.as_bytes(), &[chart], 1)?;
+            if *format == Format::Json {
+                return print_json(&r, &[&files[0], &files[1], &files[2]]);
+            }
+            outln!(
+                "{:?} model fitted to {} samples: RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
+                model,
+                r.samples,
+                r.rms * 1e9,
+                100.0 * r.rms_relative,
+                r.max * 1e9
+            );
+            outln!(
+                "wrote {}, {} and {}",
+                files[0].display(),
+                files[1].display(),
+                files[2].display()
+            );
+            Ok(())
+        }
+        HysteresisCommand::Invert {
+            model,
+            trajectory,
+            out,
+            format,
+        } => {
+            let mut plan = Plan::new();
+            plan.input("--model", model)
+                .input("--trajectory", trajectory);
+            let files =
+                plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
+            plan.check()?;
+            let text = std::fs::read_to_string(model).map_err(|e| {
+                InputError(format!("--model `{}`: cannot read: {e}", model.display()))
+            })?;
+            let m: AnyModel = serde_json::from_str(&text).map_err(|e| {
+                InputError(format!(
+                    "--model `{}`: not a model from `hysteresis fit`: {e}",
+                    model.display()
+                ))
+            })?;
+            let rows = read_csv(trajectory, "--trajectory", &["time_s", "displacement_m"])?;
+            if rows.is_empty() {
+                return Err(InputError(format!(
+                    "--trajectory `{}`: no rows",
+                    trajectory.display()
+                ))
+                .into());
+            }
+            let targets: Vec<f64> = rows.iter().map(|r| r[1]).collect();
+            let r = core::invert(&m, &targets).map_err(|e| hysteresis_error("--trajectory", e))?;
+            let mut csv = String::from("time_s,voltage_v\n");
+            for (row, v) in rows.iter().zip(&r.volts) {
+                let _ = writeln!(csv, "{:.6},{:.6}", row[0], v);
+            }
+            let t: Vec<f64> = rows.iter().map(|r| r[0]).collect();
+            let charts = [
+                Chart {
+                    title: "desired and predicted displacement".into(),
+                    x_label: "time [s]".into(),
+                    y_label: "displacement [µm]".into(),
+                    series: vec![
+                        Series {
+                            name: "desired".into(),
+                            points: t.iter().zip(&targets).map(|(t, y)| (*t, y * 1e6)).collect(),
+                        },
+                        Series {
+                            name: "model's prediction".into(),
+                            points: t
+                                .iter()
+                                .zip(&r.predicted)
+                                .map(|(t, y)| (*t, y * 1e6))
+                                .collect(),
+                        },
+                    ],
+                },
+                Chart {
+                    title: "command".into(),
+                    x_label: "time [s]".into(),
+                    y_label: "voltage [V]".into(),
+                    series: vec![Series {
+                        name: "command".into(),
+                        points: t.iter().zip(&r.volts).map(|(t, v)| (*t, *v)).collect(),
+                    }],
+                },
+            ];
+            write_with_plots(&files, csv.as_bytes(), &charts, 2)?;
+            if *format == Format::Json {
+                return print_json(&r, &[&files[0], &files[1], &files[2]]);
+            }
+            outln!(
+                "{} samples: voltages from {:.3} to {:.3} V; largest model residual {:.2e} m",
+                r.samples,
+                r.voltage_range[0],
+                r.voltage_range[1],
+                r.residual
+            );
+            outln!(
+                "wrote {}, {} and {}",
+                files[0].display(),
+                files[1].display(),
+                files[2].display()
+            );
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,227 @@
+//! `hysteresis identify | fit | invert`: hysteresis models from a rig's measurements or
+//! any (voltage, displacement) data, and the voltages that make an actuator follow a
+//! trajectory.
+
+use cellinject_hw::{Clock, PiezoChannel};
+use cellinject_hysteresis::{
+    AnyModel, HysteresisError, Model, PrandtlIshlinskii, Preisach, Range, excitation, inverse,
+};
+use cellinject_model::ACTUATOR_NAMES;
+use cellinject_rig::{Backend, Rig};
+use serde::Serialize;
+
+use crate::sim::SimError;
+
+/// Which model to fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// Discrete Preisach on `size` x `size` cells.
+    Preisach,
+    /// Classical Prandtl-Ishlinskii with `size` plays.
+    Pi,
+    /// Prandtl-Ishlinskii with a quadratic input term.
+    PiAsymmetric,
+}
+
+/// The identification run of `hysteresis identify`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct IdentifyReport {
+    /// A1, A2 or A3.
+    pub actuator: &'static str,
+    /// V, the highest voltage of the excitation (the safety envelope's limit if lower
+    /// than the amplifier's).
+    pub v_max: f64,
+    /// (s, V, m) per sample.
+    pub samples: Vec<[f64; 3]>,
+}
+
+/// Drives channel `ch` through the rich excitation of `n` samples, `dt` apart, up to
+/// the highest voltage the safety envelope allows, measuring with `measure`.
+pub fn identify<B: Backend>(
+    rig: &mut Rig<B>,
+    ch: usize,
+    n: usize,
+    dt: f64,
+    mut measure: impl FnMut() -> f64,
+) -> Result<IdentifyReport, SimError> {
+    let name = ACTUATOR_NAMES[ch];
+    let v_max = rig.max_safe_voltage(ch).unwrap_or(0.0);
+    if v_max <= 0.0 {
+        return Err(SimError::Invalid {
+            arg: "--actuator",
+            value: ch as f64,
+            reason: format!("{name} has no safe voltage above 0 V in this assembly"),
+        });
+    }
+    let volts = excitation(
+        Range {
+            min: 0.0,
+            max: v_max,
+        },
+        n,
+    );
+    let start = measure();
+    let mut samples = Vec::with_capacity(n);
+    for v in volts {
+        let dev = |source| SimError::Device {
+            what: "identification",
+            source,
+        };
+        rig.piezo[ch].set_voltage(v).map_err(dev)?;
+        rig.clock.sleep(dt).map_err(dev)?;
+        samples.push([rig.clock.now(), v, measure() - start]);
+    }
+    Ok(IdentifyReport {
+        actuator: name,
+        v_max,
+        samples,
+    })
+}
+
+/// The result of `hysteresis fit`: the model and how well it fits.
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `model` | | the fitted model (`"model": "preisach"` or `"pi"`), its input range in V |
+/// | `rms`, `max` | m | fit error over the data |
+/// | `rms_relative` | 1 | `rms` over the data's span |
+/// | `samples` | | rows used |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FitReport {
+    /// The model.
+    pub model: AnyModel,
+    /// m.
+    pub rms: f64,
+    /// m.
+    pub max: f64,
+    /// 1.
+    pub rms_relative: f64,
+    /// Rows.
+    pub samples: usize,
+}
+
+/// Fits a model of `kind` and `size` (cells or plays) to (V, m) samples in time order,
+/// starting relaxed at 0 V, on the input range `range`.
+pub fn fit(
+    kind: Kind,
+    size: usize,
+    range: Range,
+    volts: &[f64],
+    disp: &[f64],
+) -> Result<FitReport, HysteresisError> {
+    let lambda = 1e-7;
+    let (model, rms, max, span, samples) = match kind {
+        Kind::Preisach => {
+            let f = Preisach::identify(range, size, volts, disp, lambda)?;
+            (AnyModel::Preisach(f.model), f.rms, f.max, f.span, f.samples)
+        }
+        Kind::Pi | Kind::PiAsymmetric => {
+            let f = PrandtlIshlinskii::identify(
+                range,
+                size,
+                kind == Kind::PiAsymmetric,
+                volts,
+                disp,
+                lambda,
+            )?;
+            (AnyModel::Pi(f.model), f.rms, f.max, f.span, f.samples)
+        }
+    };
+    Ok(FitReport {
+        model,
+        rms,
+        max,
+        rms_relative: rms / span.max(1e-300),
+        samples,
+    })
+}
+
+/// The result of `hysteresis invert`.
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `samples` | | rows |
+/// | `voltage_range` | V | lowest and highest command |
+/// | `residual` | m | largest |model output − target| |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct InvertReport {
+    /// Rows.
+    pub samples: usize,
+    /// V.
+    pub voltage_range: [f64; 2],
+    /// m.
+    pub residual: f64,
+    /// The commands, V, one per target.
+    #[serde(skip)]
+    pub volts: Vec<f64>,
+    /// What the model predicts for them, m.
+    #[serde(skip)]
+    pub predicted: Vec<f64>,
+}
+
+/// The voltages that make `model`, relaxed at 0 V, follow `targets` (m).
+pub fn invert(model: &AnyModel, targets: &[f64]) -> Result<InvertReport, HysteresisError> {
+    let mut m = model.clone();
+    m.reset();
+    let mut volts = Vec::with_capacity(targets.len());
+    let residual = inverse(&mut m, targets, &mut volts)?;
+    let mut replay = model.clone();
+    replay.reset();
+    let predicted = volts.iter().map(|v| replay.apply(*v)).collect();
+    let lo = volts.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = volts.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    Ok(InvertReport {
+        samples: volts.len(),
+        voltage_range: [lo, hi],
+        residual,
+        volts,
+        predicted,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use cellinject_model::prototype;
+    use cellinject_rig::{RigParams, fake};
+
+    #[test]
+    fn an_identification_run_stays_inside_the_envelope_and_fits() {
+        // The fake's "displacement" is a hysteresis-free 0.3 µm/V: a fitted model must
+        // reproduce it closely and invert it to the same line.
+        let p = RigParams {
+            approach: cellinject_model::Approach::DriveTranslation,
+            ..RigParams::default()
+        };
+        let (devices, _) = fake::devices(&p);
+        let mut rig = Rig::new(devices, &prototype(), &p).unwrap();
+        let guard = rig.guard.clone();
+        let r = identify(&mut rig, 0, 1500, 1e-3, || {
+            0.3e-6 * cellinject_rig::guard::lock(&guard).commanded()[0]
+        })
+        .unwrap();
+        // Approach 1's torque limit caps A1 near 68 V.
+        assert!(r.v_max > 60.0 && r.v_max < 75.0, "{}", r.v_max);
+        assert!(r.samples.iter().all(|s| s[1] <= r.v_max + 1e-9));
+        let v: Vec<f64> = r.samples.iter().map(|s| s[1]).collect();
+        let y: Vec<f64> = r.samples.iter().map(|s| s[2]).collect();
+        let f = fit(
+            Kind::Preisach,
+            16,
+            Range {
+                min: 0.0,
+                max: r.v_max,
+            },
+            &v,
+            &y,
+        )
+        .unwrap();
+        assert!(f.rms_relative < 2e-3, "{}", f.rms_relative);
+        let inv = invert(&f.model, &[3e-6, 6e-6, 4e-6]).unwrap();
+        for (u, yd) in inv.volts.iter().zip([3e-6, 6e-6, 4e-6]) {
+            assert!((u * 0.3e-6 - yd).abs() < 0.02 * yd, "{u} V for {yd}");
+        }
+    }
+}
