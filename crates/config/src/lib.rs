@@ -316,6 +316,7 @@ mod tests {
             ("approach = 2", "approach = 3", "twin.approach"),
             ("rows = 4", "rows = 4.5", "feeder.rows"),
             ("gamma = 0.015", "gama = 0.015", "actuators.A1.creep.gama"),
+            ("noise = 3.0e-9", "noise = -3.0e-9", "sensor.noise"),
         ] {
             let e = replace(from, to).unwrap_err();
             assert_eq!(e.key(), Some(key), "{from} -> {to}: {e}");

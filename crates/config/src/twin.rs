@@ -104,6 +104,16 @@ pub(crate) fn bench(
             expansion: s.num("expansion", d.expansion, Check::Between(-1e-5, 1e-5))?,
         })
     })?;
+    let sensors = with(top, "sensor", d.sensors, |s, d| {
+        Ok(cellinject_simparams::SensorParams {
+            noise: s.num("noise", d.noise, Check::NonNegative)?,
+            thermal_drift: s.num(
+                "thermal_drift",
+                d.thermal_drift,
+                Check::Between(-1e-6, 1e-6),
+            )?,
+        })
+    })?;
     let mut stage_travel = r.stage_travel;
     let stage = with(top, "stage", d.stage, |s, d| {
         stage_travel = s.num("travel", stage_travel, Check::Positive)?;
@@ -230,6 +240,7 @@ pub(crate) fn bench(
         dynamics,
         joints,
         thermal,
+        sensors,
         stage,
         camera,
         lens,

@@ -1,7 +1,8 @@
 //! # cellinject-hw
 //!
 //! The small traits through which cellinject talks to hardware, after openrr's `arci`:
-//! a piezo amplifier channel, a camera, a translational stage, an injector and a clock.
+//! a piezo amplifier channel, a stack position sensor, a camera, a translational stage,
+//! an injector and a clock.
 //! a zoom lens. The digital twin implements every trait (crate `cellinject-twin`), real
 //! drivers will too, and the controllers see only the traits. Safety limits are
 //! wrappers around any implementation (crate `cellinject-rig`): an unsafe command is
@@ -275,6 +276,18 @@ pub trait Injector: Send {
     fn max_pressure(&self) -> f64;
     /// Applies a pressure pulse (gauge pressure in Pa, duration in s).
     fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError>;
+}
+
+/// A position sensor on one stack (strain gauges, as on PI's P-8xx stacks): it reads
+/// the stack's extension, not the end-effector's position, so it cannot see what
+/// happens after the stack (the joints' stick-slip, the lever).
+pub trait PositionSensor: Send {
+    /// Sensor name (the stack's: A1, A2, A3).
+    fn name(&self) -> &str;
+    /// The stack's extension now, m (noise and drift included).
+    fn read(&mut self) -> Result<f64, HwError>;
+    /// Rms noise of one reading, m, as the device states it.
+    fn noise(&self) -> f64;
 }
 
 /// A zoom lens.

@@ -5,8 +5,8 @@
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use cellinject_hw::{
-    Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, Roi, Stage,
-    check_range,
+    Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, PositionSensor,
+    Roi, Stage, check_range,
 };
 use cellinject_model::ACTUATOR_NAMES;
 
@@ -67,6 +67,7 @@ pub struct FakeBackend;
 
 impl Backend for FakeBackend {
     type Piezo = FakePiezo;
+    type Sensor = FakeSensor;
     type Camera = FakeCamera;
     type Stage = FakeStage;
     type Injector = FakeInjector;
@@ -112,6 +113,34 @@ impl PiezoChannel for FakePiezo {
     }
     fn read_voltage(&mut self) -> Result<f64, HwError> {
         Ok(self.volts)
+    }
+}
+
+/// A sensor that reads a linear, noise-free stack: 0.3 µm per volt of its channel's
+/// last accepted command (a stand-in for tests; it knows nothing of physics).
+#[derive(Debug)]
+pub struct FakeSensor {
+    log: Log,
+    channel: usize,
+}
+
+impl PositionSensor for FakeSensor {
+    fn name(&self) -> &str {
+        ACTUATOR_NAMES[self.channel]
+    }
+    fn read(&mut self) -> Result<f64, HwError> {
+        let volts = records(&self.log)
+            .iter()
+            .rev()
+            .find_map(|r| match r {
+                Record::Voltage { channel, volts } if *channel == self.channel => Some(*volts),
+                _ => None,
+            })
+            .unwrap_or(0.0);
+        Ok(0.3e-6 * volts)
+    }
+    fn noise(&self) -> f64 {
+        0.0
     }
 }
 
@@ -256,6 +285,10 @@ pub fn devices(rig: &RigParams) -> (Devices<FakeBackend>, Log) {
     });
     let devices = Devices {
         piezo,
+        sensors: [0, 1, 2].map(|channel| FakeSensor {
+            log: log.clone(),
+            channel,
+        }),
         camera: FakeCamera {
             settings: CameraSettings {
                 roi: Roi {

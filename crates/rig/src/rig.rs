@@ -1,6 +1,6 @@
 //! The guarded device set of one bench, over any backend.
 
-use cellinject_hw::{Camera, Clock, Injector, Optics, PiezoChannel, Stage};
+use cellinject_hw::{Camera, Clock, Injector, Optics, PiezoChannel, PositionSensor, Stage};
 use cellinject_model::{Design, Mechanism, ModelError};
 use thiserror::Error;
 
@@ -15,6 +15,8 @@ use crate::params::RigParams;
 pub trait Backend {
     /// One amplifier channel.
     type Piezo: PiezoChannel;
+    /// One stack's position sensor.
+    type Sensor: PositionSensor;
     /// The microscope camera.
     type Camera: Camera;
     /// The macro stage.
@@ -31,6 +33,8 @@ pub trait Backend {
 pub struct Devices<B: Backend> {
     /// A1, A2, A3.
     pub piezo: [B::Piezo; 3],
+    /// The stacks' position sensors, A1, A2, A3.
+    pub sensors: [B::Sensor; 3],
     /// Camera.
     pub camera: B::Camera,
     /// Stage.
@@ -72,6 +76,8 @@ pub struct Rig<B: Backend> {
     pub piezo: [GuardedPiezo<B::Piezo>; 3],
     /// The envelope's shared state.
     pub guard: SharedGuard,
+    /// The stacks' position sensors (read-only: nothing to guard).
+    pub sensors: [B::Sensor; 3],
     /// Camera (nothing to guard).
     pub camera: B::Camera,
     /// Stage within the rig's travel.
@@ -124,6 +130,7 @@ impl<B: Backend> Rig<B> {
                 GuardedPiezo::new(a3, 2, guard.clone()),
             ],
             guard,
+            sensors: devices.sensors,
             camera: devices.camera,
             stage: GuardedStage::new(devices.stage, Some(vec![limits; axes])),
             injector: GuardedInjector::new(devices.injector, rig.injector_max_pressure),

@@ -159,6 +159,24 @@ pub struct ThermalParams {
     pub expansion: f64,
 }
 
+/// The stacks' strain-gauge position sensors (PI's P-8xx stacks: a few nm of noise).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SensorParams {
+    /// m rms, noise of one reading.
+    pub noise: f64,
+    /// m/K, the reading's drift with the ambient temperature (see [`ThermalParams`]).
+    pub thermal_drift: f64,
+}
+
+impl Default for SensorParams {
+    fn default() -> Self {
+        SensorParams {
+            noise: 3.0e-9,
+            thermal_drift: 5.0e-9,
+        }
+    }
+}
+
 /// How the macro stage M1-M3 moves (its travel is the rig's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StageParams {
@@ -310,6 +328,8 @@ pub struct SimParams {
     pub joints: JointParams,
     /// Temperature drift.
     pub thermal: ThermalParams,
+    /// Stack position sensors.
+    pub sensors: SensorParams,
     /// Macro stage motion.
     pub stage: StageParams,
     /// Camera sensor.
@@ -330,6 +350,7 @@ impl Default for SimParams {
             dynamics: DynamicsParams::default(),
             joints: JointParams::default(),
             thermal: ThermalParams::default(),
+            sensors: SensorParams::default(),
             stage: StageParams::default(),
             camera: CameraParams::default(),
             lens: LensParams::default(),

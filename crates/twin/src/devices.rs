@@ -8,10 +8,11 @@
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use cellinject_hw::{
-    Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, Stage,
-    check_range,
+    Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, PositionSensor,
+    Stage, check_range,
 };
 use cellinject_model::{ACTUATOR_NAMES, Design};
+use cellinject_numeric::Rng;
 use cellinject_rig::{Backend, Devices, Rig, RigError};
 
 use crate::camera::{Microscope, TipPose};
@@ -151,6 +152,31 @@ impl PiezoChannel for TwinPiezo {
     }
 }
 
+/// A stack's strain-gauge sensor on the twin: the stack's true extension, with the
+/// sensor's noise (its own random stream) and its drift with temperature. It sees the
+/// stack only: the joints' stick-slip and the lever are beyond it.
+pub struct TwinSensor {
+    twin: SharedTwin,
+    channel: usize,
+    rng: Rng,
+}
+
+impl PositionSensor for TwinSensor {
+    fn name(&self) -> &str {
+        ACTUATOR_NAMES[self.channel]
+    }
+    fn read(&mut self) -> Result<f64, HwError> {
+        let t = lock(&self.twin);
+        let p = t.world.params().sim;
+        let extension = t.world.snapshot().extension[self.channel];
+        let drift = p.sensors.thermal_drift * p.thermal.drift_rate * t.world.time();
+        Ok(extension + drift + p.sensors.noise * self.rng.gaussian_exact())
+    }
+    fn noise(&self) -> f64 {
+        lock(&self.twin).world.params().sim.sensors.noise
+    }
+}
+
 /// The twin's camera.
 pub struct TwinCamera {
     twin: SharedTwin,
@@ -261,6 +287,7 @@ pub struct TwinBackend;
 
 impl Backend for TwinBackend {
     type Piezo = TwinPiezo;
+    type Sensor = TwinSensor;
     type Camera = TwinCamera;
     type Stage = TwinStage;
     type Injector = TwinInjector;
@@ -274,8 +301,15 @@ pub fn devices(twin: &SharedTwin) -> Devices<TwinBackend> {
         twin: twin.clone(),
         channel,
     });
+    let seed = lock(twin).world.params().sim.seed;
+    let sensors = [0, 1, 2].map(|channel| TwinSensor {
+        twin: twin.clone(),
+        channel,
+        rng: Rng::new(seed, crate::world::stream::SENSOR + channel as u64),
+    });
     Devices {
         piezo,
+        sensors,
         camera: TwinCamera { twin: twin.clone() },
         stage: TwinStage { twin: twin.clone() },
         injector: TwinInjector { twin: twin.clone() },

@@ -19,6 +19,8 @@ pub(crate) mod stream {
     pub const JOINTS: u64 = 2;
     pub const CAMERA: u64 = 3;
     pub const SCENE: u64 = 4;
+    /// A1's sensor; A2's and A3's follow.
+    pub const SENSOR: u64 = 5;
 }
 
 /// Why a twin could not be built.

@@ -214,3 +214,34 @@ fn a_fixed_scenario_is_bit_for_bit_reproducible() {
 }
 
 const HELD_DIGEST: &str = "2aa37d5c1dcc37c5";
+
+#[test]
+fn the_stack_sensor_reads_the_extension_with_its_noise() {
+    use cellinject_hw::PositionSensor;
+    let t = twin(Approach::JointDeflection, 4);
+    let mut dev = rig(&t).unwrap();
+    dev.piezo[0].set_voltage(40.0).unwrap();
+    dev.clock.sleep(0.2).unwrap();
+    let n = 4000;
+    let (mut s, mut s2) = (0.0, 0.0);
+    for _ in 0..n {
+        let truth = t.lock().unwrap().world.snapshot().extension[0];
+        let e = dev.sensors[0].read().unwrap() - truth;
+        s += e;
+        s2 += e * e;
+    }
+    let mean = s / n as f64;
+    let sd = (s2 / n as f64 - mean * mean).sqrt();
+    let noise = dev.sensors[0].noise();
+    assert!((sd / noise - 1.0).abs() < 0.06, "{sd} vs {noise}");
+    assert!(mean.abs() < 4.0 * noise / (n as f64).sqrt(), "{mean}");
+    // The stack moved by micrometres under the mechanism's load (about 9 µm at 40 V):
+    // far above the noise, and read to it.
+    let truth = t.lock().unwrap().world.snapshot().extension[0];
+    let reading = dev.sensors[0].read().unwrap();
+    assert!(truth > 5e-6, "{truth}");
+    assert!(
+        (reading - truth).abs() < 5.0 * noise,
+        "{reading} vs {truth}"
+    );
+}
