@@ -210,6 +210,21 @@ impl<'a> Section<'a> {
         Ok(v)
     }
 
+    /// An optional array of numbers without a default, each checked.
+    pub(crate) fn opt_arr<const N: usize>(
+        &mut self,
+        k: &str,
+        check: Check,
+    ) -> Result<Option<[f64; N]>, ConfigError> {
+        let Some(v) = self.opt_array::<N>(k)? else {
+            return Ok(None);
+        };
+        for (i, x) in v.iter().enumerate() {
+            check.verify(&format!("{}[{i}]", self.key(k)), *x)?;
+        }
+        Ok(Some(v))
+    }
+
     /// An optional whole number with a default, within [min, max].
     pub(crate) fn int(
         &mut self,

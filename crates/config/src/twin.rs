@@ -83,8 +83,21 @@ pub(crate) fn bench(
         Ok((approach, s.int("seed", seed, 0, u64::MAX)?))
     })?;
     let dynamics = with(top, "dynamics", d.dynamics, |s, d| {
+        let inertia = s.opt_arr("inertia", Check::Positive)?;
+        let freqs = s.opt_arr("tilt_frequencies", Check::Positive)?;
+        let tilt_frequencies = match (inertia, freqs) {
+            (Some(_), Some(_)) => {
+                return Err(ConfigError::Invalid {
+                    key: s.key("tilt_frequencies"),
+                    reason: "give either tilt_frequencies or inertia, not both".into(),
+                });
+            }
+            (Some(_), None) => None,
+            (None, f) => f.or(d.tilt_frequencies),
+        };
         Ok(cellinject_simparams::DynamicsParams {
-            inertia: s.arr("inertia", d.inertia, Check::Positive)?,
+            inertia: inertia.unwrap_or(d.inertia),
+            tilt_frequencies,
             a3_mass: s.num("a3_mass", d.a3_mass, Check::Positive)?,
             a3_stiffness: s.num("a3_stiffness", d.a3_stiffness, Check::Positive)?,
             damping_ratio: s.num("damping_ratio", d.damping_ratio, Check::Between(1e-4, 0.99))?,

@@ -94,8 +94,14 @@ pub struct StackParams {
 /// Rigid-body dynamics of body 1 with the pipette on its flexures.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DynamicsParams {
-    /// kg·m², moments of inertia of body 1 (with A3 and the pipette) about J3's two axes.
+    /// kg·m², moments of inertia of body 1 (with A3 and the pipette) about J3's two axes;
+    /// used when `tilt_frequencies` is `None`.
     pub inertia: [f64; 2],
+    /// Hz, the tilt modes about J3's axes q1 (base y) and q2 (body x), as the structural
+    /// model finds them (`cellinject fea modes`: J1's axial and J3's lateral compliance
+    /// and the stacks' mass, which the pseudo-rigid-body model lacks); the inertias are
+    /// then set so that each axis rings at its frequency.
+    pub tilt_frequencies: Option<[f64; 2]>,
     /// kg, moving mass of the injection axis (pipette holder and pipette) on A3.
     pub a3_mass: f64,
     /// N/m, axial stiffness of A3 (used by the dynamics only).
@@ -110,6 +116,8 @@ impl Default for DynamicsParams {
     fn default() -> Self {
         DynamicsParams {
             inertia: [1.2e-3, 1.2e-3],
+            // `cellinject fea modes --approach 2` on the prototype (joints at level 1).
+            tilt_frequencies: Some([552.7, 617.8]),
             a3_mass: 0.02,
             a3_stiffness: 20.0e6,
             damping_ratio: 0.02,

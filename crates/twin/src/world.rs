@@ -197,7 +197,20 @@ impl World {
         };
         let lt_kl = lp.transpose() * kl;
         let f0 = kq * q_rest + lt_kl * l_base;
-        let mut tilt = TiltDynamics::new(d.inertia, &k, d.damping_ratio, dt);
+        // The structural model's tilt frequencies, when given, set the inertias.
+        let inertia = match d.tilt_frequencies {
+            Some(f) => {
+                if !f.iter().all(|f| f.is_finite() && *f > 0.0) {
+                    return Err(invalid(
+                        "dynamics.tilt_frequencies",
+                        "must be positive frequencies",
+                    ));
+                }
+                [0, 1].map(|i| k[(i, i)] / (2.0 * std::f64::consts::PI * f[i]).powi(2))
+            }
+            None => d.inertia,
+        };
+        let mut tilt = TiltDynamics::new(inertia, &k, d.damping_ratio, dt);
         tilt.settle(&f0);
         let a3_omega = (d.a3_stiffness / d.a3_mass).sqrt();
         let a3 = Oscillator::new(a3_omega, d.damping_ratio, dt);

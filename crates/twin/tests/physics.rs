@@ -21,6 +21,8 @@ fn twin_params(approach: Approach, seed: u64) -> TwinParams {
 
 fn quiet(approach: Approach) -> TwinParams {
     let mut p = twin_params(approach, 1);
+    // The inertias as given (the closed-form frequency check below derives from them).
+    p.sim.dynamics.tilt_frequencies = None;
     for s in &mut p.sim.stacks {
         s.amplifier.noise = 0.0;
         s.creep.gamma = 0.0;
@@ -171,6 +173,19 @@ fn expected_tilt_frequency(p: &TwinParams) -> f64 {
     let k2 = d.flexures.j3[1] + d.flexures.j1[0] * w * w + g.b1 * g.b1 * 27e6;
     let k = Matrix2::new(k1, 0.0, 0.0, k2);
     (k[(0, 0)] / p.sim.dynamics.inertia[0]).sqrt() / (2.0 * std::f64::consts::PI)
+}
+
+#[test]
+fn the_structural_models_tilt_frequencies_set_the_ringing() {
+    // The default twin rings at the frequencies of `fea modes`, not the PRB's 721 Hz.
+    let p = twin_params(Approach::JointDeflection, 1);
+    let f = p.sim.dynamics.tilt_frequencies.unwrap();
+    let w = World::new(&prototype(), p).unwrap();
+    let n = w.natural_frequencies();
+    assert!(
+        (n[0] / f[0] - 1.0).abs() < 1e-9 && (n[1] / f[1] - 1.0).abs() < 1e-9,
+        "{n:?}"
+    );
 }
 
 #[test]
