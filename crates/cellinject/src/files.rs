@@ -337,6 +337,36 @@ where
     Ok(buf.into_inner())
 }
 
+/// Writes a main file (`files[0]`: CSV, JSON, ...) with its plot as SVG (`files[1]`) and
+/// PNG (`files[2]`), all together (`Staged`): the companions of `Plan::companions`.
+pub fn write_with_plots(
+    files: &[PathBuf],
+    main: &[u8],
+    charts: &[cellinject_plot::Chart],
+    columns: usize,
+) -> Result<()> {
+    let size = (720, 480);
+    let svg =
+        cellinject_plot::svg(charts, columns, size).map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    let rgb =
+        cellinject_plot::rgb(charts, columns, size).map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    let mut staged = Staged::new();
+    staged.add(&files[0], main)?;
+    staged.add(&files[1], svg.as_bytes())?;
+    staged.add(&files[2], &encode_rgb(rgb, &files[2])?)?;
+    staged.commit()
+}
+
+/// "wrote a, b and c" for the files a command wrote.
+pub fn wrote(files: &[PathBuf]) -> String {
+    let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+    match names.split_last() {
+        None => "wrote nothing".into(),
+        Some((last, [])) => format!("wrote {last}"),
+        Some((last, rest)) => format!("wrote {} and {last}", rest.join(", ")),
+    }
+}
+
 /// A rendered plot encoded in the format its path names (PNG or TIFF).
 pub fn encode_rgb(rgb: cellinject_plot::Rgb, path: &Path) -> Result<Vec<u8>> {
     let img = image::RgbImage::from_raw(rgb.width, rgb.height, rgb.data)

@@ -5,14 +5,14 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use cellinject_config::Description;
 use cellinject_core::hysteresis::{self as core, Kind};
 use cellinject_hysteresis::{AnyModel, HysteresisError, Model, Range};
 use cellinject_plot::{Chart, Series};
 use clap::{Subcommand, ValueEnum};
 
-use crate::files::{Kind as FileKind, Plan, Staged, encode_rgb};
+use crate::files::{Kind as FileKind, Plan, write_with_plots, wrote};
 use crate::output::print_json;
 use crate::{Format, InputError};
 
@@ -148,21 +148,6 @@ fn hysteresis_error(arg: &str, e: HysteresisError) -> anyhow::Error {
     }
 }
 
-fn write_with_plots(
-    files: &[PathBuf],
-    main: &[u8],
-    charts: &[Chart],
-    columns: usize,
-) -> Result<()> {
-    let svg = cellinject_plot::svg(charts, columns, (720, 480)).context("plot")?;
-    let rgb = cellinject_plot::rgb(charts, columns, (720, 480)).context("plot")?;
-    let mut staged = Staged::new();
-    staged.add(&files[0], main)?;
-    staged.add(&files[1], svg.as_bytes())?;
-    staged.add(&files[2], &encode_rgb(rgb, &files[2])?)?;
-    staged.commit()
-}
-
 /// Runs `hysteresis`.
 pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> Result<()> {
     match cmd {
@@ -189,10 +174,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             })
             .map_err(|e| InputError(e.to_string()))?;
             drop(progress);
-            let mut csv = String::from("time_s,voltage_v,displacement_m\n");
-            for s in &r.samples {
-                let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
-            }
+            let csv = crate::sim::voltage_displacement_csv(&r.samples);
             let chart = Chart {
                 title: format!("{}: identification excitation", r.actuator),
                 x_label: "amplifier command [V]".into(),
@@ -209,12 +191,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                 r.samples.len(),
                 r.v_max
             );
-            outln!(
-                "wrote {}, {} and {}",
-                files[0].display(),
-                files[1].display(),
-                files[2].display()
-            );
+            outln!("{}", wrote(&files));
             Ok(())
         }
         HysteresisCommand::Fit {
@@ -302,12 +279,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                 100.0 * r.rms_relative,
                 r.max * 1e9
             );
-            outln!(
-                "wrote {}, {} and {}",
-                files[0].display(),
-                files[1].display(),
-                files[2].display()
-            );
+            outln!("{}", wrote(&files));
             Ok(())
         }
         HysteresisCommand::Invert {
@@ -387,12 +359,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                 r.voltage_range[1],
                 r.residual
             );
-            outln!(
-                "wrote {}, {} and {}",
-                files[0].display(),
-                files[1].display(),
-                files[2].display()
-            );
+            outln!("{}", wrote(&files));
             Ok(())
         }
     }

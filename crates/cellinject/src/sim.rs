@@ -15,7 +15,7 @@ use cellinject_twin::devices::displacement_in;
 use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
 use clap::{Args, Subcommand};
 
-use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
+use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb, write_with_plots, wrote};
 use crate::output::print_json;
 use crate::{Format, InputError};
 
@@ -149,30 +149,21 @@ fn lock(twin: &SharedTwin) -> std::sync::MutexGuard<'_, Twin> {
 }
 
 /// The CSV and the plot (SVG and PNG) of a loop or step, checked before the twin runs.
-fn csv_and_plots(out: &Path) -> Result<[PathBuf; 3]> {
+fn csv_and_plots(out: &Path) -> Result<Vec<PathBuf>> {
     let mut plan = Plan::new();
     let files = plan.companions("--out", out, &[Kind::Csv, Kind::Svg, Kind::Png])?;
     plan.check()?;
-    Ok([files[0].clone(), files[1].clone(), files[2].clone()])
+    Ok(files)
 }
 
-/// Writes the CSV and the plots together.
-fn write_csv_and_plots(
-    [csv_path, svg_path, png_path]: &[PathBuf; 3],
-    csv: &str,
-    charts: &[Chart],
-    columns: usize,
-) -> Result<()> {
-    let svg = cellinject_plot::svg(charts, columns, (720, 480)).context("plot")?;
-    let png = encode_rgb(
-        cellinject_plot::rgb(charts, columns, (720, 480)).context("plot")?,
-        png_path,
-    )?;
-    let mut staged = Staged::new();
-    staged.add(csv_path, csv.as_bytes())?;
-    staged.add(svg_path, svg.as_bytes())?;
-    staged.add(png_path, &png)?;
-    staged.commit()
+/// (s, V, m) samples as the CSV `time_s,voltage_v,displacement_m` that `sim loop` and
+/// `hysteresis identify` write and `hysteresis fit` reads.
+pub(crate) fn voltage_displacement_csv(samples: &[[f64; 3]]) -> String {
+    let mut csv = String::from("time_s,voltage_v,displacement_m\n");
+    for s in samples {
+        let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
+    }
+    csv
 }
 
 /// `sim loop`.
@@ -193,10 +184,7 @@ fn run_loop(
     })
     .map_err(sim_error)?;
     drop(progress);
-    let mut csv = String::from("time_s,voltage_v,displacement_m\n");
-    for s in &r.samples {
-        let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
-    }
+    let csv = voltage_displacement_csv(&r.samples);
     let chart = Chart {
         title: format!("{}: hysteresis loop with nested minor loops", r.actuator),
         x_label: "amplifier output [V]".into(),
@@ -206,7 +194,7 @@ fn run_loop(
             points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
         }],
     };
-    write_csv_and_plots(&files, &csv, &[chart], 1)?;
+    write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
     if args.format == Format::Json {
         return print_json(r.summary(), &[&files[0], &files[1], &files[2]]);
     }
@@ -217,12 +205,7 @@ fn run_loop(
         r.stroke * 1e6,
         r.samples.len()
     );
-    outln!(
-        "wrote {}, {} and {}",
-        files[0].display(),
-        files[1].display(),
-        files[2].display()
-    );
+    outln!("{}", wrote(&files));
     Ok(())
 }
 
@@ -310,7 +293,7 @@ fn run_step(
     // A run that ends within the ringing has no creep to show: one panel.
     let creep = charts[1].series[0].points.len() >= 2;
     let charts = if creep { &charts[..] } else { &charts[..1] };
-    write_csv_and_plots(&files, &csv, charts, charts.len())?;
+    write_with_plots(&files, csv.as_bytes(), charts, charts.len())?;
     let f = lock(&twin).world.natural_frequencies();
     if args.format == Format::Json {
         return print_json(
@@ -335,12 +318,7 @@ fn run_step(
         f[1],
         f[2]
     );
-    outln!(
-        "wrote {}, {} and {}",
-        files[0].display(),
-        files[1].display(),
-        files[2].display()
-    );
+    outln!("{}", wrote(&files));
     Ok(())
 }
 

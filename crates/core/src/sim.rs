@@ -92,17 +92,16 @@ pub fn hysteresis_loop<B: Backend>(
     }
     let safe = rig.max_safe_voltage(ch).unwrap_or(0.0);
     if amp > safe {
-        let mut volts = {
+        let why = {
             let g = cellinject_rig::guard::lock(&rig.guard);
-            g.commanded()
+            let mut volts = g.commanded();
+            volts[ch] = amp;
+            g.envelope()
+                .check(volts)
+                .err()
+                .map(|e| e.to_string())
+                .unwrap_or_default()
         };
-        volts[ch] = amp;
-        let why = cellinject_rig::guard::lock(&rig.guard)
-            .envelope()
-            .check(volts)
-            .err()
-            .map(|e| e.to_string())
-            .unwrap_or_default();
         return Err(SimError::Unsafe {
             volts: amp,
             actuator: ACTUATOR_NAMES[ch],

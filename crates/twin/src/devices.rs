@@ -168,7 +168,7 @@ impl PositionSensor for TwinSensor {
     fn read(&mut self) -> Result<f64, HwError> {
         let t = lock(&self.twin);
         let p = t.world.params().sim;
-        let extension = t.world.snapshot().extension[self.channel];
+        let extension = t.world.extension(self.channel);
         let drift = p.sensors.thermal_drift * p.thermal.drift_rate * t.world.time();
         Ok(extension + drift + p.sensors.noise * self.rng.gaussian_exact())
     }

@@ -401,6 +401,12 @@ impl World {
         self.advance_to(self.time() + seconds);
     }
 
+    /// The free extension of stack `ch`, m (what [`World::snapshot`] lists, without
+    /// computing the rest).
+    pub fn extension(&self, ch: usize) -> f64 {
+        self.stacks[ch].extension()
+    }
+
     /// The state now.
     pub fn snapshot(&self) -> Snapshot {
         let q2 = self.tilt.q();
