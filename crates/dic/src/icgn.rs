@@ -131,6 +131,7 @@ impl Subset {
 }
 
 /// Precomputed reference data of one subset.
+#[derive(Debug, Clone)]
 struct RefSubset {
     dx: Vec<f64>,
     dy: Vec<f64>,
@@ -202,20 +203,28 @@ fn params_of(w: &Matrix3<f64>) -> [f64; 6] {
     ]
 }
 
-/// Refines the displacement of the subset centred at integer (x, y) of the reference,
-/// starting from `initial` = (u, ∂u/∂x, ∂u/∂y, v, ∂v/∂x, ∂v/∂y). Returns `None` when the
-/// subset does not fit in the reference, has no texture, or its warp leaves `current`.
-#[allow(clippy::too_many_arguments)]
-pub fn refine(
-    reference: &Reference,
-    current: &BSpline,
+/// A reference subset with its steepest-descent Hessian, prepared once for many
+/// refinements against successive frames (tracking).
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    rs: RefSubset,
     x: usize,
     y: usize,
     subset: Subset,
     shape: Shape,
-    initial: [f64; 6],
-    opts: &IcgnOptions,
-) -> Option<PointResult> {
+    h6_inv: Option<SMatrix<f64, 6, 6>>,
+    h2_inv: Option<SMatrix<f64, 2, 2>>,
+}
+
+/// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
+/// not fit in the reference or has no texture.
+pub fn prepare(
+    reference: &Reference,
+    x: usize,
+    y: usize,
+    subset: Subset,
+    shape: Shape,
+) -> Option<Prepared> {
     let img = reference.image();
     if !subset.fits(x, y, img.width(), img.height()) {
         return None;
@@ -225,13 +234,6 @@ pub fn refine(
         return None;
     }
     let n = rs.f.len();
-    let mut g = vec![0.0; n];
-    let (xc, yc) = (x as f64, y as f64);
-    let corner = subset.half_w.max(subset.half_h) as f64;
-    let mut p = match shape {
-        Shape::Affine => initial,
-        Shape::Rigid => [initial[0], 0.0, 0.0, initial[3], 0.0, 0.0],
-    };
     // Hessian of the steepest-descent images (constant: computed once). For the affine
     // shape J = [gx, gx·dx, gx·dy, gy, gy·dx, gy·dy]: the 21 distinct products are
     // accumulated from 10 moments per gradient pair.
@@ -269,11 +271,65 @@ pub fn refine(
         Shape::Rigid => {
             h2[(0, 0)] = mom[0][0];
             h2[(0, 1)] = mom[1][0];
+            h2[(1, 0)] = mom[1][0];
             h2[(1, 1)] = mom[2][0];
         }
     }
-    let h6_inv = h6.cholesky().map(|c| c.inverse());
-    let h2_inv = h2.try_inverse();
+    Some(Prepared {
+        rs,
+        x,
+        y,
+        subset,
+        shape,
+        h6_inv: h6.cholesky().map(|c| c.inverse()),
+        h2_inv: h2.try_inverse(),
+    })
+}
+
+/// Refines the displacement of the subset centred at integer (x, y) of the reference,
+/// starting from `initial` = (u, ∂u/∂x, ∂u/∂y, v, ∂v/∂x, ∂v/∂y). Returns `None` when the
+/// subset does not fit in the reference, has no texture, or its warp leaves `current`.
+#[allow(clippy::too_many_arguments)]
+pub fn refine(
+    reference: &Reference,
+    current: &BSpline,
+    x: usize,
+    y: usize,
+    subset: Subset,
+    shape: Shape,
+    initial: [f64; 6],
+    opts: &IcgnOptions,
+) -> Option<PointResult> {
+    let p = prepare(reference, x, y, subset, shape)?;
+    refine_prepared(&p, current, initial, opts)
+}
+
+/// [`refine`] with a prepared reference subset.
+pub fn refine_prepared(
+    prepared: &Prepared,
+    current: &BSpline,
+    initial: [f64; 6],
+    opts: &IcgnOptions,
+) -> Option<PointResult> {
+    let Prepared {
+        rs,
+        x,
+        y,
+        subset,
+        shape,
+        h6_inv,
+        h2_inv,
+    } = prepared;
+    let (x, y, subset, shape, h6_inv, h2_inv) = (*x, *y, *subset, *shape, *h6_inv, *h2_inv);
+    let n = rs.f.len();
+    let mut g = Vec::with_capacity(n);
+    let mut tmp = Vec::new();
+    let (xc, yc) = (x as f64, y as f64);
+    let corner = subset.half_w.max(subset.half_h) as f64;
+    let mut p = match shape {
+        Shape::Affine => initial,
+        Shape::Rigid => [initial[0], 0.0, 0.0, initial[3], 0.0, 0.0],
+    };
     let margin = 2.0;
     let mut iterations = 0;
     let mut converged = false;
@@ -295,17 +351,27 @@ pub fn refine(
                 {
                     return None;
                 }
-                // One fractional offset for the whole subset: one set of weights.
+                // One fractional offset for the whole subset: one set of weights, and
+                // the subset interpolated as a block (separably).
                 let (fx, fy) = (cx.floor(), cy.floor()); // once per iteration
                 let (wx, wy) = (weights(cx - fx), weights(cy - fy));
-                for k in 0..n {
-                    let v = current.value_with(fx + rs.dx[k], fy + rs.dy[k], &wx, &wy);
-                    g[k] = v;
+                current.translated_block(
+                    fx,
+                    fy,
+                    subset.half_w,
+                    subset.half_h,
+                    &wx,
+                    &wy,
+                    &mut tmp,
+                    &mut g,
+                );
+                for v in &g {
                     sum += v;
                     sum2 += v * v;
                 }
             }
             Shape::Affine => {
+                g.clear();
                 for k in 0..n {
                     let (dx, dy) = (rs.dx[k], rs.dy[k]);
                     let wx = xc + dx + p[0] + p[1] * dx + p[2] * dy;
@@ -314,7 +380,7 @@ pub fn refine(
                         return None;
                     }
                     let v = current.value(wx, wy);
-                    g[k] = v;
+                    g.push(v);
                     sum += v;
                     sum2 += v * v;
                 }

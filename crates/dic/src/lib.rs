@@ -76,6 +76,14 @@ pub enum DicError {
         /// Image height.
         height: usize,
     },
+    /// The region to track has no texture (a uniform patch: nothing to correlate).
+    #[error("the region at ({x}, {y}) has no texture to correlate")]
+    NoTexture {
+        /// Centre, pixels.
+        x: f64,
+        /// Centre, pixels.
+        y: f64,
+    },
     /// A fit needs more or better-conditioned data.
     #[error("calibration: {reason}")]
     Calibration {

@@ -44,12 +44,12 @@ pub struct TrackPoint {
 #[derive(Debug, Clone)]
 pub struct Tracker {
     reference: Reference,
+    prepared: icgn::Prepared,
     /// Centre of the subset in reference-crop coordinates.
     centre: (usize, usize),
     /// Offset of the crop in the frame.
     offset: (usize, usize),
     subset: Subset,
-    shape: Shape,
     min_zncc: f64,
     search_radius: usize,
     opts: IcgnOptions,
@@ -82,15 +82,23 @@ impl Tracker {
         let ox = cx.saturating_sub(hw + MARGIN);
         let oy = cy.saturating_sub(hh + MARGIN);
         let crop = first.crop(ox, oy, 2 * (hw + MARGIN) + 1, 2 * (hh + MARGIN) + 1);
+        let reference = Reference::new(crop);
+        let subset = Subset {
+            half_w: hw,
+            half_h: hh,
+        };
+        let prepared = icgn::prepare(&reference, cx - ox, cy - oy, subset, shape).ok_or(
+            DicError::NoTexture {
+                x: cx as f64,
+                y: cy as f64,
+            },
+        )?;
         Ok(Tracker {
-            reference: Reference::new(crop),
+            reference,
+            prepared,
             centre: (cx - ox, cy - oy),
             offset: (ox, oy),
-            subset: Subset {
-                half_w: hw,
-                half_h: hh,
-            },
-            shape,
+            subset,
             min_zncc,
             search_radius: 48,
             opts: IcgnOptions {
@@ -117,16 +125,7 @@ impl Tracker {
         // Address the window in the reference crop's coordinates.
         spline.shift_origin(-(self.offset.0 as f64), -(self.offset.1 as f64));
         let init = [guess.0, 0.0, 0.0, guess.1, 0.0, 0.0];
-        icgn::refine(
-            &self.reference,
-            &spline,
-            self.centre.0,
-            self.centre.1,
-            self.subset,
-            self.shape,
-            init,
-            &self.opts,
-        )
+        icgn::refine_prepared(&self.prepared, &spline, init, &self.opts)
     }
 
     /// Measures one frame.
@@ -148,16 +147,36 @@ impl Tracker {
             best = best.max(r.zncc);
         }
         let mut res = res.take().filter(|r| r.zncc >= self.min_zncc);
+        if res.is_none()
+            && let Some(last) = self.last
+            && last != guess
+        {
+            // The motion stopped (a positioning move): try where it was last.
+            let again = self.attempt(frame, last);
+            if let Some(r) = &again {
+                best = best.max(r.zncc);
+            }
+            res = again.filter(|r| r.zncc >= self.min_zncc);
+        }
         if res.is_none() {
-            // The prediction failed: search the neighbourhood by FFT, then refine. The
-            // frame window is addressed so that the reference crop's origin sits at
-            // (sx, sy) inside it.
+            // The prediction failed: search by FFT within `search_radius` of the last
+            // position (the reference's at first), then refine. The frame window is
+            // addressed so that the reference crop's origin sits at (sx, sy) inside it.
             let ref_img = self.reference.image();
-            let r = self.search_radius;
-            let fx0 = self.offset.0.saturating_sub(r);
-            let fy0 = self.offset.1.saturating_sub(r);
-            let (sx, sy) = ((self.offset.0 - fx0) as i64, (self.offset.1 - fy0) as i64);
-            let window = frame.crop(fx0, fy0, ref_img.width() + 2 * r, ref_img.height() + 2 * r);
+            let r = self.search_radius as i64;
+            let (du, dv) = self
+                .last
+                .map(|(u, v)| (u.round() as i64, v.round() as i64))
+                .unwrap_or((0, 0));
+            let fx0 = (self.offset.0 as i64 + du - r).max(0);
+            let fy0 = (self.offset.1 as i64 + dv - r).max(0);
+            let (sx, sy) = (self.offset.0 as i64 - fx0, self.offset.1 as i64 - fy0);
+            let window = frame.crop(
+                fx0 as usize,
+                fy0 as usize,
+                ref_img.width() + 2 * r as usize,
+                ref_img.height() + 2 * r as usize,
+            );
             let m = self.subset.half_w.min(self.subset.half_h) as i64;
             let hit = search::search(
                 ref_img,
@@ -165,9 +184,9 @@ impl Tracker {
                 self.centre.0 as i64,
                 self.centre.1 as i64,
                 m,
-                r as i64,
-                sx,
-                sy,
+                r,
+                sx + du,
+                sy + dv,
             );
             if let Some(hit) = hit {
                 let guess = ((hit.u - sx) as f64, (hit.v - sy) as f64);
