@@ -243,6 +243,44 @@ fn joint_store(c: &CacheArgs) -> Box<dyn JointStore> {
     }
 }
 
+/// J3's yield check for the safety envelope of a bench assembled with `approach`: the
+/// structural model on level-1 FEM joints (from the joint cache when it holds them),
+/// reduced to numbers the envelope evaluates without the FEM.
+pub(crate) fn j3_yield_check(
+    d: &Description,
+    approach: Approach,
+) -> Result<cellinject_rig::guard::YieldCheck> {
+    use cellinject_rig::guard::{StressPoint, YIELD_POINTS, YieldCheck};
+    let store: Box<dyn JointStore> = match DirCache::default_location() {
+        Some(dir) => Box::new(DirCache::new(dir)),
+        None => Box::new(NoCache),
+    };
+    let why = |e: FeaError| {
+        anyhow::anyhow!(
+            "the safety envelope checks J3 against its yield strength with the structural model, which failed: {e}"
+        )
+    };
+    let _p =
+        crate::progress::spinner("J3's stresses for the safety envelope (joint FEM or its cache)");
+    let m = FeaModel::build(
+        &d.design,
+        &d.structure,
+        FeaOptions::default(),
+        store.as_ref(),
+    )
+    .map_err(why)?;
+    let map = m.j3_yield_map(approach, YIELD_POINTS).map_err(why)?;
+    Ok(YieldCheck::new(
+        "J3",
+        map.yield_strength,
+        map.fit_error,
+        map.points.iter().map(|a| StressPoint {
+            at_zero: a.at_zero,
+            per_newton: a.per_newton,
+        }),
+    ))
+}
+
 /// The structural model of a description on its FEM joints.
 fn model(d: &Description, mesh: &MeshArgs, cache: &CacheArgs) -> Result<FeaModel> {
     check_cost(d, &[mesh.level as usize], cache)?;

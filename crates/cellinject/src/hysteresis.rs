@@ -9,7 +9,7 @@ use anyhow::Result;
 use cellinject_config::Description;
 use cellinject_core::hysteresis::{self as core, Kind};
 use cellinject_hysteresis::{AnyModel, HysteresisError, Model, Range};
-use cellinject_plot::{Chart, Series};
+use cellinject_plot::{Chart, Series, Style};
 use clap::{Subcommand, ValueEnum};
 
 use crate::files::{Kind as FileKind, Plan, write_with_plots, wrote};
@@ -182,6 +182,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                 series: vec![Series {
                     name: r.actuator.into(),
                     points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
+                    style: Style::Line,
                 }],
             };
             write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
@@ -259,10 +260,12 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                             .zip(&disp)
                             .map(|(v, y)| (*v, y * 1e6))
                             .collect(),
+                        style: Style::Line,
                     },
                     Series {
                         name: "model".into(),
                         points: modelled,
+                        style: Style::Line,
                     },
                 ],
             };
@@ -327,6 +330,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                         Series {
                             name: "desired".into(),
                             points: t.iter().zip(&targets).map(|(t, y)| (*t, y * 1e6)).collect(),
+                            style: Style::Line,
                         },
                         Series {
                             name: "model's prediction".into(),
@@ -335,6 +339,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                                 .zip(&r.predicted)
                                 .map(|(t, y)| (*t, y * 1e6))
                                 .collect(),
+                            style: Style::Line,
                         },
                     ],
                 },
@@ -345,6 +350,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                     series: vec![Series {
                         name: "command".into(),
                         points: t.iter().zip(&r.volts).map(|(t, v)| (*t, *v)).collect(),
+                        style: Style::Line,
                     }],
                 },
             ];

@@ -17,6 +17,7 @@ macro_rules! outln {
 
 mod commands;
 mod dic;
+mod experiment;
 mod fea;
 mod files;
 mod hinge;
@@ -115,6 +116,18 @@ enum Command {
         after_help = "Examples:\n  cellinject hysteresis identify --actuator A1 --out ident.csv\n  cellinject hysteresis fit --data ident.csv --out model.json\n  cellinject hysteresis invert --model model.json --trajectory desired.csv --out command.csv"
     )]
     Hysteresis(hysteresis::HysteresisCommand),
+    /// Calibrate the bench: pixels from stage moves, the stacks-to-tip Jacobian, the stacks' hysteresis.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject calibrate all --out calibration\n  cellinject calibrate pixels --out pixels.json\n  cellinject calibrate jacobian --pixels pixels.json --out jacobian.json"
+    )]
+    Calibrate(experiment::CalibrateCommand),
+    /// The paper's bench experiments through the cameras: range, repeatability, tracking.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject experiment range --approach 2\n  cellinject experiment repeatability --approach 1 --control closed --runs 200\n  cellinject experiment tracking --control sensor"
+    )]
+    Experiment(experiment::ExperimentCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     #[command(
         after_help = "Examples:\n  cellinject reproduce\n  cellinject reproduce --out my-reports --format json"
@@ -166,6 +179,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Some(Command::Fea(args)) => fea::run(&description()?, &args),
         Some(Command::Hysteresis(cmd)) => hysteresis::run(description, &cmd),
+        Some(Command::Calibrate(cmd)) => experiment::calibrate(&description()?, &cmd),
+        Some(Command::Experiment(cmd)) => experiment::run(&description()?, &cmd),
         Some(Command::Hinge(args)) => {
             unused_config();
             hinge::run(&args)

@@ -9,7 +9,7 @@ use cellinject_config::Description;
 use cellinject_core::sim::{self as core, Acquisition, FrameSummary, SimError, StepSample};
 use cellinject_hw::{Frame, HwError};
 use cellinject_model::Approach;
-use cellinject_plot::{Chart, Series};
+use cellinject_plot::{Chart, Series, Style};
 use cellinject_rig::Rig;
 use cellinject_twin::devices::displacement_in;
 use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
@@ -31,6 +31,13 @@ pub struct TwinArgs {
     /// Output format of the summary on standard output (the files are the same).
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
+}
+
+impl TwinArgs {
+    /// The output format asked for.
+    pub(crate) fn format(&self) -> Format {
+        self.format
+    }
 }
 
 /// The `sim` commands.
@@ -131,6 +138,7 @@ pub(crate) fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig
     if let Some(s) = args.seed {
         p.sim.seed = s;
     }
+    p.rig.j3_yield = Some(crate::fea::j3_yield_check(d, p.rig.approach)?);
     let twin = Twin::new(&d.design, p)
         .map_err(|e| InputError(format!("cannot build the twin: {e}")))?
         .into_shared();
@@ -192,6 +200,7 @@ fn run_loop(
         series: vec![Series {
             name: r.actuator.into(),
             points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
+            style: Style::Line,
         }],
     };
     write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
@@ -272,6 +281,7 @@ fn run_step(
                     .filter(|s| s.time <= 0.03)
                     .map(|s| (s.time * 1e3, um(s)))
                     .collect(),
+                style: Style::Line,
             }],
         },
         Chart {
@@ -287,6 +297,7 @@ fn run_step(
                     .filter(|s| s.time >= 0.05)
                     .map(|s| (s.time, um(s)))
                     .collect(),
+                style: Style::Line,
             }],
         },
     ];

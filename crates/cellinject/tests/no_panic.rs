@@ -120,6 +120,11 @@ fn values(opt: &Opt) -> Vec<String> {
         "amplitude" => v(&["0", "-5", "nan", "inf", "1e9", "5"]),
         "seed" => v(&["0", "18446744073709551615", "-1", "x"]),
         "samples" => v(&["200", "100", "1e9", "-1", "x"]),
+        "runs" => v(&["0", "1", "2", "-1", "x", "1e9"]),
+        "hold" | "sweep" | "dwell" | "rest" => v(&["0", "-1", "nan", "inf", "0.6", "1e9"]),
+        "repeats" => v(&["0", "1", "51", "-1", "x"]),
+        "calibration" => v(&["", "missing", "cal", "r.png", ".", "bad-cal"]),
+        "pixels" => v(&["", "missing.json", "cal/pixels.json", "m0.json", "r.png"]),
         "data" | "model" | "trajectory" => v(&[
             "",
             "missing.csv",
@@ -211,6 +216,31 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ["sim", "frame"] => vec!["--vga", "--out", "fr.png"],
         ["reproduce"] => vec!["--out", "rep"],
         ["hysteresis", "identify"] => vec!["--samples", "300", "--out", "id.csv"],
+        ["experiment", "range"] => vec!["--calibration", "cal", "--sweep", "0.5", "--out", "ex"],
+        ["experiment", "repeatability"] => vec![
+            "--calibration",
+            "cal",
+            "--runs",
+            "2",
+            "--hold",
+            "0.2",
+            "--out",
+            "ex",
+        ],
+        ["experiment", "tracking"] => vec![
+            "--calibration",
+            "cal",
+            "--dwell",
+            "0.1",
+            "--duration",
+            "0.2",
+            "--out",
+            "ex",
+        ],
+        ["calibrate", "pixels"] => vec!["--out", "px.json"],
+        ["calibrate", "jacobian"] => vec!["--pixels", "cal/pixels.json", "--out", "jac.json"],
+        ["calibrate", "hysteresis"] => vec!["--samples", "2000", "--out", "hy.json"],
+        ["calibrate", "all"] => vec!["--out", "cal2"],
         ["hysteresis", "fit"] => vec!["--data", "ident.csv", "--size", "6", "--out", "m.json"],
         ["hysteresis", "invert"] => vec![
             "--model",
@@ -351,6 +381,16 @@ fn setup(tag: &str) -> PathBuf {
         }
         s
     };
+    // Calibrations for the experiments (and a directory whose files are not JSON).
+    let o = bin(&dir)
+        .args(["calibrate", "all", "--out", "cal"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    fs::create_dir_all(dir.join("bad-cal")).unwrap();
+    for f in ["pixels.json", "jacobian.json", "hysteresis.json"] {
+        fs::write(dir.join("bad-cal").join(f), "{").unwrap();
+    }
     fs::write(dir.join("desired.csv"), traj(1.0)).unwrap();
     fs::write(dir.join("far.csv"), traj(100.0)).unwrap();
     dir

@@ -198,6 +198,7 @@ pub(crate) fn bench(
                 Check::Between(zoom_range[0], zoom_range[1]),
             )?,
             zoom_range,
+            marker: s.arr("marker", optics.marker, Check::Between(-1e-3, 1e-3))?,
         };
         Ok(LensParams {
             focus_blur: s.num("focus_blur", d.focus_blur, Check::NonNegative)?,
@@ -246,6 +247,8 @@ pub(crate) fn bench(
         stage_travel,
         injector_max_pressure,
         optics,
+        // Computed by the front end from the structural model (not a description key).
+        j3_yield: None,
     };
     let sim = SimParams {
         seed,

@@ -18,16 +18,25 @@
 //! | `dic field` | [`dic::field`] | [`dic::FieldReport`] |
 //! | `sim loop` | [`sim::hysteresis_loop`] | [`sim::LoopReport`] |
 //! | `sim step` | [`sim::step_response`] | [`sim::StepReport`] |
+//! | `hysteresis identify / fit / invert` | [`hysteresis::identify`], [`hysteresis::fit`], [`hysteresis::invert`] | [`hysteresis::IdentifyReport`], [`hysteresis::FitReport`], [`hysteresis::InvertReport`] |
+//! | `calibrate pixels / jacobian / hysteresis` | [`calibrate::pixels`], [`calibrate::jacobian`], [`calibrate::hysteresis`] | [`calibrate::PixelCalibration`], [`calibrate::JacobianCalibration`], [`calibrate::HysteresisCalibration`] |
+//! | `experiment range` | [`experiment::range`] | [`experiment::RangeReport`] |
+//! | `experiment repeatability` | [`experiment::repeatability`] | [`experiment::RepeatabilityReport`] |
+//! | `experiment tracking` | [`experiment::tracking`] | [`experiment::TrackingReport`] |
 //! | `fea ...` | crate `cellinject-fea` | its reports |
 //!
 //! **Architecture invariant:** no IO: no files, no terminal, no environment. Front ends
 //! read and write; this crate computes and validates, and its errors name the argument
 //! or key at fault.
 
+pub mod bench;
+pub mod calibrate;
 pub mod dic;
+pub mod experiment;
 pub mod hinge;
 pub mod hysteresis;
 pub mod model;
 pub mod reproduce;
 pub mod sim;
 pub mod tension;
+pub mod vision;

@@ -58,6 +58,48 @@ pub use report::{
 
 use cache::{CacheUse, solve_cached};
 
+/// The stress tensor at one point of a joint, affine in the two stack forces.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AffineStress {
+    /// Pa (xx, yy, zz, yz, xz, xy) at zero stack force.
+    pub at_zero: [f64; 6],
+    /// Pa per newton of F11, of F12.
+    pub per_newton: [[f64; 6]; 2],
+}
+
+impl AffineStress {
+    /// Von Mises stress at stack forces `f` (N), Pa.
+    pub fn von_mises(&self, f: [f64; 2]) -> f64 {
+        let mut s = self.at_zero;
+        for c in 0..6 {
+            s[c] += self.per_newton[0][c] * f[0] + self.per_newton[1][c] * f[1];
+        }
+        cellinject_fem::joint3d::von_mises(&s)
+    }
+}
+
+/// A joint's critical points with their affine stresses ([`FeaModel::j3_yield_map`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct YieldMap {
+    /// Pa.
+    pub yield_strength: f64,
+    /// The points, most stressed first.
+    pub points: Vec<AffineStress>,
+    /// Pa: the largest difference between this map's peak von Mises stress and the
+    /// full model's over the check grid.
+    pub fit_error: f64,
+}
+
+impl YieldMap {
+    /// The peak von Mises stress over the points at stack forces `f`, Pa.
+    pub fn von_mises(&self, f: [f64; 2]) -> f64 {
+        self.points
+            .iter()
+            .map(|p| p.von_mises(f))
+            .fold(0.0, f64::max)
+    }
+}
+
 /// A joint's peak stress below this fraction of the yield strength is numerical noise:
 /// the joint is unloaded.
 pub const UNLOADED: f64 = 1e-9;
@@ -548,6 +590,88 @@ impl FeaModel {
         self.structure
             .solve(forces, preload)
             .map_err(FeaError::Equilibrium)
+    }
+
+    /// J3's stress as an affine function of the two stack forces, for the piezo safety
+    /// envelope to check at kilohertz rates without the FEM: the structural model gives
+    /// J3's wrench at the stack forces `F` (eqs. 21-26 with the approach's preload), the
+    /// joint FEM the stress tensor at each of its points per unit wrench; both are
+    /// linearised at `F₀ = (−105, −105)` N by central differences of 5 N, and the
+    /// `count` points that reach the highest von Mises stress anywhere on
+    /// `F ∈ [−140, −70]²` N (the stacks' forces over both approaches' working ranges
+    /// and the envelope's margins: −95 to −120 N) are kept. The map's worst error
+    /// against the full model on that grid is reported ([`YieldMap::fit_error`]); the
+    /// envelope subtracts it from the yield strength.
+    pub fn j3_yield_map(&self, approach: Approach, count: usize) -> Result<YieldMap, FeaError> {
+        let preload = self.preload(approach)?;
+        let stress = |f: [f64; 2]| -> Result<Vec<[f64; 6]>, FeaError> {
+            let eq = self.equilibrium_with(f, preload)?;
+            Ok(self.j3.stresses_block(&eq.joint_wrench[0]))
+        };
+        let f0 = [-105.0, -105.0];
+        let h = 5.0;
+        let s0 = stress(f0)?;
+        let mut per_newton = vec![[[0.0; 6]; 2]; s0.len()];
+        for k in 0..2 {
+            let (mut a, mut b) = (f0, f0);
+            a[k] += h;
+            b[k] -= h;
+            let (sa, sb) = (stress(a)?, stress(b)?);
+            for (p, (x, y)) in per_newton.iter_mut().zip(sa.iter().zip(&sb)) {
+                for c in 0..6 {
+                    p[k][c] = (x[c] - y[c]) / (2.0 * h);
+                }
+            }
+        }
+        let affine: Vec<AffineStress> = s0
+            .iter()
+            .zip(&per_newton)
+            .map(|(s, d)| {
+                let mut at_zero = *s;
+                for c in 0..6 {
+                    at_zero[c] -= d[0][c] * f0[0] + d[1][c] * f0[1];
+                }
+                AffineStress {
+                    at_zero,
+                    per_newton: *d,
+                }
+            })
+            .collect();
+        // Rank the points by the highest stress they reach over the grid.
+        let grid: Vec<[f64; 2]> = (0..5)
+            .flat_map(|i| (0..5).map(move |j| [-140.0 + 17.5 * i as f64, -140.0 + 17.5 * j as f64]))
+            .collect();
+        let mut reach: Vec<(f64, usize)> = affine
+            .iter()
+            .enumerate()
+            .map(|(k, a)| {
+                let m = grid.iter().map(|f| a.von_mises(*f)).fold(0.0f64, f64::max);
+                (m, k)
+            })
+            .collect();
+        reach.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let points: Vec<AffineStress> = reach
+            .iter()
+            .take(count.max(1))
+            .map(|(_, k)| affine[*k])
+            .collect();
+        let map = YieldMap {
+            yield_strength: self.material.yield_strength,
+            points,
+            fit_error: 0.0,
+        };
+        let mut worst = 0.0f64;
+        for f in &grid {
+            let exact = stress(*f)?
+                .iter()
+                .map(cellinject_fem::joint3d::von_mises)
+                .fold(0.0f64, f64::max);
+            worst = worst.max((map.von_mises(*f) - exact).abs());
+        }
+        Ok(YieldMap {
+            fit_error: worst,
+            ..map
+        })
     }
 
     /// Peak stresses of J3, J1, J2 at an equilibrium. A joint whose peak stress is below

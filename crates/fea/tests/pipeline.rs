@@ -487,3 +487,38 @@ fn an_unloaded_joint_has_no_safety_factor() {
     );
     let _ = fs::remove_dir_all(dir);
 }
+
+#[test]
+fn the_j3_yield_map_reproduces_the_structural_model_it_reduces() {
+    // The envelope's J3 check is a handful of affine stress points: at forces off the
+    // linearisation point it must give the full model's peak stress (solve's J3 row).
+    let (dir, cache) = seeded("yield-map");
+    let m = FeaModel::build(&design(), &params(), FeaOptions::default(), &cache).unwrap();
+    for approach in [Approach::DriveTranslation, Approach::JointDeflection] {
+        let map = m.j3_yield_map(approach, 16).unwrap();
+        assert_eq!(map.points.len(), 16);
+        assert_eq!(map.yield_strength, 465e6);
+        // The map's own worst error over its grid is small against the yield strength.
+        assert!(
+            map.fit_error < 0.01 * map.yield_strength,
+            "{}",
+            map.fit_error
+        );
+        for f in [[-100.0, -100.0], [-111.686, -100.0], [-120.0, -120.0]] {
+            let exact = m.solve(approach, f).unwrap().joints[0].max_von_mises;
+            let reduced = map.von_mises(f);
+            println!(
+                "approach {}: F = {f:?} N: J3 {:.1} MPa (full model {:.1} MPa)",
+                approach.number(),
+                reduced / 1e6,
+                exact / 1e6
+            );
+            assert!(
+                (reduced - exact).abs() <= map.fit_error.max(1e-3 * exact),
+                "{reduced} vs {exact}"
+            );
+        }
+        println!("fit error {:.3} MPa", map.fit_error / 1e6);
+    }
+    let _ = fs::remove_dir_all(dir);
+}

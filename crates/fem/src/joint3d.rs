@@ -273,14 +273,37 @@ impl JointSolution {
         self.peak_von_mises(wrench).0
     }
 
-    /// Largest von Mises stress (Pa) and where, for a wrench given at the upper block
-    /// section of [`JointSolution::block_compliance`].
-    pub fn peak_von_mises_block(&self, wrench: &Vector6<f64>) -> (f64, [f64; 3]) {
-        // Moved to the top end section: M_end = M + (c_block − c_end) × F.
+    /// A wrench given at the upper block section moved to the top end section:
+    /// `M_end = M + (c_block − c_end) × F`.
+    fn block_to_end(&self, wrench: &Vector6<f64>) -> Vector6<f64> {
         let arm = Vector3::new(0.0, 0.0, self.block_sections[1] - self.layout.upper_end);
         let f = Vector3::new(wrench[0], wrench[1], wrench[2]);
         let m = Vector3::new(wrench[3], wrench[4], wrench[5]) + arm.cross(&f);
-        self.peak_von_mises(&Vector6::new(f[0], f[1], f[2], m[0], m[1], m[2]))
+        Vector6::new(f[0], f[1], f[2], m[0], m[1], m[2])
+    }
+
+    /// Largest von Mises stress (Pa) and where, for a wrench given at the upper block
+    /// section of [`JointSolution::block_compliance`].
+    pub fn peak_von_mises_block(&self, wrench: &Vector6<f64>) -> (f64, [f64; 3]) {
+        self.peak_von_mises(&self.block_to_end(wrench))
+    }
+
+    /// The stress tensor (xx, yy, zz, yz, xz, xy; Pa) at every stress point, for a
+    /// wrench given at the upper block section (superposition of the unit load cases).
+    pub fn stresses_block(&self, wrench: &Vector6<f64>) -> Vec<[f64; 6]> {
+        let w = self.block_to_end(wrench);
+        self.stress_basis
+            .iter()
+            .map(|b| {
+                let mut s = [0.0; 6];
+                for c in 0..6 {
+                    for j in 0..6 {
+                        s[c] += b[c][j] * w[j];
+                    }
+                }
+                s
+            })
+            .collect()
     }
 
     /// Largest von Mises stress (Pa) under a wrench and where it occurs (m, joint frame).

@@ -67,6 +67,20 @@ pub enum SafetyError {
         /// Limit, N·m.
         limit: f64,
     },
+    /// A flexure would be stressed past its yield strength.
+    #[error(
+        "{joint} could reach {:.1} MPa von Mises, beyond the {:.1} MPa allowed (its yield strength less the stress map's error)",
+        .stress / 1e6,
+        .limit / 1e6
+    )]
+    Yield {
+        /// Flexure name (J3).
+        joint: &'static str,
+        /// Worst-case peak von Mises stress, Pa.
+        stress: f64,
+        /// The stress allowed, Pa.
+        limit: f64,
+    },
     /// A stage move beyond the axis travel.
     #[error("stage axis {axis}: {position} m is outside its travel [{min}, {max}] m")]
     StageTravel {

@@ -23,6 +23,7 @@ pub mod preisach;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use creep::LogCreep;
 pub use pi::PrandtlIshlinskii;
 pub use preisach::Preisach;
 

@@ -38,13 +38,25 @@ pub enum PlotError {
     Drawing(String),
 }
 
-/// One line of a chart.
+/// How a series is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Style {
+    /// A polyline through the points.
+    #[default]
+    Line,
+    /// A dot at each point (a scatter plot).
+    Dots,
+}
+
+/// One line (or cloud of dots) of a chart.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Series {
     /// Legend entry.
     pub name: String,
     /// (x, y) points in drawing order.
     pub points: Vec<(f64, f64)>,
+    /// Line or dots.
+    pub style: Style,
 }
 
 /// One panel.
@@ -96,7 +108,13 @@ fn bounds(chart: &Chart) -> Result<(Range, Range), PlotError> {
         };
         (r.0 - p, r.1 + p)
     };
-    Ok(((xr.0, xr.1.max(xr.0 + f64::EPSILON)), pad(yr)))
+    // A line's ends sit on the frame; dots get room on every side.
+    let x = if chart.series.iter().any(|s| s.style == Style::Dots) {
+        pad(xr)
+    } else {
+        (xr.0, xr.1.max(xr.0 + f64::EPSILON))
+    };
+    Ok((x, pad(yr)))
 }
 
 fn draw_charts<DB: DrawingBackend>(
@@ -132,18 +150,27 @@ fn draw_charts<DB: DrawingBackend>(
             // Thick polylines are joined with mitres, which shoot far out of the panel
             // where a dense, noisy series turns back on itself: dense series are thin.
             let width = if s.points.len() > style::DENSE { 1 } else { 2 };
-            c.draw_series(LineSeries::new(
-                s.points
-                    .iter()
-                    .copied()
-                    .filter(|(x, y)| x.is_finite() && y.is_finite()),
-                color.stroke_width(width),
-            ))
-            .map_err(|e| err(&e))?
-            .label(s.name.as_str())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-            });
+            let points = s
+                .points
+                .iter()
+                .copied()
+                .filter(|(x, y)| x.is_finite() && y.is_finite());
+            let drawn = match s.style {
+                Style::Line => c.draw_series(LineSeries::new(points, color.stroke_width(width))),
+                Style::Dots => c.draw_series(
+                    points.map(move |p| Circle::new(p, style::DOT, color.mix(0.7).filled())),
+                ),
+            };
+            drawn
+                .map_err(|e| err(&e))?
+                .label(s.name.as_str())
+                .legend(move |(x, y)| match s.style {
+                    Style::Line => {
+                        PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+                            .into_dyn()
+                    }
+                    Style::Dots => Circle::new((x + 9, y), style::DOT, color.filled()).into_dyn(),
+                });
         }
         if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
             c.configure_series_labels()
@@ -219,6 +246,7 @@ mod tests {
             series: vec![Series {
                 name: "A1".into(),
                 points: (0..50).map(|i| (i as f64, (i as f64).sqrt())).collect(),
+                style: Style::Line,
             }],
         };
         let s = svg(&[c.clone(), c], 2, (500, 400)).unwrap();
@@ -235,6 +263,7 @@ mod tests {
             series: vec![Series {
                 name: String::new(),
                 points: vec![(f64::NAN, 1.0)],
+                style: Style::Line,
             }],
         };
         assert!(matches!(

@@ -19,6 +19,8 @@ pub const TICKS: usize = 8;
 pub const COLOUR_BAR_WIDTH: u32 = 120;
 /// Points above which a line series is drawn one pixel wide.
 pub const DENSE: usize = 1000;
+/// Radius of a scatter plot's dots, px.
+pub const DOT: i32 = 3;
 /// Where a map has no value.
 pub const MISSING: RGBColor = RGBColor(200, 200, 200);
 

@@ -303,6 +303,20 @@ pub fn devices(rig: &RigParams) -> (Devices<FakeBackend>, Log) {
             },
             index: 0,
         },
+        side_camera: FakeCamera {
+            settings: CameraSettings {
+                roi: Roi {
+                    x: 0,
+                    y: 0,
+                    width: 640,
+                    height: 480,
+                },
+                binning: 1,
+                exposure: 5e-3,
+                bit_depth: 8,
+            },
+            index: 0,
+        },
         stage: FakeStage {
             log: log.clone(),
             travel: rig.stage_limits(),

@@ -23,6 +23,92 @@ use cellinject_hw::{HwError, Injector, Optics, PiezoChannel, SafetyError, Stage,
 use cellinject_model::{ACTUATOR_NAMES, Approach, Assembly, Mechanism, ModelError};
 use nalgebra::Vector2;
 
+/// Critical points a [`YieldCheck`] holds.
+pub const YIELD_POINTS: usize = 16;
+
+/// The stress tensor at one point of a flexure, affine in the two stack forces: `σ =
+/// at_zero + per_newton[0]·F₁ + per_newton[1]·F₂` (Pa; xx, yy, zz, yz, xz, xy).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StressPoint {
+    /// Pa at zero stack force.
+    pub at_zero: [f64; 6],
+    /// Pa per newton of F₁, of F₂.
+    pub per_newton: [[f64; 6]; 2],
+}
+
+impl StressPoint {
+    /// Von Mises stress at stack forces `f` (N), Pa.
+    #[inline]
+    pub fn von_mises(&self, f: [f64; 2]) -> f64 {
+        let mut s = self.at_zero;
+        for c in 0..6 {
+            s[c] += self.per_newton[0][c] * f[0] + self.per_newton[1][c] * f[1];
+        }
+        let d = (s[0] - s[1]).powi(2) + (s[1] - s[2]).powi(2) + (s[2] - s[0]).powi(2);
+        (0.5 * d + 3.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5])).sqrt()
+    }
+}
+
+/// A flexure's yield check as numbers (no FEM at run time): its most stressed points
+/// as affine functions of the stack forces (from the structural model and the joint
+/// FEM: `cellinject-fea`'s `FeaModel::j3_yield_map`) and its yield strength. Von Mises
+/// stress is convex in the forces, which are affine in the stacks' extensions: its
+/// largest value over an extension band lies at one of the band's corners, which the
+/// envelope checks. Fixed-size, so that a check allocates nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct YieldCheck {
+    /// Flexure name.
+    pub joint: &'static str,
+    /// Pa.
+    pub yield_strength: f64,
+    /// The points (the first `count` are used).
+    pub points: [StressPoint; YIELD_POINTS],
+    /// Points in use.
+    pub count: usize,
+    /// Pa: how far the affine map may be from the full model (checked against
+    /// `yield_strength − fit_error`).
+    pub fit_error: f64,
+}
+
+impl YieldCheck {
+    /// A check of `joint` from its most stressed points (the first [`YIELD_POINTS`]
+    /// are kept), its yield strength and the points' fit error (Pa).
+    pub fn new(
+        joint: &'static str,
+        yield_strength: f64,
+        fit_error: f64,
+        points: impl IntoIterator<Item = StressPoint>,
+    ) -> Self {
+        let mut out = [StressPoint::default(); YIELD_POINTS];
+        let mut count = 0;
+        for (o, p) in out.iter_mut().zip(points) {
+            *o = p;
+            count += 1;
+        }
+        YieldCheck {
+            joint,
+            yield_strength,
+            points: out,
+            count,
+            fit_error,
+        }
+    }
+
+    /// Peak von Mises stress at stack forces `f` (N), Pa.
+    #[inline]
+    pub fn von_mises(&self, f: [f64; 2]) -> f64 {
+        self.points[..self.count.min(YIELD_POINTS)]
+            .iter()
+            .map(|p| p.von_mises(f))
+            .fold(0.0, f64::max)
+    }
+
+    /// The stress the check allows, Pa: the yield strength less the map's error.
+    pub fn allowed(&self) -> f64 {
+        self.yield_strength - self.fit_error
+    }
+}
+
 /// Parameters of the envelope besides the mechanism.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EnvelopeLimits {
@@ -33,6 +119,8 @@ pub struct EnvelopeLimits {
     pub hysteresis_bound: f64,
     /// Extra extension, as a fraction of travel, for dynamic overshoot.
     pub dynamic_margin: f64,
+    /// J3's yield check, when the structural model was available.
+    pub j3: Option<YieldCheck>,
 }
 
 /// The safe operating region of the three stacks of one assembled mechanism.
@@ -50,6 +138,8 @@ pub struct WorstCase {
     pub force: [[f64; 2]; 2],
     /// N·m, per flexure J1, J2: the largest bending torque.
     pub torque: [f64; 2],
+    /// Pa, J3's largest von Mises stress (0 without a yield check).
+    pub j3_stress: f64,
 }
 
 impl PiezoEnvelope {
@@ -72,17 +162,17 @@ impl PiezoEnvelope {
         &self.limits
     }
 
-    /// The range of extensions (m) stack `ch` may reach at `volts`, dynamic margin included.
+    /// The range of extensions (m) stack `ch` may reach at `volts`, dynamic margin
+    /// included: `travel · (u ± (h + d))` with `u = V / V_max`, never below `−d·travel`
+    /// (a relaxed stack does not pull). A stack reaches its rated travel at full voltage
+    /// and creeps beyond it over hours: the upper edge is not capped at the travel.
     pub fn extension_band(&self, ch: usize, volts: f64) -> (f64, f64) {
         let (lo, hi) = self.limits.voltage_range[ch];
         let travel = self.mechanism.design().actuators[ch].travel;
         let u = ((volts - lo) / (hi - lo)).clamp(0.0, 1.0);
         let h = self.limits.hysteresis_bound;
         let d = self.limits.dynamic_margin;
-        (
-            travel * (u - h - d).max(-d),
-            travel * (u + h + d).min(1.0 + d),
-        )
+        (travel * (u - h - d).max(-d), travel * (u + h + d))
     }
 
     /// Checks three voltages together; returns the worst case when they are safe.
@@ -103,6 +193,7 @@ impl PiezoEnvelope {
         let mut worst = WorstCase {
             force: [[f64::INFINITY, f64::NEG_INFINITY]; 2],
             torque: [0.0; 2],
+            j3_stress: 0.0,
         };
         for e1 in [b1.0, b1.1] {
             for e2 in [b2.0, b2.1] {
@@ -116,6 +207,9 @@ impl PiezoEnvelope {
                     worst.force[i][1] = worst.force[i][1].max(s.force[i]);
                     let t = s.fw[2 * i].hypot(s.fw[2 * i + 1]);
                     worst.torque[i] = worst.torque[i].max(t);
+                }
+                if let Some(y) = &self.limits.j3 {
+                    worst.j3_stress = worst.j3_stress.max(y.von_mises([s.force[0], s.force[1]]));
                 }
             }
         }
@@ -145,7 +239,50 @@ impl PiezoEnvelope {
                 });
             }
         }
+        if let Some(y) = &self.limits.j3
+            && (worst.j3_stress.is_nan() || worst.j3_stress > y.allowed())
+        {
+            return Err(SafetyError::Yield {
+                joint: y.joint,
+                stress: worst.j3_stress,
+                limit: y.allowed(),
+            });
+        }
         Ok(worst)
+    }
+
+    /// The farthest safe command from `from` towards `to` (three voltages each): `to`
+    /// itself when it is safe, else the point where the straight path from `from`
+    /// leaves the envelope (bisection to 1e-6 of the path). A channel whose target is
+    /// not a number stays where it is. If `from` itself is unsafe, `from` is returned
+    /// (the guard will refuse it). Allocates nothing.
+    pub fn limit_towards(&self, from: [f64; 3], to: [f64; 3]) -> [f64; 3] {
+        let mut to = to;
+        for ch in 0..3 {
+            if to[ch].is_nan() {
+                to[ch] = from[ch];
+            } else {
+                let (lo, hi) = self.limits.voltage_range[ch];
+                to[ch] = to[ch].clamp(lo, hi);
+            }
+        }
+        if self.check(to).is_ok() {
+            return to;
+        }
+        let at = |l: f64| [0, 1, 2].map(|i| from[i] + l * (to[i] - from[i]));
+        if self.check(from).is_err() {
+            return from;
+        }
+        let (mut a, mut b) = (0.0, 1.0);
+        while b - a > 1e-6 {
+            let m = 0.5 * (a + b);
+            if self.check(at(m)).is_ok() {
+                a = m
+            } else {
+                b = m
+            }
+        }
+        at(a)
     }
 
     /// The highest voltage channel `ch` may take while the others stay at `volts`
@@ -383,6 +520,7 @@ mod tests {
                 voltage_range: [(0.0, 100.0); 3],
                 hysteresis_bound: 0.0,
                 dynamic_margin: 0.0,
+                j3: None,
             },
         )
         .unwrap()
@@ -405,6 +543,22 @@ mod tests {
         let v_lim = 100.0 * (0.35 - t0) / (t30 - t0);
         let v = e.max_safe_voltage(0, [0.0, 0.0, 0.0]).unwrap();
         assert!((v - v_lim).abs() < 0.05, "{v} vs {v_lim}");
+    }
+
+    #[test]
+    fn a_command_past_the_envelope_is_shortened_to_its_edge() {
+        let e = envelope(Approach::DriveTranslation);
+        let v = e.limit_towards([0.0; 3], [100.0, 100.0, 0.0]);
+        assert!(e.check(v).is_ok());
+        assert!(
+            (v[0] - v[1]).abs() < 1e-9 && v[0] > 50.0 && v[0] < 100.0,
+            "{v:?}"
+        );
+        // Just past the edge along the same path is refused.
+        assert!(e.check([v[0] + 0.01, v[1] + 0.01, 0.0]).is_err());
+        // Out-of-range and NaN targets.
+        let w = e.limit_towards([10.0, 10.0, 0.0], [f64::NAN, -5.0, 500.0]);
+        assert_eq!(w, [10.0, 0.0, 100.0]);
     }
 
     #[test]
@@ -432,6 +586,7 @@ mod tests {
                 voltage_range: [(0.0, 100.0); 3],
                 hysteresis_bound: 0.0,
                 dynamic_margin: 0.0,
+                j3: None,
             },
         )
         .unwrap();

@@ -34,13 +34,19 @@ impl Default for SafetyMargins {
     }
 }
 
-/// The zoom lens's magnification (`[optics] zoom`, `zoom_range`).
+/// The zoom lens's magnification and where the speckled marker tabs sit (`[optics]
+/// zoom`, `zoom_range`, `marker`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OpticsSetup {
     /// Magnification at start.
     pub zoom: f64,
     /// Smallest and largest magnification.
     pub zoom_range: [f64; 2],
+    /// m, where the centre of the speckled marker tab appears relative to the centre
+    /// of each camera's view with the stacks at rest (along the image columns, rows):
+    /// the region the cameras track. The prototype's tabs are glued 95 µm beside and
+    /// 125 µm above the tip, and the views are centred 30 µm below it.
+    pub marker: [f64; 2],
 }
 
 impl Default for OpticsSetup {
@@ -48,6 +54,7 @@ impl Default for OpticsSetup {
         OpticsSetup {
             zoom: 10.0,
             zoom_range: [2.5, 10.0],
+            marker: [95e-6, -155e-6],
         }
     }
 }
@@ -68,6 +75,11 @@ pub struct RigParams {
     pub injector_max_pressure: f64,
     /// The zoom lens.
     pub optics: OpticsSetup,
+    /// J3's yield check for the envelope: numbers from the structural model and the
+    /// joint FEM of this design and approach (the front end computes them from the FEA
+    /// cache); `None` leaves J3's stress unchecked, which a front end must not do
+    /// silently.
+    pub j3_yield: Option<crate::guard::YieldCheck>,
 }
 
 impl Default for RigParams {
@@ -79,6 +91,7 @@ impl Default for RigParams {
             stage_travel: 0.025,
             injector_max_pressure: 2.0e5,
             optics: OpticsSetup::default(),
+            j3_yield: None,
         }
     }
 }

@@ -1,6 +1,8 @@
 //! The guarded device set of one bench, over any backend.
 
-use cellinject_hw::{Camera, Clock, Injector, Optics, PiezoChannel, PositionSensor, Stage};
+use cellinject_hw::{
+    Camera, Clock, HwError, Injector, Optics, PiezoChannel, PositionSensor, Stage,
+};
 use cellinject_model::{Design, Mechanism, ModelError};
 use thiserror::Error;
 
@@ -17,7 +19,7 @@ pub trait Backend {
     type Piezo: PiezoChannel;
     /// One stack's position sensor.
     type Sensor: PositionSensor;
-    /// The microscope camera.
+    /// A camera (the microscope's top view and the side view are of this type).
     type Camera: Camera;
     /// The macro stage.
     type Stage: Stage;
@@ -35,8 +37,10 @@ pub struct Devices<B: Backend> {
     pub piezo: [B::Piezo; 3],
     /// The stacks' position sensors, A1, A2, A3.
     pub sensors: [B::Sensor; 3],
-    /// Camera.
+    /// The microscope camera, looking along y: sees x (columns) and z (rows).
     pub camera: B::Camera,
+    /// The side camera, looking along x: sees y (columns) and z (rows).
+    pub side_camera: B::Camera,
     /// Stage.
     pub stage: B::Stage,
     /// Injector.
@@ -78,8 +82,11 @@ pub struct Rig<B: Backend> {
     pub guard: SharedGuard,
     /// The stacks' position sensors (read-only: nothing to guard).
     pub sensors: [B::Sensor; 3],
-    /// Camera (nothing to guard).
+    /// The microscope camera, looking along y: x in its columns, z in its rows
+    /// (nothing to guard).
     pub camera: B::Camera,
+    /// The side camera, looking along x: y in its columns, z in its rows.
+    pub side_camera: B::Camera,
     /// Stage within the rig's travel.
     pub stage: GuardedStage<B::Stage>,
     /// Injector below the rig's pressure limit.
@@ -96,6 +103,7 @@ pub fn envelope(design: &Design, rig: &RigParams) -> Result<PiezoEnvelope, Model
         voltage_range: rig.amplifiers.map(|a| (0.0, a.v_max)),
         hysteresis_bound: rig.safety.hysteresis_bound,
         dynamic_margin: rig.safety.dynamic_margin,
+        j3: rig.j3_yield,
     };
     PiezoEnvelope::new(Mechanism::new(design)?, rig.approach, limits)
 }
@@ -132,6 +140,7 @@ impl<B: Backend> Rig<B> {
             guard,
             sensors: devices.sensors,
             camera: devices.camera,
+            side_camera: devices.side_camera,
             stage: GuardedStage::new(devices.stage, Some(vec![limits; axes])),
             injector: GuardedInjector::new(devices.injector, rig.injector_max_pressure),
             optics: GuardedOptics::new(
@@ -140,6 +149,35 @@ impl<B: Backend> Rig<B> {
             ),
             clock: devices.clock,
         })
+    }
+
+    /// Commands A1 and A2 together (A3 stays): the farthest safe point towards `volts`
+    /// ([`PiezoEnvelope::limit_towards`]), set channel by channel in an order the
+    /// envelope accepts at every instant. Returns what was applied; allocates nothing
+    /// when the command is accepted.
+    pub fn command_tilt(&mut self, volts: [f64; 2]) -> Result<[f64; 2], HwError> {
+        let (from, to) = {
+            let g = lock(&self.guard);
+            let from = g.commanded();
+            (
+                from,
+                g.envelope()
+                    .limit_towards(from, [volts[0], volts[1], from[2]]),
+            )
+        };
+        if to == from {
+            return Ok([from[0], from[1]]);
+        }
+        let [a1, a2, _] = &mut self.piezo;
+        match a1.set_voltage(to[0]) {
+            Ok(()) => a2.set_voltage(to[1])?,
+            Err(_) => {
+                // A1 first would leave the envelope for an instant: A2 first.
+                a2.set_voltage(to[1])?;
+                a1.set_voltage(to[0])?;
+            }
+        }
+        Ok([to[0], to[1]])
     }
 
     /// The highest voltage channel `ch` may take with the other channels where they

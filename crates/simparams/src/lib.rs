@@ -134,7 +134,7 @@ impl Default for DynamicsParams {
 /// axial force, capped at the ball radius). Whenever body 1 moves, the ball slips in its
 /// socket; it re-sticks at an angle that varies from one slip to the next within
 /// `±stick_slip_angle` (surface roughness). With the eccentric seat, that angle changes
-/// the effective drive length by `ε·φ`: up to 3.2 mm × 0.11 mrad ≈ 0.35 µm under
+/// the effective drive length by `ε·φ`: up to 3.2 mm × 0.14 mrad ≈ 0.45 µm under
 /// approach 1 (0.316 N·m / 100 N), about 5 nm under approach 2 (0.005 N·m / 100 N).
 /// The lever b2/b1 = 6 turns that into the 3-5 µm and under-1 µm end-effector scatter of
 /// the paper's 200 open-loop runs (Sec. 4, Fig. 8).
@@ -142,7 +142,9 @@ impl Default for DynamicsParams {
 pub struct JointParams {
     /// rad, half-width of the re-stick angle.
     pub stick_slip_angle: f64,
-    /// rad, relative rotation in the joint that breaks it free.
+    /// rad, net relative rotation of a joint from where it last stuck that breaks it
+    /// free (smaller motions are taken elastically: a 1 µm stack step turns body 1 by
+    /// ~14 µrad, amplifier noise by nanoradians).
     pub slip_rotation: f64,
     /// m, radius of the ball (caps the eccentricity).
     pub ball_radius: f64,
@@ -151,7 +153,7 @@ pub struct JointParams {
 impl Default for JointParams {
     fn default() -> Self {
         JointParams {
-            stick_slip_angle: 1.1e-4,
+            stick_slip_angle: 1.4e-4,
             slip_rotation: 2.0e-5,
             ball_radius: 4.0e-3,
         }

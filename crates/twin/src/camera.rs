@@ -139,6 +139,8 @@ pub struct Microscope {
     work: Vec<f32>,
     scratch_x: Vec<f32>,
     scratch_z: Vec<f32>,
+    /// Random stream of the sensor noise (each camera has its own).
+    noise_stream: u64,
 }
 
 impl Microscope {
@@ -171,7 +173,15 @@ impl Microscope {
             work: Vec::new(),
             scratch_x: Vec::new(),
             scratch_z: Vec::new(),
+            noise_stream: stream::CAMERA,
         }
+    }
+
+    /// The same camera drawing its sensor noise from random stream `stream` (a second
+    /// camera must not repeat the first one's noise).
+    pub fn with_noise_stream(mut self, stream: u64) -> Self {
+        self.noise_stream = stream;
+        self
     }
 
     /// The scene.
@@ -335,11 +345,13 @@ impl Microscope {
             f.offset[0] - 0.5 * f.pitch,
             f.offset[0] + (f.cols as f64 - 0.5) * f.pitch,
         );
-        for k in 0..=f.cols {
+        let feeder_cols = if f.rows > 0 { f.cols + 1 } else { 0 };
+        let feeder_rows = if f.cols > 0 { f.rows + 1 } else { 0 };
+        for k in 0..feeder_cols {
             let xk = xx0 + k as f64 * f.pitch;
             self.multiply_line(g, true, xk, wall_sigma, 0.10, zx0, zx1);
         }
-        for k in 0..=f.rows {
+        for k in 0..feeder_rows {
             let zk = zx0 + k as f64 * f.pitch;
             self.multiply_line(g, false, zk, wall_sigma, 0.10, xx0, xx1);
         }
@@ -541,7 +553,7 @@ impl Microscope {
         let to_dn = max_dn / full;
         let mut rng = Rng::new(
             seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15),
-            stream::CAMERA,
+            self.noise_stream,
         );
         out.width = g.width as u32;
         out.height = g.height as u32;
@@ -557,7 +569,8 @@ impl Microscope {
             for k in 0..o.len() {
                 let e = w[k] * gain;
                 let v = e + (e.max(0.0) + read2).sqrt() * n[k];
-                o[k] = (v * to_dn).round().clamp(0.0, max_dn) as u16;
+                // Non-negative after the clamp: adding ½ and truncating rounds to nearest.
+                o[k] = ((v * to_dn).clamp(0.0, max_dn) + 0.5) as u16;
             }
         }
     }

@@ -20,16 +20,44 @@ use crate::scene::Scene;
 pub use crate::world::TwinParams;
 use crate::world::{TwinError, World};
 
-/// The world and its camera.
+/// Which camera of the twin.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum View {
+    /// The microscope, looking along y: x in the image columns, z in the rows, y as
+    /// defocus.
+    Top,
+    /// The side camera, looking along x: y in the image columns, z in the rows, x as
+    /// defocus.
+    Side,
+}
+
+/// One exposure of the cameras (both are triggered together: a frame one camera has
+/// not fetched yet waits in its buffer until the next exposure starts).
+#[derive(Debug, Clone, Copy)]
+struct Exposure {
+    index: u64,
+    start: f64,
+    period: f64,
+    exposure: f64,
+    /// Tip at the start and end of the exposure, in the top view's terms.
+    from: TipPose,
+    to: TipPose,
+}
+
+/// The world and its two cameras.
 #[derive(Debug, Clone)]
 pub struct Twin {
     /// Mechanism, stacks, stage, injector.
     pub world: World,
-    /// The microscope camera.
+    /// The microscope camera (top view).
     pub camera: Microscope,
+    /// The side camera. Its lens is fixed at the rig's `optics.zoom`; the zoom device
+    /// drives the microscope only.
+    pub side: Microscope,
     /// End-effector displacement at which the optics were aligned and focused.
     origin: [f64; 3],
-    last_frame: Option<u64>,
+    last_frame: [Option<u64>; 2],
+    exposure: Option<Exposure>,
 }
 
 /// A twin shared by its device handles.
@@ -46,18 +74,29 @@ impl Twin {
         let sim = &params.sim;
         let scene = Scene::generate(&sim.feeder, sim.seed);
         let mut camera = Microscope::new(sim.camera, sim.lens, params.rig.optics, scene);
+        let zoom_error = |e: HwError| TwinError::Invalid {
+            key: "optics.zoom".into(),
+            reason: e.to_string(),
+        };
         camera
             .set_zoom(params.rig.optics.zoom)
-            .map_err(|e| TwinError::Invalid {
-                key: "optics.zoom".into(),
-                reason: e.to_string(),
-            })?;
+            .map_err(zoom_error)?;
+        let mut side = Microscope::new(
+            sim.camera,
+            sim.lens,
+            params.rig.optics,
+            Scene::side(sim.seed),
+        )
+        .with_noise_stream(crate::world::stream::SIDE_CAMERA);
+        side.set_zoom(params.rig.optics.zoom).map_err(zoom_error)?;
         let x = world.snapshot().x;
         Ok(Twin {
             world,
             camera,
+            side,
             origin: [x[0], x[1], x[2]],
-            last_frame: None,
+            last_frame: [None; 2],
+            exposure: None,
         })
     }
 
@@ -81,21 +120,60 @@ impl Twin {
         displacement_in(&self.world.snapshot(), ch)
     }
 
-    /// Waits for the next frame, integrating the world through its exposure, and renders it.
+    /// Waits for the microscope's next frame, integrating the world through its
+    /// exposure, and renders it.
     pub fn grab_into(&mut self, frame: &mut Frame) {
-        let settings = self.camera.settings();
-        let period = 1.0 / self.camera.frame_rate_for(&settings);
+        self.grab_view(View::Top, frame);
+    }
+
+    /// Waits for the next frame of camera `view` and renders it. The cameras are
+    /// triggered together: if the other camera already exposed the current frame (and
+    /// the next has not started), this one returns the same exposure.
+    pub fn grab_view(&mut self, view: View, frame: &mut Frame) {
+        let v = view as usize;
+        let cam = match view {
+            View::Top => &self.camera,
+            View::Side => &self.side,
+        };
+        let settings = cam.settings();
+        let period = 1.0 / cam.frame_rate_for(&settings);
+        let exposure = settings.exposure;
         let now = self.world.time();
-        let mut k = (now / period - 1e-9).ceil().max(0.0) as u64;
-        if let Some(last) = self.last_frame {
-            k = k.max(last + 1);
-        }
-        let start = k as f64 * period;
-        self.world.advance_to(start);
-        let a = self.tip();
-        self.world.advance(settings.exposure);
-        let b = self.tip();
-        let t = settings.exposure;
+        let buffered = self.exposure.filter(|e| {
+            e.period == period
+                && e.exposure == exposure
+                && self.last_frame[v].is_none_or(|l| e.index > l)
+                && now < e.start + period - 1e-9
+        });
+        let e = match buffered {
+            Some(e) => e,
+            None => {
+                let mut k = (now / period - 1e-9).ceil().max(0.0) as u64;
+                if let Some(last) = self.last_frame.iter().flatten().max() {
+                    k = k.max(last + 1);
+                }
+                let start = k as f64 * period;
+                self.world.advance_to(start);
+                let from = self.tip();
+                self.world.advance(exposure);
+                let to = self.tip();
+                let e = Exposure {
+                    index: k,
+                    start,
+                    period,
+                    exposure,
+                    from,
+                    to,
+                };
+                self.exposure = Some(e);
+                e
+            }
+        };
+        let (a, b) = match view {
+            View::Top => (e.from, e.to),
+            View::Side => (side_pose(&e.from), side_pose(&e.to)),
+        };
+        let t = e.exposure;
         let pose = TipPose {
             x: 0.5 * (a.x + b.x),
             z: 0.5 * (a.z + b.z),
@@ -104,13 +182,29 @@ impl Twin {
             vz: (b.z - a.z) / t,
         };
         let seed = self.world.params().sim.seed;
-        self.camera.render(&pose, start, k, seed, frame);
-        self.last_frame = Some(k);
+        let cam = match view {
+            View::Top => &mut self.camera,
+            View::Side => &mut self.side,
+        };
+        cam.render(&pose, e.start, e.index, seed, frame);
+        self.last_frame[v] = Some(e.index);
     }
 
     /// Puts the twin behind shared device handles.
     pub fn into_shared(self) -> SharedTwin {
         Arc::new(Mutex::new(self))
+    }
+}
+
+/// The tip as the side camera sees it: y along its columns, z along its rows, x as
+/// distance from its focal plane.
+fn side_pose(top: &TipPose) -> TipPose {
+    TipPose {
+        x: top.depth,
+        z: top.z,
+        depth: top.x,
+        vx: 0.0,
+        vz: 0.0,
     }
 }
 
@@ -177,28 +271,46 @@ impl PositionSensor for TwinSensor {
     }
 }
 
-/// The twin's camera.
+/// One of the twin's cameras.
 pub struct TwinCamera {
     twin: SharedTwin,
+    view: View,
+}
+
+impl TwinCamera {
+    fn with<R>(&self, f: impl FnOnce(&Microscope) -> R) -> R {
+        let t = lock(&self.twin);
+        match self.view {
+            View::Top => f(&t.camera),
+            View::Side => f(&t.side),
+        }
+    }
+
+    /// Which camera this is.
+    pub fn view(&self) -> View {
+        self.view
+    }
 }
 
 impl Camera for TwinCamera {
     fn sensor_size(&self) -> (u32, u32) {
-        let t = lock(&self.twin);
-        (t.camera.params().width, t.camera.params().height)
+        self.with(|c| (c.params().width, c.params().height))
     }
     fn settings(&self) -> CameraSettings {
-        lock(&self.twin).camera.settings()
+        self.with(|c| c.settings())
     }
     fn configure(&mut self, settings: CameraSettings) -> Result<(), HwError> {
-        lock(&self.twin).camera.configure(settings)
+        let mut t = lock(&self.twin);
+        match self.view {
+            View::Top => t.camera.configure(settings),
+            View::Side => t.side.configure(settings),
+        }
     }
     fn frame_rate(&self) -> f64 {
-        let t = lock(&self.twin);
-        t.camera.frame_rate_for(&t.camera.settings())
+        self.with(|c| c.frame_rate_for(&c.settings()))
     }
     fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
-        lock(&self.twin).grab_into(frame);
+        lock(&self.twin).grab_view(self.view, frame);
         Ok(())
     }
 }
@@ -310,7 +422,14 @@ pub fn devices(twin: &SharedTwin) -> Devices<TwinBackend> {
     Devices {
         piezo,
         sensors,
-        camera: TwinCamera { twin: twin.clone() },
+        camera: TwinCamera {
+            twin: twin.clone(),
+            view: View::Top,
+        },
+        side_camera: TwinCamera {
+            twin: twin.clone(),
+            view: View::Side,
+        },
         stage: TwinStage { twin: twin.clone() },
         injector: TwinInjector { twin: twin.clone() },
         optics: TwinOptics { twin: twin.clone() },

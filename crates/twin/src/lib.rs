@@ -25,5 +25,5 @@ pub use cellinject_numeric::rng;
 pub use cellinject_simparams as params;
 
 pub use camera::{Microscope, TipPose};
-pub use devices::{SharedTwin, Twin, TwinBackend, TwinParams, devices, rig};
+pub use devices::{SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, rig};
 pub use world::{Snapshot, TwinError, World};

@@ -100,6 +100,34 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// What the side camera sees: no feeder (it looks along the feeder's plane), sparse
+    /// debris on the far window, the same pipette and its second speckled tab (facing
+    /// this camera, at the same offset from the tip in the side view's (y, z) plane).
+    pub fn side(seed: u64) -> Self {
+        let mut rng = Rng::new(seed, stream::SIDE_SCENE);
+        let debris = (0..20)
+            .map(|_| Debris {
+                x: rng.range(-1.2e-3, 1.2e-3),
+                z: rng.range(-0.9e-3, 0.9e-3),
+                sigma: rng.range(0.4e-6, 1.5e-6),
+                depth: rng.range(0.2, 0.6),
+            })
+            .collect();
+        let pipette = PipetteShape::default();
+        let speckles = speckles(&pipette, &mut rng);
+        Scene {
+            cells: Vec::new(),
+            debris,
+            pipette,
+            speckles,
+            feeder: FeederParams {
+                rows: 0,
+                cols: 0,
+                ..FeederParams::default()
+            },
+        }
+    }
+
     /// Generates the scene for a feeder layout and seed.
     pub fn generate(feeder: &FeederParams, seed: u64) -> Self {
         let mut rng = Rng::new(seed, stream::SCENE);
@@ -137,17 +165,7 @@ impl Scene {
             })
             .collect();
         let pipette = PipetteShape::default();
-        // Speckles: random positions at about one per (2.5 µm)² of the tab.
-        let [hx, hz] = pipette.marker_half;
-        let count = ((4.0 * hx * hz) / (2.5e-6 * 2.5e-6)).round() as usize;
-        let speckles = (0..count)
-            .map(|_| Speckle {
-                x: rng.range(-hx, hx),
-                z: rng.range(-hz, hz),
-                sigma: rng.range(0.5e-6, 0.9e-6),
-                depth: rng.range(0.35, 0.75),
-            })
-            .collect();
+        let speckles = speckles(&pipette, &mut rng);
         Scene {
             cells,
             debris,
@@ -156,4 +174,18 @@ impl Scene {
             feeder: *feeder,
         }
     }
+}
+
+/// Speckles of a marker tab: random positions at about one per (2.5 µm)² of the tab.
+fn speckles(pipette: &PipetteShape, rng: &mut Rng) -> Vec<Speckle> {
+    let [hx, hz] = pipette.marker_half;
+    let count = ((4.0 * hx * hz) / (2.5e-6 * 2.5e-6)).round() as usize;
+    (0..count)
+        .map(|_| Speckle {
+            x: rng.range(-hx, hx),
+            z: rng.range(-hz, hz),
+            sigma: rng.range(0.5e-6, 0.9e-6),
+            depth: rng.range(0.35, 0.75),
+        })
+        .collect()
 }

@@ -21,6 +21,10 @@ pub(crate) mod stream {
     pub const SCENE: u64 = 4;
     /// A1's sensor; A2's and A3's follow.
     pub const SENSOR: u64 = 5;
+    /// The side camera's noise (after A3's sensor, 7).
+    pub const SIDE_CAMERA: u64 = 8;
+    /// The side view's background and marker.
+    pub const SIDE_SCENE: u64 = 9;
 }
 
 /// Why a twin could not be built.
@@ -72,8 +76,8 @@ pub struct Snapshot {
 struct Joint {
     /// Re-stick angle, rad.
     phi: f64,
-    /// Relative rotation accumulated since the joint last stuck, rad.
-    rho: f64,
+    /// Body 1's static pose when the joint last stuck, rad.
+    stuck_at: Vector2<f64>,
 }
 
 impl From<&Snapshot> for cellinject_model::Statics {
@@ -239,7 +243,10 @@ impl World {
             q_rest,
             l_base,
             lt_kl,
-            joints: [Joint::default(); 2],
+            joints: [Joint {
+                phi: 0.0,
+                stuck_at: k_inv * f0,
+            }; 2],
             joint_cache: Vector2::zeros(),
             joint_pose: k_inv * f0,
             joint_dirty: false,
@@ -352,19 +359,23 @@ impl World {
         }
         self.steps += 1;
         let drives = self.imposed_by_drives();
-        // Stick-slip: the joints break free when the commanded (static) pose has turned
-        // them by `slip_rotation` since they last stuck, and re-stick at a new angle.
+        // Stick-slip: a joint breaks free when the commanded (static) pose has turned it
+        // by `slip_rotation` away from where it last stuck (the net relative rotation of
+        // its ball in the socket: the sum over body 1's two tilts and the flexure's two
+        // bending angles), and re-sticks there at a new angle. Motion that stays
+        // closer to the stick point (vibration, noise, a servo's small corrections) is
+        // taken elastically by the contact (pre-sliding) and slips nothing.
         let q_static = self.q_static0 + self.static_gain * drives;
-        let dq = q_static - self.q_static;
-        if dq[0] != 0.0 || dq[1] != 0.0 {
+        if q_static != self.q_static {
             self.q_static = q_static;
-            let dw = self.wp * dq;
             let jp = self.params.sim.joints;
             for i in 0..2 {
                 let j = &mut self.joints[i];
-                j.rho += dq[0].abs() + dq[1].abs() + dw[2 * i].abs() + dw[2 * i + 1].abs();
-                if j.rho >= jp.slip_rotation {
-                    j.rho = 0.0;
+                let dq = q_static - j.stuck_at;
+                let dw = self.wp * dq;
+                let turned = dq[0].abs() + dq[1].abs() + dw[2 * i].abs() + dw[2 * i + 1].abs();
+                if turned >= jp.slip_rotation {
+                    j.stuck_at = q_static;
                     j.phi = self
                         .joint_rng
                         .range(-jp.stick_slip_angle, jp.stick_slip_angle);

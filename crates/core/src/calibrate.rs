@@ -1,0 +1,468 @@
+//! `calibrate pixels | jacobian | hysteresis`: the three calibrations a bench needs
+//! before it can position the end-effector in metres, each checked before it is used.
+//!
+//! - **pixels**: the macro stage moves the whole manipulator by known amounts (its
+//!   encoders read 0.1 µm); each camera tracks the marker and a least-squares fit gives
+//!   its pixel-to-metre map, rotation and shear ([`cellinject_dic::calib::Calibration`]).
+//! - **jacobian**: each tilt stack steps while the other rests; the stack sensors give
+//!   the extension and the cameras the tip's motion: the 2x2 map from stack extension
+//!   to tip position, compared with the mechanism model's.
+//! - **hysteresis**: each tilt stack runs a rich excitation read by its sensor, fitted
+//!   by the discrete Preisach model; then a held step gives its creep per decade.
+
+use cellinject_dic::calib::Calibration;
+use cellinject_hw::{Camera, Clock, PiezoChannel, PositionSensor};
+use cellinject_hysteresis::{AnyModel, LogCreep, Model, Range, excitation};
+use cellinject_model::{ACTUATOR_NAMES, Approach, Design, Mechanism};
+use cellinject_rig::{Backend, Rig};
+use nalgebra::Vector2;
+use serde::{Deserialize, Serialize};
+
+use crate::bench::{Bench, BenchError, Timing, dev};
+use crate::vision::{Acquisition, PixelMap, Which};
+
+/// Both cameras' pixel maps (`pixels.json`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PixelCalibration {
+    /// Top camera, then side camera.
+    pub maps: [PixelMap; 2],
+    /// m, the stage steps used.
+    pub step: f64,
+}
+
+impl PixelCalibration {
+    /// What is wrong with it for a rig at `zoom`, if anything.
+    pub fn problem(&self, zoom: f64) -> Option<String> {
+        for (m, which) in self.maps.iter().zip(Which::BOTH) {
+            if m.camera != which {
+                return Some(format!(
+                    "map {} is of the {} camera",
+                    which as usize,
+                    m.camera.name()
+                ));
+            }
+            if (m.zoom / zoom - 1.0).abs() > 1e-9 {
+                return Some(format!("made at zoom {} but the lens is at {zoom}", m.zoom));
+            }
+            if let Some(p) = m.problem() {
+                return Some(p);
+            }
+        }
+        None
+    }
+}
+
+/// Calibrates both cameras' pixels from stage moves of `step` (m) along each axis,
+/// with the marker at `marker` (m from the view's centre).
+pub fn pixels<B: Backend>(
+    rig: &mut Rig<B>,
+    marker: [f64; 2],
+    step: f64,
+) -> Result<PixelCalibration, BenchError> {
+    if !(step.is_finite() && (0.5e-6..=10e-6).contains(&step)) {
+        return Err(BenchError::Invalid {
+            arg: "--step",
+            value: step,
+            reason: "must lie in [0.5e-6, 10e-6] m (the tracking follows 10 µm per move)".into(),
+        });
+    }
+    let zoom = cellinject_hw::Optics::zoom(&rig.optics);
+    let identity = [
+        PixelMap::identity(Which::Top, zoom),
+        PixelMap::identity(Which::Side, zoom),
+    ];
+    let mut bench = Bench::new(
+        rig,
+        Acquisition::Marker,
+        marker,
+        identity,
+        None,
+        Timing::default(),
+    )?;
+    let nominal = [
+        bench_pixel(&bench, Which::Top),
+        bench_pixel(&bench, Which::Side),
+    ];
+    let origin = bench.stage_to([0.0; 3], [0.0; 3])?;
+    let mut stage: [Vec<[f64; 2]>; 2] = [Vec::new(), Vec::new()];
+    let mut px: [Vec<[f64; 2]>; 2] = [Vec::new(), Vec::new()];
+    for axis in 0..3 {
+        for k in [0.0, 1.0, 2.0, 1.0, 0.0, -1.0, -2.0, -1.0, 0.0] {
+            let mut d = [0.0; 3];
+            d[axis] = k * step;
+            let at = bench.stage_to(origin, d)?;
+            let moved = [at[0] - origin[0], at[1] - origin[1], at[2] - origin[2]];
+            let views = bench.measure_views(2)?;
+            for which in Which::BOTH {
+                let c = which as usize;
+                let axes = which.stage_axes();
+                if !axes.contains(&axis) && axis != 2 {
+                    continue;
+                }
+                let Some(p) = views[c] else {
+                    return Err(BenchError::Lost {
+                        what: "the pixel calibration",
+                        rejected: bench.rejected()[c],
+                    });
+                };
+                stage[c].push([moved[axes[0]], moved[axes[1]]]);
+                px[c].push(p);
+            }
+        }
+    }
+    bench.stage_to(origin, [0.0; 3])?;
+    let mut maps = identity;
+    for which in Which::BOTH {
+        let c = which as usize;
+        let cal = Calibration::fit(&stage[c], &px[c]).map_err(|e| BenchError::Calibration {
+            what: "pixel",
+            reason: e.to_string(),
+        })?;
+        maps[c] = PixelMap {
+            camera: which,
+            zoom,
+            pixels_per_metre: [
+                [cal.a[(0, 0)], cal.a[(0, 1)]],
+                [cal.a[(1, 0)], cal.a[(1, 1)]],
+            ],
+            metres_per_pixel: cal.scale,
+            nominal_pixel: nominal[c],
+            rotation: cal.rotation,
+            skew: cal.skew,
+            rms_px: cal.rms,
+            moves: stage[c].len(),
+        };
+    }
+    let cal = PixelCalibration { maps, step };
+    if let Some(reason) = cal.problem(zoom) {
+        return Err(BenchError::Calibration {
+            what: "pixel",
+            reason,
+        });
+    }
+    Ok(cal)
+}
+
+fn bench_pixel<B: Backend>(bench: &Bench<'_, B>, which: Which) -> f64 {
+    let cam: &dyn Camera = match which {
+        Which::Top => &bench.rig.camera,
+        Which::Side => &bench.rig.side_camera,
+    };
+    bench.view_frame(which).pixel_size / cam.settings().binning as f64
+}
+
+/// The map from the tilt stacks' extensions to the tip's position (`jacobian.json`).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `jacobian` | m/m | `[[∂x/∂e₁, ∂x/∂e₂], [∂y/∂e₁, ∂y/∂e₂]]` as measured |
+/// | `model` | m/m | the same from the mechanism model (eqs. 24-26) |
+/// | `deviation` | 1 | largest entry difference over the model's largest entry |
+/// | `spread` | 1 | largest relative standard deviation of a column over the repeats |
+/// | `step_volts` | V | the step of each stack |
+/// | `repeats` | | steps per stack |
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct JacobianCalibration {
+    /// m/m.
+    pub jacobian: [[f64; 2]; 2],
+    /// m/m.
+    pub model: [[f64; 2]; 2],
+    /// 1.
+    pub deviation: f64,
+    /// 1.
+    pub spread: f64,
+    /// V.
+    pub step_volts: f64,
+    /// Steps per stack.
+    pub repeats: usize,
+}
+
+/// Largest deviation from the model a Jacobian may have, as a fraction of the model's
+/// largest entry (the joints' stick-slip moves the tip by up to ~10 % of a step).
+pub const JACOBIAN_TOLERANCE: f64 = 0.25;
+
+impl JacobianCalibration {
+    /// What is wrong with it, if anything.
+    pub fn problem(&self) -> Option<String> {
+        let j = self.jacobian;
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        if !(det.is_finite() && det.abs() > 1e-6) {
+            return Some(format!("singular (determinant {det:.3e})"));
+        }
+        if !(self.deviation.is_finite() && self.deviation <= JACOBIAN_TOLERANCE) {
+            return Some(format!(
+                "{:.1} % from the mechanism model (at most {:.0} % expected)",
+                self.deviation * 100.0,
+                JACOBIAN_TOLERANCE * 100.0
+            ));
+        }
+        None
+    }
+}
+
+/// The model's Jacobian from stack extension (m) to tip displacement (x, y, m), by
+/// central differences of 1 µm around rest.
+pub fn model_jacobian(design: &Design, approach: Approach) -> Result<[[f64; 2]; 2], BenchError> {
+    let err = |e: cellinject_model::ModelError| BenchError::Calibration {
+        what: "jacobian",
+        reason: format!("the mechanism model: {e}"),
+    };
+    let m = Mechanism::new(design).map_err(err)?;
+    let a = m.assembly(approach).map_err(err)?;
+    let h = 1e-6;
+    let mut j = [[0.0; 2]; 2];
+    for i in 0..2 {
+        let mut e = Vector2::zeros();
+        e[i] = h;
+        // A stack's extension shortens the drive: Δl2 = −e (eq. 44's sign).
+        let p = m.state_at(&a, -e).map_err(err)?;
+        let q = m.state_at(&a, e).map_err(err)?;
+        j[0][i] = (p.dx[0] - q.dx[0]) / (2.0 * h);
+        j[1][i] = (p.dx[1] - q.dx[1]) / (2.0 * h);
+    }
+    Ok(j)
+}
+
+/// Measures the Jacobian on `bench`: each stack ramps to `step_volts` and back
+/// `repeats` times.
+pub fn jacobian<B: Backend>(
+    bench: &mut Bench<'_, B>,
+    design: &Design,
+    approach: Approach,
+    step_volts: f64,
+    repeats: usize,
+) -> Result<JacobianCalibration, BenchError> {
+    let model = model_jacobian(design, approach)?;
+    let mut cols = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
+    let mut scratch = Vec::new();
+    for i in 0..2 {
+        for _ in 0..repeats.max(1) {
+            let mut pos = [[0.0; 2]; 2];
+            let mut ext = [0.0; 2];
+            for (k, v) in [step_volts, 0.0].into_iter().enumerate() {
+                let mut target = [0.0; 2];
+                target[i] = v;
+                bench.ramp_volts(target, 0.5, &mut scratch)?;
+                bench.hold_volts(target, 0.3, &mut scratch)?;
+                ext[k] = bench.read_stacks(20)?[i];
+                let views = bench.measure_views(3)?;
+                let (Some(top), Some(side)) = (views[0], views[1]) else {
+                    return Err(BenchError::Lost {
+                        what: "the Jacobian calibration",
+                        rejected: bench.rejected().iter().sum(),
+                    });
+                };
+                pos[k] = [top[0], side[0]];
+            }
+            let de = ext[0] - ext[1];
+            if de.abs() < 1e-9 {
+                return Err(BenchError::Calibration {
+                    what: "jacobian",
+                    reason: format!(
+                        "{} moved {:.1} nm for {step_volts} V: is its sensor connected?",
+                        ACTUATOR_NAMES[i],
+                        de * 1e9
+                    ),
+                });
+            }
+            for r in 0..2 {
+                cols[r][i].push((pos[0][r] - pos[1][r]) / de);
+            }
+        }
+    }
+    let mean = |v: &Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
+    let mut j = [[0.0; 2]; 2];
+    let mut spread = 0.0f64;
+    for r in 0..2 {
+        for i in 0..2 {
+            j[r][i] = mean(&cols[r][i]);
+        }
+    }
+    for i in 0..2 {
+        let norm = j[0][i].hypot(j[1][i]);
+        let n = cols[0][i].len();
+        if n > 1 {
+            let var: f64 = (0..n)
+                .map(|k| (cols[0][i][k] - j[0][i]).powi(2) + (cols[1][i][k] - j[1][i]).powi(2))
+                .sum::<f64>()
+                / (n - 1) as f64;
+            spread = spread.max(var.sqrt() / norm);
+        }
+    }
+    let scale = model.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
+    let deviation = (0..4)
+        .map(|k| (j[k / 2][k % 2] - model[k / 2][k % 2]).abs())
+        .fold(0.0f64, f64::max)
+        / scale;
+    let cal = JacobianCalibration {
+        jacobian: j,
+        model,
+        deviation,
+        spread,
+        step_volts,
+        repeats: repeats.max(1),
+    };
+    if let Some(reason) = cal.problem() {
+        return Err(BenchError::Calibration {
+            what: "jacobian",
+            reason,
+        });
+    }
+    Ok(cal)
+}
+
+/// Hysteresis and creep of the tilt stacks (`hysteresis.json`).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `models` | | A1's and A2's Preisach models (input V, output m of extension) |
+/// | `creep` | | their logarithmic creep laws |
+/// | `fit_rms` | m | RMS fit error over the identification data |
+/// | `fit_rms_relative` | 1 | the same over the data's span |
+/// | `v_max` | V | the identification's highest voltage (the safety envelope's limit) |
+/// | `samples` | | samples per stack, 1 ms apart |
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HysteresisCalibration {
+    /// A1, A2.
+    pub models: [AnyModel; 2],
+    /// A1, A2.
+    pub creep: [LogCreep; 2],
+    /// m.
+    pub fit_rms: [f64; 2],
+    /// 1.
+    pub fit_rms_relative: [f64; 2],
+    /// V.
+    pub v_max: [f64; 2],
+    /// Per stack.
+    pub samples: usize,
+}
+
+/// Largest relative RMS error of a usable hysteresis fit.
+pub const HYSTERESIS_TOLERANCE: f64 = 0.02;
+
+impl HysteresisCalibration {
+    /// What is wrong with it, if anything.
+    pub fn problem(&self) -> Option<String> {
+        for i in 0..2 {
+            let r = self.fit_rms_relative[i];
+            if !(r.is_finite() && r <= HYSTERESIS_TOLERANCE) {
+                return Some(format!(
+                    "{}'s model misses the data by {:.2} % RMS of its span (at most {:.0} % expected)",
+                    ACTUATOR_NAMES[i],
+                    r * 100.0,
+                    HYSTERESIS_TOLERANCE * 100.0
+                ));
+            }
+            if self.models[i].range().max > self.v_max[i] + 1e-9 {
+                return Some(format!(
+                    "{}'s model reaches {} V, beyond the {} V it was identified to",
+                    ACTUATOR_NAMES[i],
+                    self.models[i].range().max,
+                    self.v_max[i]
+                ));
+            }
+        }
+        None
+    }
+}
+
+/// Identifies the tilt stacks' hysteresis (Preisach on `size` cells, `samples`
+/// excitation samples 1 ms apart, read by the stack sensors) and creep.
+pub fn hysteresis<B: Backend>(
+    rig: &mut Rig<B>,
+    samples: usize,
+    size: usize,
+) -> Result<HysteresisCalibration, BenchError> {
+    if !(2000..=200_000).contains(&samples) {
+        return Err(BenchError::Invalid {
+            arg: "--samples",
+            value: samples as f64,
+            reason: "must lie in [2000, 200000] (1 ms apart; fewer outrun the amplifier)".into(),
+        });
+    }
+    let dt = 1e-3;
+    rig.command_tilt([0.0, 0.0]).map_err(dev("rest"))?;
+    rig.clock.sleep(0.5).map_err(dev("clock"))?;
+    let mut models = Vec::new();
+    let mut creep = Vec::new();
+    let mut fit_rms = [0.0; 2];
+    let mut rel = [0.0; 2];
+    let mut v_max = [0.0; 2];
+    for ch in 0..2 {
+        let top = rig.max_safe_voltage(ch).unwrap_or(0.0);
+        if top <= 0.0 {
+            return Err(BenchError::Calibration {
+                what: "hysteresis",
+                reason: format!("{} has no safe voltage above 0 V", ACTUATOR_NAMES[ch]),
+            });
+        }
+        let range = Range { min: 0.0, max: top };
+        let read = |rig: &mut Rig<B>| rig.sensors[ch].read().map_err(dev("stack sensor"));
+        let zero = (0..20).map(|_| read(rig)).sum::<Result<f64, _>>()? / 20.0;
+        let volts = excitation(range, samples);
+        let mut disp = Vec::with_capacity(samples);
+        for v in &volts {
+            rig.piezo[ch].set_voltage(*v).map_err(dev("excitation"))?;
+            rig.clock.sleep(dt).map_err(dev("clock"))?;
+            disp.push(read(rig)? - zero);
+        }
+        let fit = crate::hysteresis::fit(
+            crate::hysteresis::Kind::Preisach,
+            size,
+            range,
+            &volts,
+            &disp,
+        )
+        .map_err(|e| BenchError::Calibration {
+            what: "hysteresis",
+            reason: format!("{}: {e}", ACTUATOR_NAMES[ch]),
+        })?;
+        // Creep: relax, then hold half the range and read the sensor on a log scale.
+        rig.piezo[ch].set_voltage(0.0).map_err(dev("rest"))?;
+        rig.clock.sleep(1.0).map_err(dev("clock"))?;
+        let zero = read(rig)?;
+        rig.piezo[ch]
+            .set_voltage(0.5 * top)
+            .map_err(dev("creep step"))?;
+        let t_step = rig.clock.now();
+        let (mut ts, mut ys) = (Vec::new(), Vec::new());
+        for k in 0..=30 {
+            let t = 0.005 * 10f64.powf(k as f64 / 12.0);
+            let now = rig.clock.now() - t_step;
+            rig.clock.sleep((t - now).max(0.0)).map_err(dev("clock"))?;
+            let y = (0..5).map(|_| read(rig)).sum::<Result<f64, _>>()? / 5.0;
+            ts.push(rig.clock.now() - t_step);
+            ys.push(y - zero);
+        }
+        rig.piezo[ch].set_voltage(0.0).map_err(dev("rest"))?;
+        rig.clock.sleep(0.5).map_err(dev("clock"))?;
+        let c = LogCreep::identify(&ts, &ys, dt).map_err(|e| BenchError::Calibration {
+            what: "hysteresis",
+            reason: format!("{} creep: {e}", ACTUATOR_NAMES[ch]),
+        })?;
+        fit_rms[ch] = fit.rms;
+        rel[ch] = fit.rms_relative;
+        v_max[ch] = top;
+        models.push(fit.model);
+        creep.push(c);
+    }
+    let [m1, m2]: [AnyModel; 2] = models.try_into().map_err(|_| BenchError::Calibration {
+        what: "hysteresis",
+        reason: "two models expected".into(),
+    })?;
+    let cal = HysteresisCalibration {
+        models: [m1, m2],
+        creep: [creep[0], creep[1]],
+        fit_rms,
+        fit_rms_relative: rel,
+        v_max,
+        samples,
+    };
+    if let Some(reason) = cal.problem() {
+        return Err(BenchError::Calibration {
+            what: "hysteresis",
+            reason,
+        });
+    }
+    Ok(cal)
+}
