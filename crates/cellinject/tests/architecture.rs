@@ -107,6 +107,7 @@ fn the_twin_is_its_own_crate_and_only_simulators_depend_on_it() {
         "cellinject-core",
         "cellinject-fea",
         "cellinject-hysteresis",
+        "cellinject-control",
     ] {
         assert!(all.contains_key(name), "{name} is missing");
         assert!(
@@ -178,6 +179,7 @@ fn the_hardware_vocabulary_depends_on_nothing_of_ours() {
         "cellinject-numeric",
         "cellinject-simparams",
         "cellinject-hysteresis",
+        "cellinject-control",
     ] {
         let c = closure(&all, name);
         for bad in [

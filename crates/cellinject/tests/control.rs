@@ -290,3 +290,114 @@ fn the_envelope_refuses_what_would_yield_j3_and_says_by_how_much_it_cuts_the_ran
     println!("430 MPa steel: A1 limited to {v:.1} V with A2 at 100 V ({just_past})");
     assert!(v < 100.0 && v > 0.0);
 }
+
+/// A camera that loses every `every`-th frame: it delivers sensor noise instead.
+struct Lossy {
+    inner: cellinject_twin::TwinCamera,
+    every: u64,
+    count: u64,
+    lost: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl cellinject_hw::Camera for Lossy {
+    fn sensor_size(&self) -> (u32, u32) {
+        self.inner.sensor_size()
+    }
+    fn settings(&self) -> cellinject_hw::CameraSettings {
+        self.inner.settings()
+    }
+    fn configure(
+        &mut self,
+        s: cellinject_hw::CameraSettings,
+    ) -> Result<(), cellinject_hw::HwError> {
+        self.inner.configure(s)
+    }
+    fn frame_rate(&self) -> f64 {
+        self.inner.frame_rate()
+    }
+    fn grab_into(
+        &mut self,
+        frame: &mut cellinject_hw::Frame,
+    ) -> Result<(), cellinject_hw::HwError> {
+        self.inner.grab_into(frame)?;
+        self.count += 1;
+        // The reference frame and the calibration frames are kept.
+        if self.count > 3 && self.count % self.every == 0 {
+            let mut rng = cellinject_twin::rng::Rng::new(self.count, 99);
+            for p in &mut frame.pixels {
+                *p = (rng.uniform() * 4095.0) as u16;
+            }
+            self.lost.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        Ok(())
+    }
+}
+
+struct LossyTwin;
+
+impl cellinject_rig::Backend for LossyTwin {
+    type Piezo = cellinject_twin::devices::TwinPiezo;
+    type Sensor = cellinject_twin::devices::TwinSensor;
+    type Camera = Lossy;
+    type Stage = cellinject_twin::devices::TwinStage;
+    type Injector = cellinject_twin::devices::TwinInjector;
+    type Optics = cellinject_twin::devices::TwinOptics;
+    type Clock = cellinject_twin::devices::TwinClock;
+}
+
+#[test]
+fn lost_frames_are_rejected_and_hold_the_command_instead_of_steering_it() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let approach = Approach::JointDeflection;
+    let tw = twin(approach);
+    let (px, cal) = calibrated(&tw, approach);
+    let d = cellinject_twin::devices(&tw);
+    let lost = Arc::new(AtomicU64::new(0));
+    let lossy = |inner| Lossy {
+        inner,
+        every: 4,
+        count: 0,
+        lost: lost.clone(),
+    };
+    let devices = cellinject_rig::Devices::<LossyTwin> {
+        piezo: d.piezo,
+        sensors: d.sensors,
+        camera: lossy(d.camera),
+        side_camera: lossy(d.side_camera),
+        stage: d.stage,
+        injector: d.injector,
+        optics: d.optics,
+        clock: d.clock,
+    };
+    let rp = params(approach).rig;
+    let mut rig = cellinject_rig::Rig::new(devices, &prototype(), &rp).unwrap();
+    let stacks = experiment::stacks(&prototype(), &rp, &cal.hysteresis);
+    let mut c = experiment::controller(Kind::Closed, stacks, &cal).unwrap();
+    let mut bench = Bench::new(
+        &mut rig,
+        Acquisition::Marker,
+        rp.optics.marker,
+        px.maps,
+        Some(truth(&tw)),
+        Timing::default(),
+    )
+    .unwrap();
+    let opts = RepeatabilityOptions {
+        runs: 10,
+        ..RepeatabilityOptions::default()
+    };
+    let r = experiment::repeatability(&mut bench, c.as_mut(), approach, opts, |_| {}).unwrap();
+    // Every noise frame was rejected by the correlation, none was measured.
+    let lost = lost.load(Ordering::Relaxed);
+    assert!(lost > 50, "{lost}");
+    assert_eq!(r.rejected_frames[0] + r.rejected_frames[1], lost);
+    // Acting on none of them, the cascade still lands within 100 nm.
+    let t = r.true_max_error_m.unwrap();
+    println!(
+        "{lost} frames lost: true max error {:.1}/{:.1} nm",
+        t[0] * 1e9,
+        t[1] * 1e9
+    );
+    assert!(t[0] < 100e-9 && t[1] < 100e-9, "{r:?}");
+}

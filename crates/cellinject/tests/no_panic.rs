@@ -511,6 +511,18 @@ fn a_closed_pipe_ends_every_printing_command_quietly() {
         vec!["tension", "--approach", "1"],
         vec!["model", "--format", "json"],
         vec!["hinge-table"],
+        vec![
+            "experiment",
+            "repeatability",
+            "--calibration",
+            "cal",
+            "--runs",
+            "2",
+            "--hold",
+            "0.2",
+            "--out",
+            "ex",
+        ],
     ] {
         let mut child = bin(&dir)
             .args(&args)
