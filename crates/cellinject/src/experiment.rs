@@ -121,6 +121,10 @@ pub enum ExperimentCommand {
         /// The controller.
         #[arg(long, value_enum, default_value_t = ControlArg::Closed)]
         control: ControlArg,
+        /// The stacks' operating point, m of extension from rest: the steps and the
+        /// circle run above it, so every controller can correct both ways.
+        #[arg(long, default_value_t = 1e-6, allow_negative_numbers = true)]
+        bias: f64,
         /// Stack step, m (the tip moves about six times as far).
         #[arg(long, default_value_t = 1e-6, allow_negative_numbers = true)]
         step: f64,
@@ -594,6 +598,7 @@ pub fn run(d: &Description, cmd: &ExperimentCommand) -> Result<()> {
         ),
         ExperimentCommand::Tracking {
             control,
+            bias,
             step,
             dwell,
             amplitude,
@@ -605,6 +610,7 @@ pub fn run(d: &Description, cmd: &ExperimentCommand) -> Result<()> {
             d,
             (*control).into(),
             TrackingOptions {
+                bias: *bias,
                 step: *step,
                 dwell: *dwell,
                 amplitude: *amplitude,
@@ -951,9 +957,12 @@ fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs
         return print_json(&r, &f);
     }
     outln!(
-        "Tracking, approach {}, {} control (errors against J·r, through the cameras):",
+        "Tracking, approach {}, {} control, stacks at {} µm plus steps of {} µm and a circle of {} µm (errors against J·r, through the cameras):",
         r.approach,
-        kind.name()
+        kind.name(),
+        r.bias_m * 1e6,
+        r.step_m * 1e6,
+        r.amplitude_m * 1e6
     );
     for (name, p) in [("steps", &r.steps), ("circle", &r.sine)] {
         outln!(

@@ -74,6 +74,7 @@ fn control_steps_allocate_nothing() {
                 _ => Vision::Nothing,
             };
             let m = Measurement {
+                frame_reference: None,
                 stacks: Some([0.97 * r, 1.02 * r]),
                 vision,
             };

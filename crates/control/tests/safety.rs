@@ -107,6 +107,7 @@ proptest! {
         let mut c = controller(kind);
         for (k, s) in steps.iter().enumerate() {
             let m = Measurement {
+frame_reference: None,
                 stacks: s.stacks,
                 vision: match s.vision {
                     0 => Vision::Nothing,

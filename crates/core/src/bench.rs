@@ -17,7 +17,7 @@ use cellinject_rig::{Backend, Rig};
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::vision::{Acquisition, PixelMap, View, VisionError, Which, settings_for};
+use crate::vision::{self, Acquisition, PixelMap, View, VisionError, Which, settings_for};
 
 /// Why a bench operation failed.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -90,7 +90,7 @@ impl Default for Timing {
 /// | field | unit | meaning |
 /// |---|---|---|
 /// | `t` | s | start of the exposure, from the start of the run |
-/// | `reference` | m | the stacks' reference (A1, A2) at that time |
+/// | `reference` | m | the stacks' reference (A1, A2) in the middle of the exposure (where the tip should be in this frame) |
 /// | `measured` | m | end-effector displacement from rest (x from the top camera, y from the side camera, z from the top camera); absent if a camera rejected the frame |
 /// | `views` | m | each camera's own measurement (top: x, z; side: y, z); absent where it rejected the frame |
 /// | `truth` | m | the twin's true displacement during the exposure (mean of its start and end), where known |
@@ -122,7 +122,9 @@ pub struct Bench<'r, B: Backend> {
     timing: Timing,
     period: f64,
     next_frame: f64,
-    pending: Option<(f64, Vision)>,
+    /// A frame's measurement waiting for its latency: when it is due, what it saw, and
+    /// the references in effect while it was exposed.
+    pending: Option<(f64, Vision, [f64; 2])>,
     volts: [f64; 2],
 }
 
@@ -257,13 +259,19 @@ impl<'r, B: Backend> Bench<'r, B> {
             .map(|p| [p[0] - t0[0], p[1] - t0[1], p[2] - t0[2]])
     }
 
+    /// Grabs a frame from each camera (top, then side) and measures both, in parallel.
+    fn grab_views(&mut self) -> Result<[Option<[f64; 2]>; 2], BenchError> {
+        self.views[0].grab(&mut self.rig.camera)?;
+        self.views[1].grab(&mut self.rig.side_camera)?;
+        Ok(vision::measure_pair(&mut self.views)?)
+    }
+
     /// Grabs the next frame pair now and measures it: the exposure's start, the tip
     /// (and each camera's view) from rest, and the truth during the exposure.
     pub fn grab(&mut self) -> Result<FrameRecord, BenchError> {
         // The truth around the exposure: just before the frame starts and at its end.
         let before = self.truth_now();
-        let top = self.views[0].measure(&mut self.rig.camera)?;
-        let side = self.views[1].measure(&mut self.rig.side_camera)?;
+        let [top, side] = self.grab_views()?;
         let t = self.views[0].frame.timestamp;
         self.next_frame = t + self.period;
         let measured = match (top, side) {
@@ -384,26 +392,28 @@ impl<'r, B: Backend> Bench<'r, B> {
             if t >= seconds - 1e-9 {
                 break;
             }
-            let r = reference(t);
             if now >= self.next_frame - 2e-4 {
                 let mut f = self.grab()?;
                 let (tf, measured) = (f.t, f.measured);
-                f.t -= t0;
-                f.reference = r;
-                out.push(f);
+                // Where the tip should have been while the frame was exposed.
                 let exposure = self.views[0].frame.exposure;
+                let exposed = reference(tf + 0.5 * exposure - t0);
+                f.t -= t0;
+                f.reference = exposed;
+                out.push(f);
                 let vision = match measured {
                     Some(p) => Vision::Tip([p[0], p[1]]),
                     None => Vision::Rejected,
                 };
-                self.pending = Some((tf + exposure + self.timing.latency, vision));
+                self.pending = Some((tf + exposure + self.timing.latency, vision, exposed));
             }
             let now = self.rig.clock.now();
             let mut m = Measurement::default();
-            if let Some((at, v)) = self.pending
+            if let Some((at, v, exposed)) = self.pending
                 && at <= now + 1e-9
             {
                 m.vision = v;
+                m.frame_reference = Some(exposed);
                 self.pending = None;
             }
             if kind.uses_sensors() {
@@ -462,13 +472,8 @@ impl<'r, B: Backend> Bench<'r, B> {
                 .clock
                 .sleep((self.next_frame - 1e-4 - now).max(0.0))
                 .map_err(dev("clock"))?;
-            for c in 0..2 {
-                let cam: &mut dyn Camera = if c == 0 {
-                    &mut self.rig.camera
-                } else {
-                    &mut self.rig.side_camera
-                };
-                match self.views[c].measure(cam)? {
+            for (c, view) in self.grab_views()?.into_iter().enumerate() {
+                match view {
                     Some(p) => {
                         sum[c][0] += p[0];
                         sum[c][1] += p[1];

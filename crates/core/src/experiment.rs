@@ -505,6 +505,8 @@ pub struct TrackingReport {
     pub approach: u8,
     /// Controller.
     pub control: Kind,
+    /// m, the stacks' operating point.
+    pub bias_m: f64,
     /// m, stack step.
     pub step_m: f64,
     /// s.
@@ -532,6 +534,10 @@ pub struct TrackingReport {
 /// How the tracking experiment runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrackingOptions {
+    /// m, the stacks' operating point: both are first brought to this extension from
+    /// rest, and the steps and the circle run above it, so that every controller has
+    /// room to correct both ways (a stack at 0 V cannot be pulled back further).
+    pub bias: f64,
     /// m, stack step.
     pub step: f64,
     /// s per step.
@@ -549,6 +555,7 @@ pub struct TrackingOptions {
 impl Default for TrackingOptions {
     fn default() -> Self {
         TrackingOptions {
+            bias: 1e-6,
             step: 1e-6,
             dwell: 0.5,
             amplitude: 0.5e-6,
@@ -597,8 +604,11 @@ fn phase(
     }
 }
 
-/// Steps and a circle of the stack references with `controller`, the tip measured by
-/// the cameras against `J·r`.
+/// s over which the tracking experiment ramps the stacks to their operating point.
+pub const APPROACH_RAMP: f64 = 0.3;
+
+/// Steps and a circle of the stack references with `controller` about an operating
+/// point, the tip measured by the cameras against `J·r`.
 pub fn tracking<B: Backend>(
     bench: &mut Bench<'_, B>,
     controller: &mut dyn Controller,
@@ -617,6 +627,7 @@ pub fn tracking<B: Backend>(
             })
         }
     };
+    check("--bias", opts.bias, 0.0, 10e-6)?;
     check("--step", opts.step, 1e-9, 1.5e-6)?;
     check("--dwell", opts.dwell, 0.1, 60.0)?;
     check("--amplitude", opts.amplitude, 1e-9, 0.75e-6)?;
@@ -626,9 +637,23 @@ pub fn tracking<B: Backend>(
     controller.reset();
     let mut rest = Vec::new();
     bench.hold_volts([0.0, 0.0], 0.2, &mut rest)?;
-    let s = opts.step;
-    let targets = [[s, 0.0], [s, s], [0.0, s], [0.0, 0.0]];
+    let (s, o) = (opts.step, opts.bias);
     let dwell = opts.dwell;
+    // To the operating point first, ramped so the cameras follow (a step of 2 µm of
+    // stack moves the tip by 12 µm, farther than the correlation searches in a frame),
+    // then settled there; not part of the record.
+    let mut approach_frames = Vec::new();
+    let ramp = APPROACH_RAMP;
+    bench.run(
+        controller,
+        ramp + dwell,
+        |t| {
+            let k = (t / ramp).min(1.0);
+            [k * o, k * o]
+        },
+        &mut approach_frames,
+    )?;
+    let targets = [[o + s, o], [o + s, o + s], [o, o + s], [o, o]];
     let mut frames = Vec::new();
     bench.run(
         controller,
@@ -638,7 +663,7 @@ pub fn tracking<B: Backend>(
     )?;
     let n_steps = frames.len();
     let (a, w) = (opts.amplitude, 2.0 * std::f64::consts::PI * opts.frequency);
-    let circle = move |t: f64| [a * (1.0 - (w * t).cos()), a * (1.0 + (w * t).sin())];
+    let circle = move |t: f64| [o + a * (1.0 - (w * t).cos()), o + a * (1.0 + (w * t).sin())];
     // Move to the circle's start first, then circle.
     let mut moving = Vec::new();
     bench.run(controller, dwell, |_| circle(0.0), &mut moving)?;
@@ -707,6 +732,7 @@ pub fn tracking<B: Backend>(
     Ok(TrackingReport {
         approach: approach.number(),
         control: controller.kind(),
+        bias_m: opts.bias,
         step_m: opts.step,
         dwell_s: opts.dwell,
         amplitude_m: opts.amplitude,

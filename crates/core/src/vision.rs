@@ -283,13 +283,19 @@ impl View {
     /// the reference along the two axes this camera sees (m), or `None` if the
     /// correlation rejected the frame.
     pub fn measure(&mut self, camera: &mut dyn Camera) -> Result<Option<[f64; 2]>, VisionError> {
+        self.grab(camera)?;
+        self.measure_frame()
+    }
+
+    /// Grabs the next frame of `camera` into [`View::frame`] without measuring it (a
+    /// pair of views can then be measured in parallel, [`measure_pair`]).
+    pub fn grab(&mut self, camera: &mut dyn Camera) -> Result<(), VisionError> {
         camera
             .grab_into(&mut self.frame)
             .map_err(|source| VisionError::Device {
                 camera: self.which.name(),
                 source,
-            })?;
-        self.measure_frame()
+            })
     }
 
     /// Measures the frame in [`View::frame`].
@@ -306,4 +312,12 @@ impl View {
         }
         Ok(self.map.to_metres([p.u, p.v], self.binning))
     }
+}
+
+/// Measures the frames both views hold, the two correlations on two threads (they
+/// are independent; the answer is the same as measuring one after the other).
+pub fn measure_pair(views: &mut [View; 2]) -> Result<[Option<[f64; 2]>; 2], VisionError> {
+    let [a, b] = views;
+    let (ra, rb) = rayon::join(|| a.measure_frame(), || b.measure_frame());
+    Ok([ra?, rb?])
 }
