@@ -761,6 +761,7 @@ fn repeatability(
     opts: RepeatabilityOptions,
     args: &BenchArgs,
 ) -> Result<()> {
+    opts.check().map_err(bench_error)?;
     check_out(args)?;
     let mut s = setup(d, &args.twin)?;
     let (pixels, cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
@@ -915,6 +916,7 @@ fn repeatability_chart(r: &RepeatabilityReport) -> Chart {
 }
 
 fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs) -> Result<()> {
+    opts.check().map_err(bench_error)?;
     check_out(args)?;
     let mut s = setup(d, &args.twin)?;
     let (pixels, cal, made) = calibrations(&mut s, args.calibration.as_deref())?;

@@ -354,6 +354,45 @@ fn settling(points: &[[f64; 2]], end: [f64; 2], tol: f64) -> Option<usize> {
     (k < points.len()).then_some(k)
 }
 
+/// `Ok` if `v` is finite and within `[lo, hi]`, else the error naming `arg`.
+fn in_range(arg: &'static str, v: f64, lo: f64, hi: f64) -> Result<(), BenchError> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(BenchError::Invalid {
+            arg,
+            value: v,
+            reason: format!("must lie in [{lo}, {hi}]"),
+        })
+    }
+}
+
+impl RepeatabilityOptions {
+    /// Refuses options outside what the experiment supports, naming the option (a
+    /// front end can check before it calibrates anything).
+    pub fn check(&self) -> Result<(), BenchError> {
+        in_range("--runs", self.runs as f64, 2.0, 100_000.0)?;
+        in_range("--shift", self.shift, 1e-9, 5e-6)?;
+        in_range("--hold", self.hold, 0.1, 60.0)?;
+        in_range("--rest", self.rest, 0.0, 60.0)?;
+        in_range("--tolerance", self.tolerance, 1e-9, 1e-5)?;
+        in_range("--average", self.average as f64, 1.0, 100.0)
+    }
+}
+
+impl TrackingOptions {
+    /// Refuses options outside what the experiment supports, naming the option.
+    pub fn check(&self) -> Result<(), BenchError> {
+        in_range("--bias", self.bias, 0.0, 10e-6)?;
+        in_range("--step", self.step, 1e-9, 1.5e-6)?;
+        in_range("--dwell", self.dwell, 0.1, 60.0)?;
+        in_range("--amplitude", self.amplitude, 1e-9, 0.75e-6)?;
+        in_range("--frequency", self.frequency, 0.01, 10.0)?;
+        in_range("--duration", self.duration, 0.1, 600.0)?;
+        in_range("--tolerance", self.tolerance, 1e-9, 1e-5)
+    }
+}
+
 /// Sets the stacks `runs` times to the same working shift with `controller`, from rest
 /// each time, and measures where the end-effector lands (Fig. 8).
 pub fn repeatability<B: Backend>(
@@ -363,23 +402,7 @@ pub fn repeatability<B: Backend>(
     opts: RepeatabilityOptions,
     mut progress: impl FnMut(usize),
 ) -> Result<RepeatabilityReport, BenchError> {
-    let check = |arg, v: f64, lo: f64, hi: f64| {
-        if v.is_finite() && (lo..=hi).contains(&v) {
-            Ok(())
-        } else {
-            Err(BenchError::Invalid {
-                arg,
-                value: v,
-                reason: format!("must lie in [{lo}, {hi}]"),
-            })
-        }
-    };
-    check("--runs", opts.runs as f64, 2.0, 100_000.0)?;
-    check("--shift", opts.shift, 1e-9, 5e-6)?;
-    check("--hold", opts.hold, 0.1, 60.0)?;
-    check("--rest", opts.rest, 0.0, 60.0)?;
-    check("--tolerance", opts.tolerance, 1e-9, 1e-5)?;
-    check("--average", opts.average as f64, 1.0, 100.0)?;
+    opts.check()?;
     let mut runs = Vec::with_capacity(opts.runs);
     let mut rec = Vec::new();
     for run in 0..opts.runs {
@@ -616,24 +639,7 @@ pub fn tracking<B: Backend>(
     jacobian: [[f64; 2]; 2],
     opts: TrackingOptions,
 ) -> Result<TrackingReport, BenchError> {
-    let check = |arg, v: f64, lo: f64, hi: f64| {
-        if v.is_finite() && (lo..=hi).contains(&v) {
-            Ok(())
-        } else {
-            Err(BenchError::Invalid {
-                arg,
-                value: v,
-                reason: format!("must lie in [{lo}, {hi}]"),
-            })
-        }
-    };
-    check("--bias", opts.bias, 0.0, 10e-6)?;
-    check("--step", opts.step, 1e-9, 1.5e-6)?;
-    check("--dwell", opts.dwell, 0.1, 60.0)?;
-    check("--amplitude", opts.amplitude, 1e-9, 0.75e-6)?;
-    check("--frequency", opts.frequency, 0.01, 10.0)?;
-    check("--duration", opts.duration, 0.1, 600.0)?;
-    check("--tolerance", opts.tolerance, 1e-9, 1e-5)?;
+    opts.check()?;
     controller.reset();
     let mut rest = Vec::new();
     bench.hold_volts([0.0, 0.0], 0.2, &mut rest)?;
