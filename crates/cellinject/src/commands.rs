@@ -316,3 +316,21 @@ pub fn reproduce(d: &Description, out: &Path, format: Format) -> Result<()> {
     }
     Ok(())
 }
+
+/// Parses a pair typed as one word, `A,B` (`expected` says what, in the message): two
+/// finite numbers.
+pub fn parse_pair(s: &str, expected: &str) -> Result<[f64; 2], String> {
+    let bad = || format!("expected {expected} (two finite numbers), got `{s}`");
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 2 {
+        return Err(bad());
+    }
+    let mut out = [0.0f64; 2];
+    for (o, p) in out.iter_mut().zip(&parts) {
+        *o = p.trim().parse().map_err(|_| bad())?;
+        if !o.is_finite() {
+            return Err(bad());
+        }
+    }
+    Ok(out)
+}

@@ -181,19 +181,7 @@ pub enum FeaCommand {
 }
 
 fn parse_forces(s: &str) -> Result<[f64; 2], String> {
-    let parts: Vec<&str> = s.split(',').collect();
-    let bad = || format!("expected F11,F12 in newtons, got `{s}`");
-    if parts.len() != 2 {
-        return Err(bad());
-    }
-    let mut out = [0.0f64; 2];
-    for (o, p) in out.iter_mut().zip(&parts) {
-        *o = p.trim().parse().map_err(|_| bad())?;
-        if !o.is_finite() {
-            return Err(bad());
-        }
-    }
-    Ok(out)
+    crate::commands::parse_pair(s, "F11,F12 in newtons")
 }
 
 /// How approach 2's pre-tension of J3 enters the structural model.

@@ -31,6 +31,8 @@ pub enum Kind {
     Json,
     /// Markdown (`.md`).
     Markdown,
+    /// TOML (`.toml`).
+    Toml,
 }
 
 impl Kind {
@@ -44,6 +46,7 @@ impl Kind {
             "tif" | "tiff" => Kind::Tiff,
             "json" => Kind::Json,
             "md" => Kind::Markdown,
+            "toml" => Kind::Toml,
             _ => return None,
         })
     }
@@ -57,6 +60,7 @@ impl Kind {
             Kind::Tiff => "tif",
             Kind::Json => "json",
             Kind::Markdown => "md",
+            Kind::Toml => "toml",
         }
     }
 }

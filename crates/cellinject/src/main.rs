@@ -23,6 +23,7 @@ mod files;
 mod hinge;
 mod hysteresis;
 mod output;
+mod plate;
 mod progress;
 mod sim;
 
@@ -128,6 +129,12 @@ enum Command {
         after_help = "Examples:\n  cellinject experiment range --approach 2\n  cellinject experiment repeatability --approach 1 --control closed --runs 200\n  cellinject experiment tracking --control sensor"
     )]
     Experiment(experiment::ExperimentCommand),
+    /// The matrix feeder's description file: realistic plates from a seed, checks.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate check --plate plate.toml"
+    )]
+    Plate(plate::PlateCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     #[command(
         after_help = "Examples:\n  cellinject reproduce\n  cellinject reproduce --out my-reports --format json"
@@ -181,6 +188,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Hysteresis(cmd)) => hysteresis::run(description, &cmd),
         Some(Command::Calibrate(cmd)) => experiment::calibrate(&description()?, &cmd),
         Some(Command::Experiment(cmd)) => experiment::run(&description()?, &cmd),
+        Some(Command::Plate(cmd)) => {
+            unused_config();
+            plate::run(&cmd)
+        }
         Some(Command::Hinge(args)) => {
             unused_config();
             hinge::run(&args)

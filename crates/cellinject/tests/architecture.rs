@@ -180,6 +180,7 @@ fn the_hardware_vocabulary_depends_on_nothing_of_ours() {
         "cellinject-simparams",
         "cellinject-hysteresis",
         "cellinject-control",
+        "cellinject-plate",
     ] {
         let c = closure(&all, name);
         for bad in [

@@ -136,6 +136,9 @@ fn values(opt: &Opt) -> Vec<String> {
             "far.csv",
         ]),
         "config" => v(&["missing.toml", "bad.toml", "r.png"]),
+        "plate" => v(&["", "missing.toml", "bad.toml", "r.png", "plate.toml", "."]),
+        "origin" => v(&["0,0", "-1e-3,2e-3", "1", "nan,0", "1e300,0", "x"]),
+        "rows" | "cols" => v(&["0", "1", "1001", "-1", "x", "3"]),
         "frames" => v(&["", "missing", "frames/*.png", "frames/*.tif", "r.png"]),
         "out" | "reference" | "current" | "plot" | "export-mesh" => v(&[
             "",
@@ -250,6 +253,8 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
             "--out",
             "cmd.csv",
         ],
+        ["plate", "generate"] => vec!["--out", "p.toml"],
+        ["plate", "check"] => vec!["--plate", "plate.toml"],
         _ => vec![],
     }
 }
@@ -333,6 +338,11 @@ fn setup(tag: &str) -> PathBuf {
     let _ = fs::remove_dir_all(&dir);
     fs::create_dir_all(dir.join("frames")).unwrap();
     fs::write(dir.join("bad.toml"), "name = ").unwrap();
+    fs::write(
+        dir.join("plate.toml"),
+        "[plate]\nrows = 2\ncols = 2\npitch = 150e-6\n[[cell]]\nwell = [1, 1]\noffset = [0.0, 0.0]\ndiameter = 20e-6\n",
+    )
+    .unwrap();
     let o = bin(&dir)
         .args(["dic", "synth", "--size", "64,64", "--shift", "0.3,-0.2"])
         .args(["--reference", "r.png", "--current", "c.png"])

@@ -15,6 +15,7 @@ use cellinject_simparams::{SimParams, StackParams};
 use cellinject_structure::StructureParams;
 use thiserror::Error;
 
+pub mod plate;
 mod section;
 mod structure;
 mod twin;
@@ -112,11 +113,7 @@ impl Description {
 
 /// Parses and validates a description file's text.
 pub fn parse(text: &str) -> Result<Description, ConfigError> {
-    let root: toml::Table = text
-        .parse()
-        .map_err(|e: toml::de::Error| ConfigError::Syntax {
-            message: e.to_string().trim_end().to_string(),
-        })?;
+    let root = toml_table(text)?;
     let mut top = Section::root(&root);
     let name = top.string("name")?;
     let mut g = top.table("geometry")?;
@@ -198,6 +195,14 @@ pub fn parse(text: &str) -> Result<Description, ConfigError> {
         structure,
         structure_given,
     })
+}
+
+/// The text as a TOML table, or the parser's message.
+pub(crate) fn toml_table(text: &str) -> Result<toml::Table, ConfigError> {
+    text.parse()
+        .map_err(|e: toml::de::Error| ConfigError::Syntax {
+            message: e.to_string().trim_end().to_string(),
+        })
 }
 
 /// The embedded prototype description.

@@ -257,6 +257,62 @@ impl<'a> Section<'a> {
         Ok(v)
     }
 
+    /// An optional array of tables (`[[name]]`), each read as `name[i]`; empty if absent.
+    pub(crate) fn tables(&mut self, k: &str) -> Result<Vec<Section<'a>>, ConfigError> {
+        match self.get(k) {
+            None => Ok(Vec::new()),
+            Some(toml::Value::Array(items)) => items
+                .iter()
+                .enumerate()
+                .map(|(i, v)| match v {
+                    toml::Value::Table(t) => Ok(Section {
+                        path: format!("{}[{i}]", self.key(k)),
+                        table: t,
+                        used: BTreeSet::new(),
+                    }),
+                    other => Err(ConfigError::Type {
+                        key: format!("{}[{i}]", self.key(k)),
+                        expected: "a table".into(),
+                        found: type_name(other).into(),
+                    }),
+                })
+                .collect(),
+            Some(other) => Err(ConfigError::Type {
+                key: self.key(k),
+                expected: "an array of tables ([[...]])".into(),
+                found: type_name(other).into(),
+            }),
+        }
+    }
+
+    /// A pair of whole numbers, each within `[0, max]`.
+    pub(crate) fn index_pair(&mut self, k: &str) -> Result<[u32; 2], ConfigError> {
+        let key = self.key(k);
+        let v = self.require(k)?;
+        let bad = |found: String| ConfigError::Type {
+            key: key.clone(),
+            expected: "an array of 2 whole numbers [row, col]".into(),
+            found,
+        };
+        let toml::Value::Array(items) = v else {
+            return Err(bad(type_name(v).into()));
+        };
+        if items.len() != 2 {
+            return Err(bad(format!("{} elements", items.len())));
+        }
+        let mut out = [0u32; 2];
+        for (i, item) in items.iter().enumerate() {
+            match item {
+                toml::Value::Integer(n) if (0..=i64::from(u32::MAX)).contains(n) => {
+                    out[i] = *n as u32;
+                }
+                toml::Value::Integer(n) => return Err(bad(n.to_string())),
+                other => return Err(bad(type_name(other).into())),
+            }
+        }
+        Ok(out)
+    }
+
     /// An optional sub-table.
     pub(crate) fn opt_table(&mut self, k: &str) -> Result<Option<Section<'a>>, ConfigError> {
         if self.table.contains_key(k) {

@@ -1,0 +1,214 @@
+//! `cellinject plate`: the matrix feeder's description file: realistic plates from a
+//! seed, and a check of any plate file.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use cellinject_plate::{GenerateOptions, Plate, generate};
+use clap::Subcommand;
+use serde::Serialize;
+
+use crate::files::{Kind as FileKind, Plan, write_one};
+use crate::output::print_json;
+use crate::{Format, InputError};
+
+/// The plate subcommands.
+#[derive(Debug, Subcommand)]
+pub enum PlateCommand {
+    /// A realistic plate: cells of 10-30 µm off-centre in their wells, empty wells,
+    /// doublets of touching cells, debris; deterministic for a seed.
+    #[command(
+        after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate generate --rows 10 --cols 12 --seed 7 --debris-fraction 0.3 --out big.toml"
+    )]
+    Generate {
+        /// Rows of wells (along plate y).
+        #[arg(long, default_value_t = 4)]
+        rows: u32,
+        /// Columns of wells (along plate x).
+        #[arg(long, default_value_t = 6)]
+        cols: u32,
+        /// m between well centres.
+        #[arg(long, default_value_t = 150e-6, allow_negative_numbers = true)]
+        pitch: f64,
+        /// m, stage coordinates of well [0, 0] (`X,Y`).
+        #[arg(long, value_name = "X,Y", default_value = "0,0", value_parser = parse_origin, allow_hyphen_values = true)]
+        origin: [f64; 2],
+        /// Fraction of wells left empty.
+        #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
+        empty_fraction: f64,
+        /// Fraction of wells that also hold a piece of debris (3-9 µm).
+        #[arg(long, default_value_t = 0.2, allow_negative_numbers = true)]
+        debris_fraction: f64,
+        /// Fraction of occupied wells holding two touching cells.
+        #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
+        doublet_fraction: f64,
+        /// Seed of the plate's randomness.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The plate file to write (`.toml`).
+        #[arg(long)]
+        out: PathBuf,
+        /// What to print.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+    },
+    /// Reads a plate file, checks it (cells inside their wells, no overlaps, sizes in
+    /// their class) and says what it holds.
+    #[command(after_help = "Examples:\n  cellinject plate check --plate plate.toml")]
+    Check {
+        /// The plate file.
+        #[arg(long)]
+        plate: PathBuf,
+        /// What to print.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+    },
+}
+
+/// What a plate holds.
+#[derive(Debug, Serialize)]
+struct Summary {
+    rows: u32,
+    cols: u32,
+    pitch_m: f64,
+    wells: usize,
+    cells: usize,
+    /// Wells holding two or more cells.
+    doublets: usize,
+    empty_wells: usize,
+    debris: usize,
+    /// Smallest and largest cell, m (null without cells).
+    cell_diameter_m: Option<[f64; 2]>,
+}
+
+fn summary(p: &Plate) -> Summary {
+    let mut per_well = vec![0usize; p.wells()];
+    for c in &p.cells {
+        per_well[c.well[0] as usize * p.cols as usize + c.well[1] as usize] += 1;
+    }
+    let d = p.cells.iter().map(|c| c.diameter);
+    let cell_diameter_m = (!p.cells.is_empty()).then(|| {
+        [
+            d.clone().fold(f64::INFINITY, f64::min),
+            d.fold(0.0, f64::max),
+        ]
+    });
+    Summary {
+        rows: p.rows,
+        cols: p.cols,
+        pitch_m: p.pitch,
+        wells: p.wells(),
+        cells: p.cells.len(),
+        doublets: per_well.iter().filter(|n| **n >= 2).count(),
+        empty_wells: per_well.iter().filter(|n| **n == 0).count(),
+        debris: p.debris.len(),
+        cell_diameter_m,
+    }
+}
+
+/// `n` and the noun, singular or plural.
+fn count(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
+fn say(s: &Summary) {
+    let sizes = s
+        .cell_diameter_m
+        .map(|d| {
+            if (d[1] - d[0]).abs() < 0.05e-6 {
+                format!(" of {:.1} µm", d[0] * 1e6)
+            } else {
+                format!(" of {:.1}-{:.1} µm", d[0] * 1e6, d[1] * 1e6)
+            }
+        })
+        .unwrap_or_default();
+    outln!(
+        "{}x{} wells at {:.1} µm: {}{sizes}, {}, {}, {}",
+        s.rows,
+        s.cols,
+        s.pitch_m * 1e6,
+        count(s.cells, "cell", "cells"),
+        count(s.doublets, "doublet", "doublets"),
+        count(s.empty_wells, "empty well", "empty wells"),
+        count(s.debris, "piece of debris", "pieces of debris")
+    );
+}
+
+fn parse_origin(s: &str) -> Result<[f64; 2], String> {
+    crate::commands::parse_pair(s, "X,Y in metres")
+}
+
+/// Reads and checks a plate file; errors name the file and the key.
+pub fn load(arg: &str, path: &Path) -> Result<Plate> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| InputError(format!("{arg} `{}`: cannot read: {e}", path.display())))?;
+    cellinject_config::plate::parse(&text)
+        .map_err(|e| InputError(format!("plate file `{}`: {e}", path.display())).into())
+}
+
+/// Runs a plate subcommand.
+pub fn run(cmd: &PlateCommand) -> Result<()> {
+    match cmd {
+        PlateCommand::Generate {
+            rows,
+            cols,
+            pitch,
+            origin,
+            empty_fraction,
+            debris_fraction,
+            doublet_fraction,
+            seed,
+            out,
+            format,
+        } => {
+            let mut plan = Plan::new();
+            plan.output("--out", out, &[FileKind::Toml])?;
+            plan.check()?;
+            let opts = GenerateOptions {
+                rows: *rows,
+                cols: *cols,
+                pitch: *pitch,
+                origin: *origin,
+                empty_fraction: *empty_fraction,
+                debris_fraction: *debris_fraction,
+                doublet_fraction: *doublet_fraction,
+                seed: *seed,
+            };
+            let plate = generate(&opts).map_err(
+                |cellinject_plate::PlateError::Invalid { key, reason }| {
+                    // The grid's keys are the options' here.
+                    let arg = match key.as_str() {
+                        "plate.rows" => "--rows",
+                        "plate.cols" => "--cols",
+                        "plate.pitch" => "--pitch",
+                        k if k.starts_with("plate.origin") => "--origin",
+                        k => k,
+                    };
+                    InputError(format!("{arg}: {reason}"))
+                },
+            )?;
+            let comment = format!(
+                "A matrix feeder made by `cellinject plate generate --rows {rows} --cols {cols} --pitch {pitch:e} --origin {},{} --empty-fraction {empty_fraction} --debris-fraction {debris_fraction} --doublet-fraction {doublet_fraction} --seed {seed}`.\n[[cell]] and [[debris]] are the twin's ground truth; the injection workflow never reads them.",
+                origin[0], origin[1]
+            );
+            let text = cellinject_config::plate::to_toml(&plate, &comment);
+            write_one(out, text.as_bytes())?;
+            let s = summary(&plate);
+            if *format == Format::Json {
+                return print_json(&s, &[out.as_path()]);
+            }
+            say(&s);
+            outln!("wrote {}", out.display());
+            Ok(())
+        }
+        PlateCommand::Check { plate, format } => {
+            let p = load("--plate", plate)?;
+            let s = summary(&p);
+            if *format == Format::Json {
+                return print_json(&s, &[]);
+            }
+            say(&s);
+            Ok(())
+        }
+    }
+}

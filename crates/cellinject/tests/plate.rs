@@ -1,0 +1,156 @@
+//! `plate generate` and `plate check` from the command line: a generated plate reads
+//! back and holds what was asked; bad plate files are refused with exit 2 naming the
+//! file and the key.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("cellinject-plate-{name}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cellinject"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn err(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn json(o: &Output) -> Value {
+    assert_eq!(o.status.code(), Some(0), "{}", err(o));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+#[test]
+fn a_generated_plate_is_checked_and_reads_back_with_what_was_asked() {
+    let d = dir("gen");
+    let g = json(&run(
+        &d,
+        &[
+            "plate", "generate", "--rows", "10", "--cols", "12", "--seed", "5", "--out", "p.toml",
+            "--format", "json",
+        ],
+    ));
+    assert_eq!(g["wells"], 120);
+    assert_eq!(g["files"][0], "p.toml");
+    let cells = g["cells"].as_u64().unwrap();
+    let empty = g["empty_wells"].as_u64().unwrap();
+    let doublets = g["doublets"].as_u64().unwrap();
+    // Every well holds 0, 1 or 2 cells.
+    assert_eq!(cells, 120 - empty + doublets);
+    assert!(
+        doublets > 0 && empty > 0 && g["debris"].as_u64().unwrap() > 0,
+        "{g}"
+    );
+    let d_range = &g["cell_diameter_m"];
+    assert!(d_range[0].as_f64().unwrap() >= 10e-6 && d_range[1].as_f64().unwrap() <= 30e-6);
+    // `check` reads the file and finds the same.
+    let c = json(&run(
+        &d,
+        &["plate", "check", "--plate", "p.toml", "--format", "json"],
+    ));
+    for k in ["wells", "cells", "doublets", "empty_wells", "debris"] {
+        assert_eq!(c[k], g[k], "{k}");
+    }
+    // The same seed writes the same bytes; another seed another plate.
+    let first = fs::read(d.join("p.toml")).unwrap();
+    run(
+        &d,
+        &[
+            "plate", "generate", "--rows", "10", "--cols", "12", "--seed", "5", "--out", "q.toml",
+        ],
+    );
+    assert_eq!(fs::read(d.join("q.toml")).unwrap(), first);
+    run(
+        &d,
+        &[
+            "plate", "generate", "--rows", "10", "--cols", "12", "--seed", "6", "--out", "q.toml",
+        ],
+    );
+    assert_ne!(fs::read(d.join("q.toml")).unwrap(), first);
+}
+
+/// The shipped example (`configs/example-plate.toml`).
+const GOOD: &str = include_str!("../../../configs/example-plate.toml");
+
+#[test]
+fn bad_plate_files_are_refused_naming_the_file_and_the_key() {
+    let d = dir("bad");
+    fs::write(d.join("good.toml"), GOOD).unwrap();
+    let o = run(&d, &["plate", "check", "--plate", "good.toml"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let cases: Vec<(String, &str)> = vec![
+        // A cell outside its well.
+        (
+            GOOD.replace("offset = [3e-6", "offset = [70e-6"),
+            "cell[0].offset",
+        ),
+        // Two cells overlapping.
+        (
+            format!("{GOOD}[[cell]]\nwell = [0, 0]\noffset = [10e-6, 0.0]\ndiameter = 12e-6\n"),
+            "cell[1].offset",
+        ),
+        // An unknown key.
+        (
+            GOOD.replace("rows = 4", "rows = 4\ncolour = \"blue\""),
+            "plate.colour",
+        ),
+        // A negative size.
+        (
+            GOOD.replace("diameter = 6e-6", "diameter = -6e-6"),
+            "debris[0].diameter",
+        ),
+        // Debris the size of a cell.
+        (
+            GOOD.replace("diameter = 6e-6", "diameter = 16e-6"),
+            "debris[0].diameter",
+        ),
+        // A well off the grid.
+        (
+            GOOD.replace("well = [1, 2]", "well = [4, 2]"),
+            "debris[0].well",
+        ),
+        // A missing key.
+        (GOOD.replace("pitch = 150e-6", "#"), "plate.pitch"),
+        // TOML syntax.
+        (GOOD.replace("rows = 4", "rows = [4"), "not valid TOML"),
+    ];
+    for (text, key) in cases {
+        fs::write(d.join("bad.toml"), &text).unwrap();
+        let o = run(&d, &["plate", "check", "--plate", "bad.toml"]);
+        assert_eq!(o.status.code(), Some(2), "{key}: {}", err(&o));
+        let e = err(&o);
+        assert!(e.contains("bad.toml") && e.contains(key), "{key}: {e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    // Bad generator options: exit 2, the option named, nothing written.
+    for (args, name) in [
+        (vec!["--rows", "0"], "--rows"),
+        (vec!["--empty-fraction", "1.5"], "--empty-fraction"),
+        (vec!["--pitch", "20e-6"], "--pitch"),
+        (vec!["--origin", "nan,0"], "--origin"),
+    ] {
+        let mut a = vec!["plate", "generate", "--out", "x.toml"];
+        a.extend(args);
+        let o = run(&d, &a);
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", err(&o));
+        assert!(err(&o).contains(name), "{name}: {}", err(&o));
+        assert!(!d.join("x.toml").exists());
+    }
+    let o = run(&d, &["plate", "generate", "--out", "x.csv"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(err(&o).contains(".toml"), "{}", err(&o));
+}

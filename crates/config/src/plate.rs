@@ -1,0 +1,196 @@
+//! The plate description file (TOML, SI units): the matrix feeder's grid, where it
+//! sits on the stage, and (for the twin) the cells and debris in its wells.
+//!
+//! ```toml
+//! [plate]                 # a well is the pitch x pitch square around its centre
+//! rows = 4
+//! cols = 6
+//! pitch = 150e-6          # m between well centres
+//! origin = [0.0, 0.0]     # m, stage coordinates of well [0, 0]
+//! [[cell]]                # the twin's ground truth; the workflow never reads these
+//! well = [0, 0]           # [row, col]
+//! offset = [3e-6, -2e-6]  # m from the well centre (plate x along columns, y along rows)
+//! diameter = 18e-6        # m
+//! [[debris]]              # not cells (< 10 µm): never injected
+//! well = [1, 2]
+//! offset = [0.0, 4e-6]
+//! diameter = 6e-6
+//! ```
+
+use std::fmt::Write as _;
+
+use cellinject_plate::{Object, Plate, PlateError};
+
+use crate::ConfigError;
+use crate::section::Section;
+
+/// Parses and validates a plate file's text ([`Plate::check`]).
+pub fn parse(text: &str) -> Result<Plate, ConfigError> {
+    let root = crate::toml_table(text)?;
+    let mut top = Section::root(&root);
+    let mut p = top.table("plate")?;
+    let rows = p.int("rows", 0, 1, u64::from(cellinject_plate::MAX_SIDE))? as u32;
+    let cols = p.int("cols", 0, 1, u64::from(cellinject_plate::MAX_SIDE))? as u32;
+    let pitch = p.number("pitch")?;
+    let origin = p.opt_array::<2>("origin")?.unwrap_or([0.0, 0.0]);
+    p.finish()?;
+    let mut objects = |name: &str| -> Result<Vec<Object>, ConfigError> {
+        top.tables(name)?
+            .into_iter()
+            .map(|mut t| {
+                let o = Object {
+                    well: t.index_pair("well")?,
+                    offset: t.array::<2>("offset")?,
+                    diameter: t.number("diameter")?,
+                };
+                t.finish()?;
+                Ok(o)
+            })
+            .collect()
+    };
+    let cells = objects("cell")?;
+    let debris = objects("debris")?;
+    top.finish()?;
+    let plate = Plate {
+        rows,
+        cols,
+        pitch,
+        origin,
+        cells,
+        debris,
+    };
+    plate
+        .check()
+        .map_err(|PlateError::Invalid { key, reason }| ConfigError::Invalid { key, reason })?;
+    Ok(plate)
+}
+
+/// A number as TOML: shortest round-trip form, `0.0` for zero.
+fn num(x: f64) -> String {
+    if x == 0.0 {
+        "0.0".into()
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// The plate as a description file that [`parse`] reads back exactly (numbers in
+/// shortest round-trip form), headed by `comment` (one `#` line each).
+pub fn to_toml(plate: &Plate, comment: &str) -> String {
+    let mut s = String::new();
+    for line in comment.lines() {
+        let _ = writeln!(s, "# {line}");
+    }
+    let _ = writeln!(
+        s,
+        "# {} cells and {} pieces of debris in {} wells; SI units (m).",
+        plate.cells.len(),
+        plate.debris.len(),
+        plate.wells()
+    );
+    let _ = writeln!(
+        s,
+        "\n[plate]                 # a well is the pitch x pitch square around its centre"
+    );
+    let _ = writeln!(s, "rows = {}", plate.rows);
+    let _ = writeln!(s, "cols = {}", plate.cols);
+    let _ = writeln!(
+        s,
+        "pitch = {}          # m between well centres",
+        num(plate.pitch)
+    );
+    let _ = writeln!(
+        s,
+        "origin = [{}, {}]     # m, stage coordinates of well [0, 0]",
+        num(plate.origin[0]),
+        num(plate.origin[1])
+    );
+    for (name, list) in [("cell", &plate.cells), ("debris", &plate.debris)] {
+        for o in list {
+            let _ = writeln!(s, "\n[[{name}]]");
+            let _ = writeln!(s, "well = [{}, {}]", o.well[0], o.well[1]);
+            let _ = writeln!(s, "offset = [{}, {}]", num(o.offset[0]), num(o.offset[1]));
+            let _ = writeln!(s, "diameter = {}", num(o.diameter));
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use cellinject_plate::{GenerateOptions, generate};
+
+    const EXAMPLE: &str = include_str!("../../../configs/example-plate.toml");
+
+    fn key(text: &str) -> String {
+        match parse(text) {
+            Ok(_) => "ok".into(),
+            Err(e) => e.key().unwrap_or("syntax").to_string(),
+        }
+    }
+
+    #[test]
+    fn the_issues_example_reads() {
+        let p = parse(EXAMPLE).unwrap();
+        assert_eq!(
+            (p.rows, p.cols, p.cells.len(), p.debris.len()),
+            (4, 6, 1, 1)
+        );
+        assert_eq!(p.cells[0].well, [0, 0]);
+        assert_eq!(p.debris[0].diameter, 6e-6);
+    }
+
+    #[test]
+    fn a_generated_plate_reads_back_exactly() {
+        let p = generate(&GenerateOptions {
+            rows: 5,
+            cols: 7,
+            seed: 3,
+            ..GenerateOptions::default()
+        })
+        .unwrap();
+        let text = to_toml(&p, "test plate");
+        assert_eq!(parse(&text).unwrap(), p);
+    }
+
+    #[test]
+    fn bad_files_name_the_key() {
+        let swap = |a: &str, b: &str| EXAMPLE.replace(a, b);
+        assert_eq!(
+            key(&swap("offset = [3e-6", "offset = [70e-6")),
+            "cell[0].offset"
+        );
+        assert_eq!(
+            key(&swap("diameter = 18e-6", "diameter = -18e-6")),
+            "cell[0].diameter"
+        );
+        assert_eq!(
+            key(&swap("rows = 4", "rows = 4\ncolour = 1")),
+            "plate.colour"
+        );
+        assert_eq!(
+            key(&swap("well = [0, 0]", "well = [0, -1]")),
+            "cell[0].well"
+        );
+        assert_eq!(key(&swap("well = [0, 0]", "well = [9, 0]")), "cell[0].well");
+        assert_eq!(
+            key(&swap("well = [0, 0]", "well = [0, 0]\nshape = 1")),
+            "cell[0].shape"
+        );
+        assert_eq!(
+            key(&swap("pitch = 150e-6", "pitch = \"wide\"")),
+            "plate.pitch"
+        );
+        assert_eq!(key(&swap("[plate]", "[plates]")), "plate");
+        assert_eq!(key(&swap("rows = 4", "rows = [4")), "syntax");
+        // Two cells overlapping in one well.
+        let two = format!(
+            "{EXAMPLE}\n[[cell]]\nwell = [0, 0]\noffset = [10e-6, 0.0]\ndiameter = 12e-6\n"
+        );
+        assert_eq!(key(&two), "cell[1].offset");
+        assert_eq!(key(&swap("[[debris]]", "[debris]")), "debris");
+    }
+}
