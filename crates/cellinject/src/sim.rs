@@ -87,6 +87,10 @@ pub enum SimCommand {
         /// Image output: `.png`, or `.tif` for TIFF.
         #[arg(long, default_value = "frame.png")]
         out: PathBuf,
+        /// A plate file (`cellinject plate generate`): its cells and debris under the
+        /// microscope instead of the feeder the twin generates from its seed.
+        #[arg(long, value_name = "FILE")]
+        plate: Option<PathBuf>,
         #[command(flatten)]
         twin: TwinArgs,
     },
@@ -352,18 +356,19 @@ pub fn encode_frame(frame: &Frame, bits: u8, path: &Path) -> Result<Vec<u8>> {
 }
 
 /// How `sim frame` acquires and writes.
-struct FrameArgs {
+struct FrameArgs<'a> {
     zoom: f64,
     vga: bool,
     crop: bool,
     bits: u8,
     scale_bar: bool,
+    plate: Option<&'a Path>,
 }
 
 /// `sim frame`.
 fn run_frame(
     d: &Description,
-    f: FrameArgs,
+    f: FrameArgs<'_>,
     volts: Option<&[f64]>,
     out: &Path,
     args: &TwinArgs,
@@ -374,6 +379,7 @@ fn run_frame(
         crop,
         bits,
         scale_bar,
+        plate,
     } = f;
     let volts = match volts {
         None => None,
@@ -392,9 +398,18 @@ fn run_frame(
         (false, false) => Acquisition::Full,
     };
     let mut plan = Plan::new();
+    if let Some(p) = plate {
+        plan.input("--plate", p);
+    }
     plan.output("--out", out, &[Kind::Png, Kind::Tiff])?;
     plan.check()?;
+    let plate = plate
+        .map(|p| crate::plate::load("--plate", p))
+        .transpose()?;
     let (twin, mut rig) = build(d, args)?;
+    if let Some(p) = &plate {
+        twin.lock().unwrap_or_else(|e| e.into_inner()).load_plate(p);
+    }
     let frame = core::frame(&mut rig, zoom, acquisition, volts).map_err(|e| match e {
         SimError::Device {
             what,
@@ -468,6 +483,7 @@ pub fn run(d: &Description, cmd: &SimCommand) -> Result<()> {
             scale_bar,
             volts,
             out,
+            plate,
             twin,
         } => run_frame(
             d,
@@ -477,6 +493,7 @@ pub fn run(d: &Description, cmd: &SimCommand) -> Result<()> {
                 crop: *crop,
                 bits: *bits,
                 scale_bar: *scale_bar,
+                plate: plate.as_deref(),
             },
             volts.as_deref(),
             out,

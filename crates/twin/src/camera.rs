@@ -177,6 +177,12 @@ impl Microscope {
         }
     }
 
+    /// Looks at another scene from now on (e.g. a plate file's).
+    pub fn set_scene(&mut self, scene: Scene) {
+        self.scene = scene;
+        self.static_grid = None;
+    }
+
     /// The same camera drawing its sensor noise from random stream `stream` (a second
     /// camera must not repeat the first one's noise).
     pub fn with_noise_stream(mut self, stream: u64) -> Self {
@@ -631,6 +637,66 @@ mod tests {
             }
         }
         (gx, gz)
+    }
+
+    #[test]
+    fn a_plates_cells_and_debris_are_drawn_where_the_plate_says() {
+        use cellinject_plate::{Object, Plate};
+        let plate = Plate {
+            rows: 2,
+            cols: 2,
+            pitch: 150e-6,
+            origin: [0.0, 0.0],
+            cells: vec![Object {
+                well: [1, 1],
+                offset: [20e-6, -10e-6],
+                diameter: 24e-6,
+            }],
+            debris: vec![Object {
+                well: [1, 0],
+                offset: [0.0, 0.0],
+                diameter: 8e-6,
+            }],
+        };
+        let mut c = camera();
+        c.params.read_noise = 0.0;
+        c.params.full_well = 1e12;
+        c.set_zoom(2.5).unwrap();
+        c.set_scene(Scene::from_plate(&plate, 1));
+        let mut f = Frame::default();
+        c.render(&TipPose::default(), 0.0, 0, 1, &mut f);
+        let g = c.grid();
+        // Mean of the pixels between r0 and r1 (m) from (x, z).
+        let mean = |x: f64, z: f64, r0: f64, r1: f64| {
+            let (ci, cj) = ((x - g.x0) / g.pitch, (z - g.z0) / g.pitch);
+            let (mut sum, mut n) = (0.0, 0.0);
+            let reach = (r1 / g.pitch).ceil() as i64 + 1;
+            for dj in -reach..=reach {
+                for di in -reach..=reach {
+                    let (i, j) = (ci.round() as i64 + di, cj.round() as i64 + dj);
+                    let d = ((i as f64 - ci).hypot(j as f64 - cj)) * g.pitch;
+                    if d >= r0 && d <= r1 {
+                        sum += f.pixels[j as usize * g.width + i as usize] as f64;
+                        n += 1.0;
+                    }
+                }
+            }
+            sum / n
+        };
+        // The cell, at well [1, 1]'s centre (150, 150) µm plus its offset: darker inside
+        // (cytoplasm, membrane, nucleus) than around it.
+        let (x, z) = (170e-6, 140e-6);
+        let inside = mean(x, z, 0.0, 12e-6);
+        let around = mean(x, z, 16e-6, 24e-6);
+        assert!(inside < 0.95 * around, "cell {inside} vs {around}");
+        // The debris at well [1, 0]'s centre: darker still.
+        let spot = mean(0.0, 150e-6, 0.0, 2.5e-6);
+        let ring = mean(0.0, 150e-6, 8e-6, 14e-6);
+        assert!(spot < 0.8 * ring, "debris {spot} vs {ring}");
+        // An empty well's centre is background.
+        let empty = mean(150e-6, 0.0, 0.0, 12e-6);
+        let bg = mean(150e-6, 0.0, 16e-6, 24e-6);
+        assert!((empty / bg - 1.0).abs() < 0.03, "empty {empty} vs {bg}");
     }
 
     #[test]

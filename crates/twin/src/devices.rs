@@ -68,6 +68,13 @@ fn lock(t: &SharedTwin) -> MutexGuard<'_, Twin> {
 }
 
 impl Twin {
+    /// Puts the cells and debris of `plate` under the microscope (in place of the
+    /// feeder the twin generated from its seed): see [`Scene::from_plate`].
+    pub fn load_plate(&mut self, plate: &cellinject_plate::Plate) {
+        let seed = self.world.params().sim.seed;
+        self.camera.set_scene(Scene::from_plate(plate, seed));
+    }
+
     /// A twin of `design` at rest, assembled with `params.approach`.
     pub fn new(design: &Design, params: TwinParams) -> Result<Self, TwinError> {
         let world = World::new(design, params)?;

@@ -141,15 +141,13 @@ impl Scene {
                 let radius = 0.5 * d;
                 // Cells sit in their wells with a little play.
                 let play = (0.5 * feeder.pitch - radius).max(0.0) * 0.5;
-                let nr = radius * rng.range(0.3, 0.42);
-                let off = (radius - nr) * 0.5 * rng.uniform();
-                let ang = rng.range(0.0, std::f64::consts::TAU);
+                let (nucleus, nucleus_radius) = nucleus(&mut rng, radius);
                 cells.push(Cell {
                     x: feeder.offset[0] + c as f64 * feeder.pitch + rng.range(-play, play),
                     z: feeder.offset[1] + r as f64 * feeder.pitch + rng.range(-play, play),
                     radius,
-                    nucleus: [off * ang.cos(), off * ang.sin()],
-                    nucleus_radius: nr,
+                    nucleus,
+                    nucleus_radius,
                 });
             }
         }
@@ -174,6 +172,85 @@ impl Scene {
             feeder: *feeder,
         }
     }
+}
+
+impl Scene {
+    /// The scene of a plate file: its cells where the plate says (plate x along the
+    /// scene's x, plate y along z; stage coordinates are the scene's), each with a
+    /// nucleus drawn from the seed; its debris as irregular dark clusters of 3-6 spots
+    /// within the particle's diameter, darker than the cells; the feeder's walls on the
+    /// plate's grid; and the same fine dust and pipette as [`Scene::generate`].
+    pub fn from_plate(plate: &cellinject_plate::Plate, seed: u64) -> Self {
+        let mut rng = Rng::new(seed, stream::PLATE_SCENE);
+        let cells = plate
+            .cells
+            .iter()
+            .map(|o| {
+                let [x, z] = plate.centre(o);
+                let radius = 0.5 * o.diameter;
+                let (nucleus, nucleus_radius) = nucleus(&mut rng, radius);
+                Cell {
+                    x,
+                    z,
+                    radius,
+                    nucleus,
+                    nucleus_radius,
+                }
+            })
+            .collect();
+        let mut debris = Vec::new();
+        for o in &plate.debris {
+            let [x, z] = plate.centre(o);
+            let r = 0.5 * o.diameter;
+            let n = 3 + (rng.uniform() * 4.0) as usize;
+            for _ in 0..n {
+                // Blobs inside the particle's disc: an irregular outline.
+                let (a, q) = (rng.range(0.0, std::f64::consts::TAU), rng.uniform().sqrt());
+                let sigma = r * rng.range(0.25, 0.45);
+                let reach = (r - 2.0 * sigma).max(0.0) * q;
+                debris.push(Debris {
+                    x: x + reach * a.cos(),
+                    z: z + reach * a.sin(),
+                    sigma,
+                    depth: rng.range(0.5, 0.8),
+                });
+            }
+        }
+        // Fine dust over the 2.5x field of view around the plate's first well.
+        let [x0, z0] = plate.origin;
+        for _ in 0..40 {
+            debris.push(Debris {
+                x: x0 + rng.range(-1.2e-3, 1.2e-3),
+                z: z0 + rng.range(-0.9e-3, 0.9e-3),
+                sigma: rng.range(0.4e-6, 1.5e-6),
+                depth: rng.range(0.2, 0.6),
+            });
+        }
+        let pipette = PipetteShape::default();
+        let speckles = speckles(&pipette, &mut rng);
+        Scene {
+            cells,
+            debris,
+            pipette,
+            speckles,
+            feeder: FeederParams {
+                rows: plate.rows,
+                cols: plate.cols,
+                pitch: plate.pitch,
+                offset: plate.origin,
+                ..FeederParams::default()
+            },
+        }
+    }
+}
+
+/// A cell's nucleus: its offset from the cell's centre and its radius (m), drawn from
+/// `rng`.
+fn nucleus(rng: &mut Rng, radius: f64) -> ([f64; 2], f64) {
+    let nr = radius * rng.range(0.3, 0.42);
+    let off = (radius - nr) * 0.5 * rng.uniform();
+    let ang = rng.range(0.0, std::f64::consts::TAU);
+    ([off * ang.cos(), off * ang.sin()], nr)
 }
 
 /// Speckles of a marker tab: random positions at about one per (2.5 µm)² of the tab.

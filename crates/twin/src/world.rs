@@ -25,6 +25,8 @@ pub(crate) mod stream {
     pub const SIDE_CAMERA: u64 = 8;
     /// The side view's background and marker.
     pub const SIDE_SCENE: u64 = 9;
+    /// The top view's scene when it comes from a plate file.
+    pub const PLATE_SCENE: u64 = 10;
 }
 
 /// Why a twin could not be built.
