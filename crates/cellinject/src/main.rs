@@ -189,8 +189,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Calibrate(cmd)) => experiment::calibrate(&description()?, &cmd),
         Some(Command::Experiment(cmd)) => experiment::run(&description()?, &cmd),
         Some(Command::Plate(cmd)) => {
-            unused_config();
-            plate::run(&cmd)
+            if !plate::uses_description(&cmd) {
+                unused_config();
+            }
+            plate::run(&cmd, description)
         }
         Some(Command::Hinge(args)) => {
             unused_config();

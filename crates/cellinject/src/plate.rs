@@ -52,6 +52,22 @@ pub enum PlateCommand {
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
+    /// Puts a plate under the twin's microscope, finds its cells in one frame (the
+    /// pipette moved out of view) and scores them against the plate's truth:
+    /// precision, recall, centre and diameter errors.
+    #[command(
+        after_help = "Examples:\n  cellinject plate detect --plate plate.toml\n  cellinject plate detect --plate plate.toml --zoom 5 --format json"
+    )]
+    Detect {
+        /// The plate file.
+        #[arg(long)]
+        plate: PathBuf,
+        /// Magnification (2.5 to 10); the frame is the full sensor.
+        #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
+        zoom: f64,
+        #[command(flatten)]
+        twin: crate::sim::TwinArgs,
+    },
     /// Reads a plate file, checks it (cells inside their wells, no overlaps, sizes in
     /// their class) and says what it holds.
     #[command(after_help = "Examples:\n  cellinject plate check --plate plate.toml")]
@@ -146,9 +162,92 @@ pub fn load(arg: &str, path: &Path) -> Result<Plate> {
         .map_err(|e| InputError(format!("plate file `{}`: {e}", path.display())).into())
 }
 
-/// Runs a plate subcommand.
-pub fn run(cmd: &PlateCommand) -> Result<()> {
+/// Whether a plate subcommand reads the manipulator description (only `detect`,
+/// which builds the twin).
+pub fn uses_description(cmd: &PlateCommand) -> bool {
+    matches!(cmd, PlateCommand::Detect { .. })
+}
+
+/// `plate detect`.
+fn detect(
+    d: &cellinject_config::Description,
+    plate_path: &Path,
+    zoom: f64,
+    args: &crate::sim::TwinArgs,
+) -> Result<()> {
+    use cellinject_core::cells::{PixelFrame, detect_and_score};
+    use cellinject_core::sim::{Acquisition, frame};
+    use cellinject_hw::{Clock, Stage};
+    let plate = load("--plate", plate_path)?;
+    let (twin, mut rig) = crate::sim::build(d, args)?;
+    let lock = || twin.lock().unwrap_or_else(|e| e.into_inner());
+    lock().load_plate(&plate);
+    // The pipette rides on the stage: move it 2 mm to the side, out of the view.
+    let device = |what: &str, e: cellinject_hw::HwError| anyhow::anyhow!("{what}: {e}");
+    rig.stage
+        .move_to(0, -2e-3)
+        .map_err(|e| device("stage", e))?;
+    let mut waited = 0.0;
+    while rig.stage.is_busy().map_err(|e| device("stage", e))? {
+        rig.clock.sleep(0.05).map_err(|e| device("clock", e))?;
+        waited += 0.05;
+        if waited > 10.0 {
+            anyhow::bail!("the stage did not settle within 10 s");
+        }
+    }
+    let f = frame(&mut rig, zoom, Acquisition::Full, None).map_err(|e| match e {
+        cellinject_core::sim::SimError::Device { what, source } => {
+            InputError(format!("{what}: {source}")).into()
+        }
+        other => anyhow::anyhow!("{other}"),
+    })?;
+    let g = lock().camera.grid();
+    let at = PixelFrame {
+        x0: g.x0,
+        y0: g.z0,
+        pitch: g.pitch,
+    };
+    let r = detect_and_score(&plate, &f.pixels, f.width as usize, f.height as usize, at)
+        .map_err(|e| anyhow::anyhow!("cell detection: {e}"))?;
+    if args.format() == Format::Json {
+        return print_json(&r, &[]);
+    }
+    outln!(
+        "{}x{} frame at {zoom}x ({:.3} µm per pixel): {} of the plate's cells and {} pieces of debris in view",
+        f.width,
+        f.height,
+        g.pitch * 1e6,
+        r.true_cells,
+        r.true_debris
+    );
+    outln!(
+        "found {} cells ({} split from a touching neighbour) and {} debris; {} match a true cell, {} do not ({} of them debris), {} cells missed",
+        r.found_cells,
+        r.cells.iter().filter(|c| c.split).count(),
+        r.found_debris,
+        r.true_positives,
+        r.false_positives,
+        r.debris_called_cells,
+        r.false_negatives
+    );
+    outln!(
+        "precision {:.3}, recall {:.3}; centre error median {:.3} µm, 95th percentile {:.3} µm; diameter error median {:.3} µm",
+        r.precision,
+        r.recall,
+        r.centre_error_m[0] * 1e6,
+        r.centre_error_m[1] * 1e6,
+        r.diameter_error_m * 1e6
+    );
+    Ok(())
+}
+
+/// Runs a plate subcommand (`d`: the manipulator description, for `detect`).
+pub fn run(
+    cmd: &PlateCommand,
+    d: impl FnOnce() -> Result<cellinject_config::Description>,
+) -> Result<()> {
     match cmd {
+        PlateCommand::Detect { plate, zoom, twin } => detect(&d()?, plate, *zoom, twin),
         PlateCommand::Generate {
             rows,
             cols,

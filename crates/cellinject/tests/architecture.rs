@@ -181,6 +181,7 @@ fn the_hardware_vocabulary_depends_on_nothing_of_ours() {
         "cellinject-hysteresis",
         "cellinject-control",
         "cellinject-plate",
+        "cellinject-cells",
     ] {
         let c = closure(&all, name);
         for bad in [

@@ -255,6 +255,7 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ],
         ["plate", "generate"] => vec!["--out", "p.toml"],
         ["plate", "check"] => vec!["--plate", "plate.toml"],
+        ["plate", "detect"] => vec!["--plate", "plate.toml"],
         _ => vec![],
     }
 }

@@ -154,3 +154,64 @@ fn bad_plate_files_are_refused_naming_the_file_and_the_key() {
     assert_eq!(o.status.code(), Some(2));
     assert!(err(&o).contains(".toml"), "{}", err(&o));
 }
+
+/// Cell detection on the twin against the plate's truth, over plates with many
+/// doublets and much debris: every cell found once, no debris called a cell, centres
+/// within half a micrometre.
+#[test]
+fn plate_detect_finds_every_cell_and_no_debris_on_generated_plates() {
+    let d = dir("detect");
+    let (mut cells, mut found) = (0, 0);
+    for seed in ["21", "22"] {
+        let name = format!("g{seed}.toml");
+        let o = run(
+            &d,
+            &[
+                "plate",
+                "generate",
+                "--rows",
+                "5",
+                "--cols",
+                "7",
+                "--seed",
+                seed,
+                "--doublet-fraction",
+                "0.3",
+                "--debris-fraction",
+                "0.4",
+                "--out",
+                &name,
+            ],
+        );
+        assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+        let r = json(&run(
+            &d,
+            &["plate", "detect", "--plate", &name, "--format", "json"],
+        ));
+        println!(
+            "seed {seed}: {}",
+            serde_json::to_string(&r)
+                .unwrap()
+                .chars()
+                .take(400)
+                .collect::<String>()
+        );
+        assert_eq!(r["debris_called_cells"], 0, "{r}");
+        assert_eq!(r["false_positives"], 0, "{r}");
+        assert!(r["recall"].as_f64().unwrap() >= 0.99, "{r}");
+        assert!(r["centre_error_m"][1].as_f64().unwrap() < 0.5e-6, "{r}");
+        assert!(r["diameter_error_m"].as_f64().unwrap() < 1e-6, "{r}");
+        // Doublets were split.
+        assert!(
+            r["cells"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|c| c["split"] == true)
+        );
+        cells += r["true_cells"].as_u64().unwrap();
+        found += r["true_positives"].as_u64().unwrap();
+    }
+    assert!(cells >= 60, "{cells}");
+    assert_eq!(found, cells);
+}

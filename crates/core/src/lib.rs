@@ -23,6 +23,7 @@
 //! | `experiment range` | [`experiment::range`] | [`experiment::RangeReport`] |
 //! | `experiment repeatability` | [`experiment::repeatability`] | [`experiment::RepeatabilityReport`] |
 //! | `experiment tracking` | [`experiment::tracking`] | [`experiment::TrackingReport`] |
+//! | `plate detect` | [`cells::detect_and_score`] | [`cells::DetectionReport`] |
 //! | `fea ...` | crate `cellinject-fea` | its reports |
 //!
 //! **Architecture invariant:** no IO: no files, no terminal, no environment. Front ends
@@ -31,6 +32,7 @@
 
 pub mod bench;
 pub mod calibrate;
+pub mod cells;
 pub mod dic;
 pub mod experiment;
 pub mod hinge;

@@ -1,0 +1,621 @@
+//! # cellinject-cells
+//!
+//! Finds cells in a bright-field microscope image by classical segmentation:
+//!
+//! 1. **Background.** The illumination (vignetting) is estimated by a box mean over a
+//!    window several cells wide, twice: the second pass leaves out what the first found
+//!    darker than the background, so cells do not pull it down.
+//! 2. **Darkness.** `d = 1 − image / background`; cells darken their inside by ~10 %,
+//!    their membrane by ~30 %; debris by 50 % and more.
+//! 3. **Mask and opening.** `d > threshold`, then a morphological opening by a square
+//!    of about 4 µm: thin structures (the feeder's walls, fine dust, the neck between
+//!    two touching cells) disappear, discs stay.
+//! 4. **Components** (4-connected). One whose distance transform has a second high
+//!    point (at least 3.5 µm from the outside) beyond the first's inscribed disc holds
+//!    two touching cells (a doublet): its pixels are shared by power distance to the
+//!    two discs, which for touching discs is their common tangent.
+//! 5. **Kinds.** A blob narrower than `min_cell` (equivalent diameter) or darker on
+//!    average than `max_cell_darkness` is debris, never a cell.
+//!
+//! A cell's centre is the circle fitted (Kåsa) to its outer edge, which a cut between
+//! touching cells does not bias, whatever its nucleus; its diameter is where its
+//! membrane is darkest along the radius. Debris is given by centroid and equivalent
+//! diameter `2√(A/π)`.
+//!
+//! **Architecture invariant:** pure computation on pixels it is given: no files, no
+//! devices, no clock; pixel coordinates in, pixel coordinates out.
+
+use std::collections::VecDeque;
+
+use thiserror::Error;
+
+/// Why an image could not be searched.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum CellsError {
+    /// The pixel buffer does not match the size.
+    #[error("{len} pixels for a {width}x{height} image")]
+    Size {
+        /// Pixels given.
+        len: usize,
+        /// Columns.
+        width: usize,
+        /// Rows.
+        height: usize,
+    },
+    /// An option outside its domain.
+    #[error("{what} = {value}: {reason}")]
+    Invalid {
+        /// Which option.
+        what: &'static str,
+        /// Its value.
+        value: f64,
+        /// What is wrong.
+        reason: &'static str,
+    },
+}
+
+/// How to search.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// m per pixel in the object plane.
+    pub pixel_size: f64,
+    /// Darkness above which a pixel belongs to something.
+    pub threshold: f64,
+    /// m, side of the opening's square.
+    pub opening: f64,
+    /// m, smallest equivalent diameter of a cell.
+    pub min_cell: f64,
+    /// Mean darkness above which a blob is debris.
+    pub max_cell_darkness: f64,
+    /// m, side of the background window.
+    pub background: f64,
+}
+
+impl Options {
+    /// Defaults for cells of 10-30 µm at `pixel_size` m per pixel.
+    pub fn for_pixel_size(pixel_size: f64) -> Self {
+        Options {
+            pixel_size,
+            threshold: 0.05,
+            opening: 4e-6,
+            min_cell: 9.5e-6,
+            max_cell_darkness: 0.3,
+            background: 90e-6,
+        }
+    }
+}
+
+/// What a blob is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// A cell.
+    Cell,
+    /// Not a cell: too small or too dark.
+    Debris,
+}
+
+/// One thing found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Blob {
+    /// Pixels, centroid column.
+    pub x: f64,
+    /// Pixels, centroid row.
+    pub y: f64,
+    /// m, equivalent diameter.
+    pub diameter: f64,
+    /// Mean darkness over the blob.
+    pub darkness: f64,
+    /// Cell or debris.
+    pub kind: Kind,
+    /// Whether it was split from a touching neighbour.
+    pub split: bool,
+}
+
+/// Finds the blobs of a `width × height` image (row-major `pixels`); `exclude` (same
+/// size, or empty) marks pixels never to be counted (e.g. outside the plate).
+pub fn detect(
+    pixels: &[u16],
+    width: usize,
+    height: usize,
+    exclude: &[bool],
+    o: &Options,
+) -> Result<Vec<Blob>, CellsError> {
+    if pixels.len() != width * height || (!exclude.is_empty() && exclude.len() != pixels.len()) {
+        return Err(CellsError::Size {
+            len: pixels.len(),
+            width,
+            height,
+        });
+    }
+    for (what, v) in [
+        ("pixel_size", o.pixel_size),
+        ("opening", o.opening),
+        ("min_cell", o.min_cell),
+        ("background", o.background),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(CellsError::Invalid {
+                what,
+                value: v,
+                reason: "must be a positive length",
+            });
+        }
+    }
+    for (what, v) in [
+        ("threshold", o.threshold),
+        ("max_cell_darkness", o.max_cell_darkness),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v < 1.0) {
+            return Err(CellsError::Invalid {
+                what,
+                value: v,
+                reason: "must lie in (0, 1)",
+            });
+        }
+    }
+    let img: Vec<f64> = pixels.iter().map(|&p| p as f64).collect();
+    let win = ((o.background / o.pixel_size).round() as usize).max(3) | 1;
+    // Background: a box mean, then again without what is clearly darker.
+    let all = vec![true; img.len()];
+    let bg0 = box_mean(&img, &all, width, height, win / 2);
+    let keep: Vec<bool> = img
+        .iter()
+        .zip(&bg0)
+        .map(|(v, b)| *b > 0.0 && *v > 0.97 * b)
+        .collect();
+    let bg = box_mean(&img, &keep, width, height, win / 2);
+    let dark: Vec<f64> = img
+        .iter()
+        .zip(bg.iter().zip(&bg0))
+        .map(|(v, (b, b0))| {
+            let b = if *b > 0.0 { *b } else { *b0 };
+            if b > 0.0 { 1.0 - v / b } else { 0.0 }
+        })
+        .collect();
+    let mut mask: Vec<bool> = dark
+        .iter()
+        .enumerate()
+        .map(|(i, d)| *d > o.threshold && (exclude.is_empty() || !exclude[i]))
+        .collect();
+    let r = ((0.5 * o.opening / o.pixel_size).round() as usize).max(1);
+    mask = opening(&mask, width, height, r);
+    let mut blobs = Vec::new();
+    for comp in components(&mask, width, height) {
+        // A second disc must be at least a small cell: 3.5 µm from its outside.
+        let members: std::collections::HashSet<usize> = comp.iter().copied().collect();
+        for (part, split) in split_discs(&comp, width, 3.5e-6 / o.pixel_size) {
+            if let Some(b) = blob(&part, &members, &dark, width, o, split) {
+                blobs.push(b);
+            }
+        }
+    }
+    Ok(blobs)
+}
+
+/// Mean of `img` over the `(2h+1)²` window around each pixel, counting only `keep`
+/// pixels (summed-area tables).
+fn box_mean(img: &[f64], keep: &[bool], w: usize, h: usize, half: usize) -> Vec<f64> {
+    let (w1, h1) = (w + 1, h + 1);
+    let mut s = vec![0.0; w1 * h1];
+    let mut n = vec![0.0; w1 * h1];
+    for y in 0..h {
+        let (mut rs, mut rn) = (0.0, 0.0);
+        for x in 0..w {
+            let i = y * w + x;
+            if keep[i] {
+                rs += img[i];
+                rn += 1.0;
+            }
+            s[(y + 1) * w1 + x + 1] = s[y * w1 + x + 1] + rs;
+            n[(y + 1) * w1 + x + 1] = n[y * w1 + x + 1] + rn;
+        }
+    }
+    let mut out = vec![0.0; w * h];
+    for y in 0..h {
+        let (y0, y1) = (y.saturating_sub(half), (y + half + 1).min(h));
+        for x in 0..w {
+            let (x0, x1) = (x.saturating_sub(half), (x + half + 1).min(w));
+            let sum = s[y1 * w1 + x1] - s[y0 * w1 + x1] - s[y1 * w1 + x0] + s[y0 * w1 + x0];
+            let cnt = n[y1 * w1 + x1] - n[y0 * w1 + x1] - n[y1 * w1 + x0] + n[y0 * w1 + x0];
+            out[y * w + x] = if cnt > 0.0 { sum / cnt } else { 0.0 };
+        }
+    }
+    out
+}
+
+/// Erosion then dilation by the `(2r+1)²` square (separable; outside counts as empty).
+fn opening(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let eroded = filter(mask, w, h, r, true);
+    filter(&eroded, w, h, r, false)
+}
+
+/// Separable min (`erode`) or max filter over the `(2r+1)²` square.
+fn filter(mask: &[bool], w: usize, h: usize, r: usize, erode: bool) -> Vec<bool> {
+    let pass = |src: &[bool], along_x: bool| -> Vec<bool> {
+        let mut out = vec![false; w * h];
+        let (n, m) = if along_x { (h, w) } else { (w, h) };
+        let at = |a: usize, b: usize| if along_x { a * w + b } else { b * w + a };
+        for a in 0..n {
+            // Running count of set pixels in the window.
+            let mut count = 0usize;
+            for b in 0..r.min(m) {
+                count += src[at(a, b)] as usize;
+            }
+            for b in 0..m {
+                if b + r < m {
+                    count += src[at(a, b + r)] as usize;
+                }
+                if b > r {
+                    count -= src[at(a, b - r - 1)] as usize;
+                }
+                out[at(a, b)] = if erode { count == 2 * r + 1 } else { count > 0 };
+            }
+        }
+        out
+    };
+    let a = pass(mask, true);
+    pass(&a, false)
+}
+
+/// 4-connected components, each a list of pixel indices.
+fn components(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
+    let mut seen = vec![false; mask.len()];
+    let mut out = Vec::new();
+    let mut queue = VecDeque::new();
+    for start in 0..mask.len() {
+        if !mask[start] || seen[start] {
+            continue;
+        }
+        let mut comp = Vec::new();
+        seen[start] = true;
+        queue.push_back(start);
+        while let Some(i) = queue.pop_front() {
+            comp.push(i);
+            let (x, y) = (i % w, i / w);
+            let mut visit = |j: usize| {
+                if mask[j] && !seen[j] {
+                    seen[j] = true;
+                    queue.push_back(j);
+                }
+            };
+            if x > 0 {
+                visit(i - 1);
+            }
+            if x + 1 < w {
+                visit(i + 1);
+            }
+            if y > 0 {
+                visit(i - w);
+            }
+            if y + 1 < h {
+                visit(i + w);
+            }
+        }
+        out.push(comp);
+    }
+    out
+}
+
+/// Chamfer (3-4) distance of each pixel of a component to its outside, pixels: `(x0,
+/// y0, bw, bh, dt)` over the component's bounding box.
+fn distance(comp: &[usize], w: usize) -> (usize, usize, usize, usize, Vec<f64>) {
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for &i in comp {
+        let (x, y) = (i % w, i / w);
+        x0 = x0.min(x);
+        y0 = y0.min(y);
+        x1 = x1.max(x);
+        y1 = y1.max(y);
+    }
+    // One pixel of outside all round.
+    let (bw, bh) = (x1 - x0 + 3, y1 - y0 + 3);
+    const FAR: f64 = 1e9;
+    let mut d = vec![0.0; bw * bh];
+    for &i in comp {
+        d[(i / w - y0 + 1) * bw + (i % w - x0 + 1)] = FAR;
+    }
+    let (a, b) = (1.0, 4.0 / 3.0);
+    for y in 1..bh - 1 {
+        for x in 1..bw - 1 {
+            let k = y * bw + x;
+            if d[k] > 0.0 {
+                d[k] = d[k]
+                    .min(d[k - 1] + a)
+                    .min(d[k - bw] + a)
+                    .min(d[k - bw - 1] + b)
+                    .min(d[k - bw + 1] + b);
+            }
+        }
+    }
+    for y in (1..bh - 1).rev() {
+        for x in (1..bw - 1).rev() {
+            let k = y * bw + x;
+            if d[k] > 0.0 {
+                d[k] = d[k]
+                    .min(d[k + 1] + a)
+                    .min(d[k + bw] + a)
+                    .min(d[k + bw + 1] + b)
+                    .min(d[k + bw - 1] + b);
+            }
+        }
+    }
+    (x0, y0, bw, bh, d)
+}
+
+/// A component (pixel indices in an image `w` wide) as it is, or split in two if it
+/// holds two discs: the distance transform's highest point is one disc's centre (its
+/// value the radius); the highest point outside that disc, if it is at least
+/// `min_radius` pixels from the outside, is a second disc. Pixels go to the disc of the
+/// smaller power distance `|p − c|² − r²` (for two touching discs: their common
+/// tangent).
+fn split_discs(comp: &[usize], w: usize, min_radius: f64) -> Vec<(Vec<usize>, bool)> {
+    if comp.len() < 20 {
+        return vec![(comp.to_vec(), false)];
+    }
+    let (x0, y0, bw, _bh, d) = distance(comp, w);
+    let at = |i: usize| (i % w - x0 + 1, i / w - y0 + 1);
+    let dt = |i: usize| {
+        let (x, y) = at(i);
+        d[y * bw + x]
+    };
+    let Some(&c1) = comp.iter().max_by(|a, b| dt(**a).total_cmp(&dt(**b))) else {
+        return vec![(comp.to_vec(), false)];
+    };
+    let r1 = dt(c1);
+    let (x1, y1) = at(c1);
+    let far = |i: usize| {
+        let (x, y) = at(i);
+        (x as f64 - x1 as f64).hypot(y as f64 - y1 as f64) > r1 + 1.0
+    };
+    let Some(&c2) = comp
+        .iter()
+        .filter(|i| far(**i))
+        .max_by(|a, b| dt(**a).total_cmp(&dt(**b)))
+    else {
+        return vec![(comp.to_vec(), false)];
+    };
+    let r2 = dt(c2);
+    if r2 < min_radius {
+        return vec![(comp.to_vec(), false)];
+    }
+    let (x2, y2) = at(c2);
+    let (mut one, mut two) = (Vec::new(), Vec::new());
+    for &i in comp {
+        let (x, y) = at(i);
+        let p1 = (x as f64 - x1 as f64).powi(2) + (y as f64 - y1 as f64).powi(2) - r1 * r1;
+        let p2 = (x as f64 - x2 as f64).powi(2) + (y as f64 - y2 as f64).powi(2) - r2 * r2;
+        if p1 <= p2 {
+            one.push(i);
+        } else {
+            two.push(i);
+        }
+    }
+    vec![(one, true), (two, true)]
+}
+
+/// Circle through points in the least-squares sense (Kåsa): `(cx, cy, r)`, or `None`
+/// when the points do not determine one.
+fn fit_circle(pts: &[(f64, f64)]) -> Option<(f64, f64, f64)> {
+    if pts.len() < 8 {
+        return None;
+    }
+    // Centred for conditioning.
+    let n = pts.len() as f64;
+    let (mx, my) = pts
+        .iter()
+        .fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+    // Minimise Σ (u² + v² + D u + E v + F)², u = x − mx, v = y − my.
+    let mut m = [[0.0f64; 3]; 3];
+    let mut rhs = [0.0f64; 3];
+    for (x, y) in pts {
+        let (u, v) = (x - mx, y - my);
+        let row = [u, v, 1.0];
+        let z = -(u * u + v * v);
+        for i in 0..3 {
+            for j in 0..3 {
+                m[i][j] += row[i] * row[j];
+            }
+            rhs[i] += row[i] * z;
+        }
+    }
+    let det3 = |a: &[[f64; 3]; 3]| {
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    };
+    let det = det3(&m);
+    if !(det.is_finite() && det.abs() > 1e-12) {
+        return None;
+    }
+    let mut sol = [0.0; 3];
+    for k in 0..3 {
+        let mut mk = m;
+        for i in 0..3 {
+            mk[i][k] = rhs[i];
+        }
+        sol[k] = det3(&mk) / det;
+    }
+    let (cu, cv) = (-0.5 * sol[0], -0.5 * sol[1]);
+    let r2 = cu * cu + cv * cv - sol[2];
+    (r2 > 0.0).then(|| (mx + cu, my + cv, r2.sqrt()))
+}
+
+/// A blob from its pixels: debris by centroid and equivalent diameter; a cell by a
+/// circle fitted to its outer edge (the pixels next to the outside of the whole
+/// component `comp`, not the cut between two touching cells), its diameter where the
+/// membrane is darkest along the radius.
+fn blob(
+    part: &[usize],
+    comp: &std::collections::HashSet<usize>,
+    dark: &[f64],
+    w: usize,
+    o: &Options,
+    split: bool,
+) -> Option<Blob> {
+    if part.is_empty() {
+        return None;
+    }
+    let n = part.len() as f64;
+    let (mut sx, mut sy, mut sd) = (0.0, 0.0, 0.0);
+    for &i in part {
+        sx += (i % w) as f64;
+        sy += (i / w) as f64;
+        sd += dark[i];
+    }
+    let eq = 2.0 * (n / std::f64::consts::PI).sqrt() * o.pixel_size;
+    let darkness = sd / n;
+    let mut b = Blob {
+        x: sx / n,
+        y: sy / n,
+        diameter: eq,
+        darkness,
+        kind: Kind::Cell,
+        split,
+    };
+    if eq < o.min_cell || darkness > o.max_cell_darkness {
+        b.kind = Kind::Debris;
+        return Some(b);
+    }
+    let outside = |i: usize| !comp.contains(&i);
+    let edge: Vec<(f64, f64)> = part
+        .iter()
+        .filter(|&&i| {
+            let (x, y) = (i % w, i / w);
+            x == 0 || y == 0 || outside(i - 1) || outside(i + 1) || outside(i - w) || outside(i + w)
+        })
+        .map(|&i| ((i % w) as f64, (i / w) as f64))
+        .collect();
+    let Some((cx, cy, r)) = fit_circle(&edge) else {
+        return Some(b);
+    };
+    b.x = cx;
+    b.y = cy;
+    // The membrane: the darkest ring between half and all of the fitted radius, in
+    // quarter-pixel bins.
+    let bins = (4.0 * r).ceil() as usize + 1;
+    let mut sum = vec![0.0; bins];
+    let mut cnt = vec![0.0; bins];
+    for &i in part {
+        let rho = ((i % w) as f64 - cx).hypot((i / w) as f64 - cy);
+        let k = (4.0 * rho) as usize;
+        if k < bins {
+            sum[k] += dark[i];
+            cnt[k] += 1.0;
+        }
+    }
+    let lo = (2.0 * r) as usize;
+    let ring = (lo..bins)
+        .filter(|&k| cnt[k] >= 3.0)
+        .max_by(|&a, &b| (sum[a] / cnt[a]).total_cmp(&(sum[b] / cnt[b])));
+    b.diameter = match ring {
+        Some(k) => 2.0 * (k as f64 + 0.5) / 4.0 * o.pixel_size,
+        None => 2.0 * r * o.pixel_size,
+    };
+    Some(b)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    const PS: f64 = 0.88e-6;
+
+    /// A 400 x 300 image at 0.88 µm/px: background 2000 with a gentle vignette, discs
+    /// `(x, y, diameter, inside, ring)` in m with their inside and membrane darkness,
+    /// blurred edges (σ ≈ 1 µm).
+    fn image(discs: &[(f64, f64, f64, f64, f64)]) -> (Vec<u16>, usize, usize) {
+        let (w, h) = (400usize, 300usize);
+        let s = 1.0e-6;
+        let phi = |u: f64| 0.5 * (1.0 + libm_erf(u / std::f64::consts::SQRT_2));
+        let mut px = vec![0u16; w * h];
+        for j in 0..h {
+            for i in 0..w {
+                let (x, y) = (i as f64 * PS, j as f64 * PS);
+                let u = (i as f64 - 200.0) / 200.0;
+                let mut v = 2000.0 * (1.0 - 0.1 * u * u);
+                for &(cx, cy, d, inside, ring) in discs {
+                    let rho = (x - cx).hypot(y - cy);
+                    let r = 0.5 * d;
+                    let a = phi((r - rho) / s);
+                    let m = (-(rho - r).powi(2) / (2.0 * (0.5e-6f64.powi(2) + s * s))).exp();
+                    v *= 1.0 - inside * a - ring * m;
+                }
+                px[j * w + i] = v.round() as u16;
+            }
+        }
+        (px, w, h)
+    }
+
+    /// erf by Abramowitz-Stegun 7.1.26 (enough for test images).
+    fn libm_erf(x: f64) -> f64 {
+        let t = 1.0 / (1.0 + 0.3275911 * x.abs());
+        let y = 1.0
+            - (((((1.061405429 * t - 1.453152027) * t) + 1.421413741) * t - 0.284496736) * t
+                + 0.254829592)
+                * t
+                * (-x * x).exp();
+        if x >= 0.0 { y } else { -y }
+    }
+
+    fn find(discs: &[(f64, f64, f64, f64, f64)]) -> Vec<Blob> {
+        let (px, w, h) = image(discs);
+        detect(&px, w, h, &[], &Options::for_pixel_size(PS)).unwrap()
+    }
+
+    fn cells(b: &[Blob]) -> Vec<Blob> {
+        b.iter().filter(|b| b.kind == Kind::Cell).copied().collect()
+    }
+
+    #[test]
+    fn a_cell_is_found_at_its_centre_with_its_diameter() {
+        let b = find(&[(150e-6, 120e-6, 20e-6, 0.10, 0.32)]);
+        let c = cells(&b);
+        assert_eq!(c.len(), 1, "{b:?}");
+        let (x, y) = (c[0].x * PS, c[0].y * PS);
+        assert!((x - 150e-6).hypot(y - 120e-6) < 0.2e-6, "{c:?}");
+        assert!((c[0].diameter - 20e-6).abs() < 1e-6, "{c:?}");
+    }
+
+    #[test]
+    fn debris_is_not_a_cell() {
+        let b = find(&[
+            (100e-6, 100e-6, 6e-6, 0.7, 0.0),
+            (250e-6, 150e-6, 14e-6, 0.6, 0.0),
+        ]);
+        assert!(cells(&b).is_empty(), "{b:?}");
+        assert_eq!(b.len(), 2, "{b:?}");
+    }
+
+    #[test]
+    fn touching_cells_are_split_even_when_unequal() {
+        for (d1, d2) in [(16e-6, 16e-6), (16.2e-6, 10.2e-6), (24e-6, 12e-6)] {
+            let (x1, y1) = (150e-6, 120e-6);
+            let a = 0.7f64;
+            let sep = 0.5 * (d1 + d2);
+            let (x2, y2) = (x1 + sep * a.cos(), y1 + sep * a.sin());
+            let b = find(&[(x1, y1, d1, 0.10, 0.32), (x2, y2, d2, 0.10, 0.32)]);
+            let c = cells(&b);
+            assert_eq!(c.len(), 2, "{d1} {d2}: {b:?}");
+            for (x, y) in [(x1, y1), (x2, y2)] {
+                let e = c
+                    .iter()
+                    .map(|b| (b.x * PS - x).hypot(b.y * PS - y))
+                    .fold(f64::INFINITY, f64::min);
+                assert!(e < 1.0e-6, "{d1} {d2}: error {e} {c:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_sizes_and_options_are_errors() {
+        assert!(matches!(
+            detect(&[0; 10], 3, 3, &[], &Options::for_pixel_size(PS)),
+            Err(CellsError::Size { .. })
+        ));
+        let mut o = Options::for_pixel_size(PS);
+        o.threshold = f64::NAN;
+        assert!(detect(&[0; 9], 3, 3, &[], &o).is_err());
+    }
+}
