@@ -9,11 +9,12 @@
 //!    their membrane by ~30 %; debris by 50 % and more.
 //! 3. **Mask and opening.** `d > threshold`, then a morphological opening by a square
 //!    of about 4 µm: thin structures (the feeder's walls, fine dust, the neck between
-//!    two touching cells) disappear, discs stay.
+//!    two touching cells) disappear, discs stay; holes inside blobs are filled.
 //! 4. **Components** (4-connected). One whose distance transform has a second high
 //!    point (at least 3.5 µm from the outside) beyond the first's inscribed disc holds
 //!    two touching cells (a doublet): its pixels are shared by power distance to the
 //!    two discs, which for touching discs is their common tangent.
+//!    A blob cut by the image's border is left out (it cannot be measured).
 //! 5. **Kinds.** A blob narrower than `min_cell` (equivalent diameter) or darker on
 //!    average than `max_cell_darkness` is debris, never a cell.
 //!
@@ -179,11 +180,20 @@ pub fn detect(
         .collect();
     let r = ((0.5 * o.opening / o.pixel_size).round() as usize).max(1);
     mask = opening(&mask, width, height, r);
+    fill_holes(&mut mask, width, height);
     let mut blobs = Vec::new();
+    let on_border = |i: usize| {
+        let (x, y) = (i % width, i / width);
+        x == 0 || y == 0 || x + 1 == width || y + 1 == height
+    };
     for comp in components(&mask, width, height) {
         // A second disc must be at least a small cell: 3.5 µm from its outside.
         let members: std::collections::HashSet<usize> = comp.iter().copied().collect();
         for (part, split) in split_discs(&comp, width, 3.5e-6 / o.pixel_size) {
+            // Cut by the image's border: not measurable here.
+            if part.iter().any(|&i| on_border(i)) {
+                continue;
+            }
             if let Some(b) = blob(&part, &members, &dark, width, o, split) {
                 blobs.push(b);
             }
@@ -257,6 +267,45 @@ fn filter(mask: &[bool], w: usize, h: usize, r: usize, erode: bool) -> Vec<bool>
     pass(&a, false)
 }
 
+/// The 4-neighbours of pixel `i` inside a `w × h` image.
+fn neighbours(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (i % w, i / w);
+    [
+        (x > 0).then(|| i - 1),
+        (x + 1 < w).then(|| i + 1),
+        (y > 0).then(|| i - w),
+        (y + 1 < h).then(|| i + w),
+    ]
+    .into_iter()
+    .flatten()
+}
+
+/// Sets the pixels the outside cannot reach (holes inside a blob, where noise left a
+/// cell's pale inside below the threshold): a hole would pull the distance transform
+/// off the cell's centre.
+fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
+    let mut reached = vec![false; mask.len()];
+    let mut queue = VecDeque::new();
+    for i in 0..mask.len() {
+        let (x, y) = (i % w, i / w);
+        if (x == 0 || y == 0 || x + 1 == w || y + 1 == h) && !mask[i] {
+            reached[i] = true;
+            queue.push_back(i);
+        }
+    }
+    while let Some(i) = queue.pop_front() {
+        for j in neighbours(i, w, h) {
+            if !mask[j] && !reached[j] {
+                reached[j] = true;
+                queue.push_back(j);
+            }
+        }
+    }
+    for (m, r) in mask.iter_mut().zip(&reached) {
+        *m = !*r;
+    }
+}
+
 /// 4-connected components, each a list of pixel indices.
 fn components(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
     let mut seen = vec![false; mask.len()];
@@ -271,24 +320,11 @@ fn components(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
         queue.push_back(start);
         while let Some(i) = queue.pop_front() {
             comp.push(i);
-            let (x, y) = (i % w, i / w);
-            let mut visit = |j: usize| {
+            for j in neighbours(i, w, h) {
                 if mask[j] && !seen[j] {
                     seen[j] = true;
                     queue.push_back(j);
                 }
-            };
-            if x > 0 {
-                visit(i - 1);
-            }
-            if x + 1 < w {
-                visit(i + 1);
-            }
-            if y > 0 {
-                visit(i - w);
-            }
-            if y + 1 < h {
-                visit(i + w);
             }
         }
         out.push(comp);

@@ -38,9 +38,9 @@ pub struct Found {
 /// The score of a detection against the truth.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DetectionReport {
-    /// Cells on the plate within the frame.
+    /// Cells on the plate wholly in the frame (3 µm clear of its border).
     pub true_cells: usize,
-    /// Debris on the plate within the frame.
+    /// Debris on the plate wholly in the frame.
     pub true_debris: usize,
     /// Blobs called cells.
     pub found_cells: usize,
@@ -112,7 +112,8 @@ pub fn detect_and_score(
     let in_view = |list: &[cellinject_plate::Object]| -> Vec<([f64; 2], f64)> {
         list.iter()
             .map(|c| (plate.centre(c), c.diameter))
-            .filter(|(p, d)| in_frame(*p, 0.5 * d))
+            // With the membrane's blur: a blob touching the border is not measured.
+            .filter(|(p, d)| in_frame(*p, 0.5 * d + 3e-6))
             .collect()
     };
     let truth = in_view(&plate.cells);
@@ -129,6 +130,10 @@ pub fn detect_and_score(
             continue;
         }
         let p = to_plate(b);
+        // Judged like the truth: only what is wholly in the frame counts.
+        if !in_frame(p, 0.5 * b.diameter + 3e-6) {
+            continue;
+        }
         let best = truth
             .iter()
             .enumerate()
