@@ -94,6 +94,21 @@ pub enum SimCommand {
         #[command(flatten)]
         twin: TwinArgs,
     },
+    /// The pipette's tip found in the image (never from the commanded position) against
+    /// the twin's truth, the stacks at random voltages between frames.
+    #[command(
+        after_help = "Examples:\n  cellinject sim tip\n  cellinject sim tip --zoom 5 --runs 50 --format json"
+    )]
+    Tip {
+        /// Magnification (2.5 to 10); full frames.
+        #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
+        zoom: f64,
+        /// Frames.
+        #[arg(long, default_value_t = 20)]
+        runs: usize,
+        #[command(flatten)]
+        twin: TwinArgs,
+    },
     /// Step response of one stack: ringing of the structure, then creep.
     #[command(
         after_help = "Examples:\n  cellinject sim step --voltage 50\n  cellinject sim step --actuator A3 --voltage 30 --duration 0.5 --out a3-step.csv --format json"
@@ -468,6 +483,7 @@ pub fn run(d: &Description, cmd: &SimCommand) -> Result<()> {
             out,
             twin,
         } => run_loop(d, actuator, *amplitude, out, twin),
+        SimCommand::Tip { zoom, runs, twin } => run_tip(d, *zoom, *runs, twin),
         SimCommand::Step {
             actuator,
             voltage,
@@ -500,4 +516,50 @@ pub fn run(d: &Description, cmd: &SimCommand) -> Result<()> {
             twin,
         ),
     }
+}
+
+/// `sim tip`.
+fn run_tip(d: &Description, zoom: f64, runs: usize, args: &TwinArgs) -> Result<()> {
+    let (twin, mut rig) = build(d, args)?;
+    let seed = args.seed.unwrap_or(d.sim.seed);
+    let mut truth = || {
+        let t = twin.lock().unwrap_or_else(|e| e.into_inner());
+        let (pose, g) = (t.tip(), t.camera.grid());
+        [(pose.x - g.x0) / g.pitch, (pose.z - g.z0) / g.pitch]
+    };
+    let r = {
+        let _p = crate::progress::spinner(format!("finding the tip in {runs} frames"));
+        cellinject_core::cells::tip_trials(&mut rig, zoom, runs, seed, &mut truth).map_err(|e| {
+            match e {
+                SimError::Device {
+                    what,
+                    source: HwError::Refused(r),
+                } => InputError(format!("{what}: refused: {r}")).into(),
+                SimError::Device {
+                    what: "--zoom",
+                    source,
+                } => InputError(format!("--zoom: {source}")).into(),
+                SimError::Invalid { .. } => InputError(e.to_string()).into(),
+                other => sim_error(other),
+            }
+        })?
+    };
+    if args.format() == Format::Json {
+        return print_json(&r, &[]);
+    }
+    outln!(
+        "tip found in {} of {} frames at {zoom}x ({:.3} µm per pixel), against the twin's truth:",
+        r.runs - r.not_found,
+        r.runs,
+        r.pixel_size_m * 1e6
+    );
+    outln!(
+        "  error median {:.3} µm, 95th percentile {:.3} µm, largest {:.3} µm (median along the axis {:.3} µm, across {:.3} µm)",
+        r.error_m[0] * 1e6,
+        r.error_m[1] * 1e6,
+        r.error_m[2] * 1e6,
+        r.along_across_m[0] * 1e6,
+        r.along_across_m[1] * 1e6
+    );
+    Ok(())
 }

@@ -256,6 +256,7 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ["plate", "generate"] => vec!["--out", "p.toml"],
         ["plate", "check"] => vec!["--plate", "plate.toml"],
         ["plate", "detect"] => vec!["--plate", "plate.toml"],
+        ["sim", "tip"] => vec!["--runs", "2"],
         _ => vec![],
     }
 }

@@ -218,3 +218,26 @@ fn plate_detect_finds_every_cell_and_no_debris_on_generated_plates() {
     // Doublets were split.
     assert!(splits >= 4, "{splits}");
 }
+
+/// The pipette's tip found from the image alone, in focus, against the twin's truth.
+#[test]
+fn sim_tip_finds_the_tip_to_a_fraction_of_a_micrometre() {
+    let d = dir("tip");
+    for zoom in ["10", "2.5"] {
+        let r = json(&run(
+            &d,
+            &[
+                "sim", "tip", "--runs", "6", "--zoom", zoom, "--format", "json",
+            ],
+        ));
+        println!("{zoom}x: {r}");
+        assert_eq!(r["not_found"], 0, "{r}");
+        let e = &r["error_m"];
+        assert!(e[1].as_f64().unwrap() < 0.5e-6, "{zoom}x: {r}");
+        // Across the axis the tube is symmetric: tighter still.
+        assert!(
+            r["along_across_m"][1].as_f64().unwrap() < 0.1e-6,
+            "{zoom}x: {r}"
+        );
+    }
+}

@@ -30,6 +30,8 @@ use std::collections::VecDeque;
 
 use thiserror::Error;
 
+pub mod tip;
+
 /// Why an image could not be searched.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum CellsError {
@@ -43,6 +45,9 @@ pub enum CellsError {
         /// Rows.
         height: usize,
     },
+    /// No pipette entering the image from its top edge.
+    #[error("no pipette found: nothing dark enters the image from its top edge")]
+    NoPipette,
     /// An option outside its domain.
     #[error("{what} = {value}: {reason}")]
     Invalid {
@@ -154,25 +159,7 @@ pub fn detect(
             });
         }
     }
-    let img: Vec<f64> = pixels.iter().map(|&p| p as f64).collect();
-    let win = ((o.background / o.pixel_size).round() as usize).max(3) | 1;
-    // Background: a box mean, then again without what is clearly darker.
-    let all = vec![true; img.len()];
-    let bg0 = box_mean(&img, &all, width, height, win / 2);
-    let keep: Vec<bool> = img
-        .iter()
-        .zip(&bg0)
-        .map(|(v, b)| *b > 0.0 && *v > 0.97 * b)
-        .collect();
-    let bg = box_mean(&img, &keep, width, height, win / 2);
-    let dark: Vec<f64> = img
-        .iter()
-        .zip(bg.iter().zip(&bg0))
-        .map(|(v, (b, b0))| {
-            let b = if *b > 0.0 { *b } else { *b0 };
-            if b > 0.0 { 1.0 - v / b } else { 0.0 }
-        })
-        .collect();
+    let dark = darkness(pixels, width, height, o.background / o.pixel_size);
     let mut mask: Vec<bool> = dark
         .iter()
         .enumerate()
@@ -200,6 +187,28 @@ pub fn detect(
         }
     }
     Ok(blobs)
+}
+
+/// `1 − image / background` per pixel, the background a box mean over `window` pixels,
+/// taken twice: the second pass leaves out what the first found clearly darker.
+pub(crate) fn darkness(pixels: &[u16], width: usize, height: usize, window: f64) -> Vec<f64> {
+    let img: Vec<f64> = pixels.iter().map(|&p| p as f64).collect();
+    let win = (window.round() as usize).max(3) | 1;
+    let all = vec![true; img.len()];
+    let bg0 = box_mean(&img, &all, width, height, win / 2);
+    let keep: Vec<bool> = img
+        .iter()
+        .zip(&bg0)
+        .map(|(v, b)| *b > 0.0 && *v > 0.97 * b)
+        .collect();
+    let bg = box_mean(&img, &keep, width, height, win / 2);
+    img.iter()
+        .zip(bg.iter().zip(&bg0))
+        .map(|(v, (b, b0))| {
+            let b = if *b > 0.0 { *b } else { *b0 };
+            if b > 0.0 { 1.0 - v / b } else { 0.0 }
+        })
+        .collect()
 }
 
 /// Mean of `img` over the `(2h+1)²` window around each pixel, counting only `keep`
@@ -307,7 +316,7 @@ fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
 }
 
 /// 4-connected components, each a list of pixel indices.
-fn components(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
+pub(crate) fn components(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
     let mut seen = vec![false; mask.len()];
     let mut out = Vec::new();
     let mut queue = VecDeque::new();
@@ -564,7 +573,7 @@ mod tests {
     fn image(discs: &[(f64, f64, f64, f64, f64)]) -> (Vec<u16>, usize, usize) {
         let (w, h) = (400usize, 300usize);
         let s = 1.0e-6;
-        let phi = |u: f64| 0.5 * (1.0 + libm_erf(u / std::f64::consts::SQRT_2));
+        let phi = |u: f64| 0.5 * (1.0 + cellinject_numeric::erf(u / std::f64::consts::SQRT_2));
         let mut px = vec![0u16; w * h];
         for j in 0..h {
             for i in 0..w {
@@ -582,17 +591,6 @@ mod tests {
             }
         }
         (px, w, h)
-    }
-
-    /// erf by Abramowitz-Stegun 7.1.26 (enough for test images).
-    fn libm_erf(x: f64) -> f64 {
-        let t = 1.0 / (1.0 + 0.3275911 * x.abs());
-        let y = 1.0
-            - (((((1.061405429 * t - 1.453152027) * t) + 1.421413741) * t - 0.284496736) * t
-                + 0.254829592)
-                * t
-                * (-x * x).exp();
-        if x >= 0.0 { y } else { -y }
     }
 
     fn find(discs: &[(f64, f64, f64, f64, f64)]) -> Vec<Blob> {

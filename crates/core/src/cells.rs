@@ -202,3 +202,101 @@ pub fn detect_and_score(
         cells,
     })
 }
+
+/// How well the tip is found in the image (`sim tip`): the tip found in each of `runs`
+/// frames against the truth, A1 and A3 at random voltages between frames, the tip in
+/// focus.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TipReport {
+    /// Frames.
+    pub runs: usize,
+    /// Magnification.
+    pub zoom: f64,
+    /// m per pixel.
+    pub pixel_size_m: f64,
+    /// m, median, 95th percentile and largest distance from the true tip.
+    pub error_m: [f64; 3],
+    /// m, median |error| along the pipette's axis and across it.
+    pub along_across_m: [f64; 2],
+    /// Frames where no pipette was found.
+    pub not_found: usize,
+}
+
+/// Runs the tip trials on `rig`: `runs` times, A1 and A3 to random voltages (0-60 V,
+/// within the envelope; A2 at 0 V keeps the tip in focus), a full frame at `zoom`, the tip found from the image and compared
+/// with `truth` (the true tip in the frame's pixels, from the backend's truth).
+pub fn tip_trials<B: cellinject_rig::Backend>(
+    rig: &mut cellinject_rig::Rig<B>,
+    zoom: f64,
+    runs: usize,
+    seed: u64,
+    truth: &mut dyn FnMut() -> [f64; 2],
+) -> Result<TipReport, crate::sim::SimError> {
+    use crate::sim::{Acquisition, SimError, frame};
+    use cellinject_hw::{Clock, PiezoChannel};
+    if !(1..=10_000).contains(&runs) {
+        return Err(SimError::Invalid {
+            arg: "--runs",
+            value: runs as f64,
+            reason: "must lie in [1, 10000]".into(),
+        });
+    }
+    let mut rng = cellinject_numeric::rng::Rng::new(seed, 0x7419);
+    let (mut errors, mut along, mut across) = (Vec::new(), Vec::new(), Vec::new());
+    let mut not_found = 0;
+    let mut pitch = f64::NAN;
+    for _ in 0..runs {
+        // A1 (x) and A3 (z) anywhere in 0-60 V; A2 stays at 0 V, where the optics were
+        // focused (A2 tilts the tip along the optical axis: the workflow focuses with
+        // the side camera before it looks for the tip).
+        for ch in [0, 2] {
+            let v = rng.range(0.0, 60.0);
+            rig.piezo[ch]
+                .set_voltage(v)
+                .map_err(|source| SimError::Device {
+                    what: "piezo",
+                    source,
+                })?;
+        }
+        rig.clock.sleep(0.2).map_err(|source| SimError::Device {
+            what: "clock",
+            source,
+        })?;
+        let f = frame(rig, zoom, Acquisition::Full, None)?;
+        pitch = f.pixel_size;
+        let t = truth();
+        match cellinject_cells::tip::locate(
+            &f.pixels,
+            f.width as usize,
+            f.height as usize,
+            f.pixel_size,
+        ) {
+            Ok(tip) => {
+                let (dx, dy) = (tip.x - t[0], tip.y - t[1]);
+                errors.push(dx.hypot(dy) * f.pixel_size);
+                along.push((dx * tip.axis[0] + dy * tip.axis[1]).abs() * f.pixel_size);
+                across.push((-dx * tip.axis[1] + dy * tip.axis[0]).abs() * f.pixel_size);
+            }
+            Err(_) => not_found += 1,
+        }
+    }
+    let q = |v: &mut Vec<f64>, p: f64| {
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * p).round() as usize]
+    };
+    Ok(TipReport {
+        runs,
+        zoom,
+        pixel_size_m: pitch,
+        error_m: [
+            q(&mut errors, 0.5),
+            q(&mut errors, 0.95),
+            q(&mut errors, 1.0),
+        ],
+        along_across_m: [q(&mut along, 0.5), q(&mut across, 0.5)],
+        not_found,
+    })
+}

@@ -1,0 +1,342 @@
+//! Finding the pipette's tip in a top-view image, from the image alone (never from
+//! the commanded position).
+//!
+//! The pipette enters the image from its top edge and tapers down to its tip. The
+//! locator takes the dark component that touches the top edge, its lowest pixel as a
+//! first guess and the principal axis of its last 60 µm as the direction; refines the
+//! axis as the line through the tube's darkness-weighted centres across it, 8-50 µm
+//! behind the tip; then, along that axis, fits the darkness integrated across the tube
+//! with a step of height `a` and a ramp of slope `c` (the tube ends at the tip and
+//! widens behind it) that both start at `t`, blurred by a Gaussian of `σ`:
+//! `M(s) = a·Φ(z) + c·σ·(z·Φ(z) + φ(z))`, `z = (t − s)/σ`, by a search over `t` and `σ`
+//! with `a`, `c` by least squares. The tip is the axis point at `t`.
+
+use crate::{CellsError, components};
+
+/// The tip found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tip {
+    /// Pixels, column.
+    pub x: f64,
+    /// Pixels, row.
+    pub y: f64,
+    /// Unit vector along the pipette towards its tip (column, row).
+    pub axis: [f64; 2],
+    /// Pixels, the blur of the tip's end along the axis.
+    pub sigma: f64,
+}
+
+/// The standard normal CDF.
+fn phi(u: f64) -> f64 {
+    0.5 * (1.0 + cellinject_numeric::erf(u / std::f64::consts::SQRT_2))
+}
+
+/// Bilinear sample of `d` (a `w × h` image) at (x, y); 0 outside.
+fn sample(d: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
+    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+        return 0.0;
+    }
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let a = d[y0 * w + x0] * (1.0 - fx) + d[y0 * w + x1] * fx;
+    let b = d[y1 * w + x0] * (1.0 - fx) + d[y1 * w + x1] * fx;
+    a * (1.0 - fy) + b * fy
+}
+
+/// Finds the tip in a `width × height` image at `pixel_size` m per pixel.
+pub fn locate(
+    pixels: &[u16],
+    width: usize,
+    height: usize,
+    pixel_size: f64,
+) -> Result<Tip, CellsError> {
+    if pixels.len() != width * height || width < 8 || height < 8 {
+        return Err(CellsError::Size {
+            len: pixels.len(),
+            width,
+            height,
+        });
+    }
+    if !(pixel_size.is_finite() && pixel_size > 0.0) {
+        return Err(CellsError::Invalid {
+            what: "pixel_size",
+            value: pixel_size,
+            reason: "must be a positive length",
+        });
+    }
+    let um = |v: f64| v * 1e-6 / pixel_size;
+    let dark = smooth_darkness(pixels, width, height);
+    let mask: Vec<bool> = dark.iter().map(|d| *d > 0.05).collect();
+    // The pipette: of the dark components that enter from the top edge, the widest
+    // there (the shank; a feeder wall is a thin line).
+    let pipette = components(&mask, width, height)
+        .into_iter()
+        .map(|c| (c.iter().filter(|&&i| i < width).count(), c))
+        .filter(|(top, _)| *top > 0)
+        .max_by_key(|(top, _)| *top)
+        .map(|(_, c)| c)
+        .ok_or(CellsError::NoPipette)?;
+    if pipette.len() < 50 {
+        return Err(CellsError::NoPipette);
+    }
+    // First guess: the lowest pixels.
+    let ymax = pipette.iter().map(|&i| i / width).max().unwrap_or(0);
+    let low: Vec<usize> = pipette
+        .iter()
+        .copied()
+        .filter(|&i| i / width == ymax)
+        .collect();
+    let gx = low.iter().map(|&i| (i % width) as f64).sum::<f64>() / low.len() as f64;
+    let (gx, gy) = (gx, ymax as f64);
+    // Direction: principal axis of the last 60 µm, pointing down the image.
+    let near: Vec<(f64, f64)> = pipette
+        .iter()
+        .map(|&i| ((i % width) as f64, (i / width) as f64))
+        .filter(|(x, y)| (x - gx).hypot(y - gy) < um(60.0))
+        .collect();
+    let mut u = principal(&near);
+    if u[1] < 0.0 {
+        u = [-u[0], -u[1]];
+    }
+    // The axis: centres of darkness across the tube behind the tip.
+    let mut centres = Vec::new();
+    let mut b = um(8.0);
+    while b <= um(50.0) {
+        let (px, py) = (gx - b * u[0], gy - b * u[1]);
+        let n = [-u[1], u[0]];
+        let half = 0.12 * b + um(5.0);
+        let (mut sw, mut swo) = (0.0, 0.0);
+        let mut o = -half;
+        while o <= half {
+            let v = sample(&dark, width, height, px + o * n[0], py + o * n[1]).max(0.0);
+            sw += v;
+            swo += v * o;
+            o += 0.5;
+        }
+        if sw > 0.0 {
+            let c = swo / sw;
+            centres.push((px + c * n[0], py + c * n[1]));
+        }
+        b += um(2.0);
+    }
+    let (ax, ay) = if centres.len() >= 3 {
+        let n = centres.len() as f64;
+        let m = centres
+            .iter()
+            .fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+        let mut d = principal(&centres);
+        if d[1] < 0.0 {
+            d = [-d[0], -d[1]];
+        }
+        u = d;
+        m
+    } else {
+        (gx, gy)
+    };
+    // Project the first guess onto the axis: the origin of s.
+    let t0 = (gx - ax) * u[0] + (gy - ay) * u[1];
+    let (ox, oy) = (ax + t0 * u[0], ay + t0 * u[1]);
+    // Darkness integrated across the tube along the axis, s forward (towards and beyond
+    // the tip), from 25 µm behind to 15 µm beyond, quarter-pixel steps.
+    let n = [-u[1], u[0]];
+    let mut prof = Vec::new();
+    let mut s = -um(25.0);
+    while s <= um(15.0) {
+        let (px, py) = (ox + s * u[0], oy + s * u[1]);
+        let behind = (-s).max(0.0);
+        let half = 0.12 * behind + um(5.0);
+        let mut m = 0.0;
+        let mut o = -half;
+        while o <= half {
+            m += sample(&dark, width, height, px + o * n[0], py + o * n[1]) * 0.5;
+            o += 0.5;
+        }
+        prof.push((s, m));
+        s += 0.25;
+    }
+    // Fit t (within 8 µm of the guess) and σ (up to 10 µm: a defocused tip), coarse then fine; a, c by least squares.
+    let search =
+        |best: &mut (f64, f64, f64), t_range: (f64, f64, f64), s_range: (f64, f64, f64)| {
+            let mut sig = s_range.0;
+            while sig <= s_range.1 {
+                let mut t = t_range.0;
+                while t <= t_range.1 {
+                    let r = residual(&prof, t, sig);
+                    if r < best.0 {
+                        *best = (r, t, sig);
+                    }
+                    t += t_range.2;
+                }
+                sig += s_range.2;
+            }
+        };
+    let mut best = (f64::INFINITY, 0.0, 1.0);
+    search(
+        &mut best,
+        (-um(8.0), um(8.0), 0.5),
+        (0.5, um(10.0).max(1.0), 0.5),
+    );
+    let (_, t1, s1) = best;
+    search(
+        &mut best,
+        (t1 - 0.6, t1 + 0.6, 0.05),
+        ((s1 - 0.5).max(0.3), s1 + 0.5, 0.1),
+    );
+    let (_, t, sigma) = best;
+    Ok(Tip {
+        x: ox + t * u[0],
+        y: oy + t * u[1],
+        axis: u,
+        sigma,
+    })
+}
+
+/// Residual of the best `M(s) = a·Φ(z) + c·σ·(z·Φ(z) + φ(z))`, `z = (t − s)/σ` (a step
+/// of `a` and a ramp of slope `c` starting at `t`, blurred by a Gaussian of `σ`), with
+/// `a > 0` (infinite otherwise): `a`, `c` by least squares.
+fn residual(prof: &[(f64, f64)], t: f64, sig: f64) -> f64 {
+    let (mut a11, mut a12, mut a22, mut b1, mut b2, mut mm) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(s, m) in prof {
+        // A step and a ramp starting at t, blurred by a Gaussian of σ.
+        let z = (t - s) / sig;
+        let f = phi(z);
+        let g = sig * (z * f + (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt());
+        a11 += f * f;
+        a12 += f * g;
+        a22 += g * g;
+        b1 += f * m;
+        b2 += g * m;
+        mm += m * m;
+    }
+    let det = a11 * a22 - a12 * a12;
+    if det.abs() <= 1e-12 {
+        return f64::INFINITY;
+    }
+    let a = (b1 * a22 - b2 * a12) / det;
+    let c = (a11 * b2 - a12 * b1) / det;
+    if a <= 0.0 {
+        return f64::INFINITY;
+    }
+    // |m − F x|² = m·m − 2 x·Fᵀm + xᵀ FᵀF x.
+    mm - 2.0 * (a * b1 + c * b2) + a * a * a11 + 2.0 * a * c * a12 + c * c * a22
+}
+
+/// `1 − image / background` with the background a biquadratic surface (smooth
+/// illumination and vignetting, across the whole image): fitted by least squares to
+/// every fourth pixel, then again without the pixels clearly darker than the first fit.
+/// A box mean would not do here: the pipette's shank is wider than any window that
+/// still follows the vignetting into the corners.
+fn smooth_darkness(pixels: &[u16], w: usize, h: usize) -> Vec<f64> {
+    let basis = |x: usize, y: usize| {
+        let u = 2.0 * x as f64 / (w - 1) as f64 - 1.0;
+        let v = 2.0 * y as f64 / (h - 1) as f64 - 1.0;
+        let (pu, pv) = ([1.0, u, u * u], [1.0, v, v * v]);
+        let mut b = [0.0; 9];
+        for i in 0..3 {
+            for j in 0..3 {
+                b[3 * i + j] = pu[i] * pv[j];
+            }
+        }
+        b
+    };
+    let fit = |keep: &dyn Fn(usize, usize, f64) -> bool| -> Option<[f64; 9]> {
+        let mut a = [[0.0f64; 9]; 9];
+        let mut r = [0.0f64; 9];
+        for y in (0..h).step_by(4) {
+            for x in (0..w).step_by(4) {
+                let v = pixels[y * w + x] as f64;
+                if !keep(x, y, v) {
+                    continue;
+                }
+                let b = basis(x, y);
+                for i in 0..9 {
+                    for j in 0..9 {
+                        a[i][j] += b[i] * b[j];
+                    }
+                    r[i] += b[i] * v;
+                }
+            }
+        }
+        solve9(a, r)
+    };
+    let eval = |c: &[f64; 9], x: usize, y: usize| {
+        basis(x, y).iter().zip(c).map(|(b, c)| b * c).sum::<f64>()
+    };
+    let Some(c0) = fit(&|_, _, _| true) else {
+        return vec![0.0; w * h];
+    };
+    let c = fit(&|x, y, v| v > 0.97 * eval(&c0, x, y)).unwrap_or(c0);
+    let mut out = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let b = eval(&c, x, y);
+            out[y * w + x] = if b > 0.0 {
+                1.0 - pixels[y * w + x] as f64 / b
+            } else {
+                0.0
+            };
+        }
+    }
+    out
+}
+
+/// Solves a 9×9 system by Gaussian elimination with partial pivoting.
+fn solve9(mut a: [[f64; 9]; 9], mut r: [f64; 9]) -> Option<[f64; 9]> {
+    for k in 0..9 {
+        let p = (k..9).max_by(|&i, &j| a[i][k].abs().total_cmp(&a[j][k].abs()))?;
+        if a[p][k].abs() < 1e-12 {
+            return None;
+        }
+        a.swap(k, p);
+        r.swap(k, p);
+        for i in k + 1..9 {
+            let f = a[i][k] / a[k][k];
+            for j in k..9 {
+                a[i][j] -= f * a[k][j];
+            }
+            r[i] -= f * r[k];
+        }
+    }
+    let mut x = [0.0; 9];
+    for k in (0..9).rev() {
+        let s: f64 = (k + 1..9).map(|j| a[k][j] * x[j]).sum();
+        x[k] = (r[k] - s) / a[k][k];
+    }
+    Some(x)
+}
+
+/// The unit principal axis of points.
+fn principal(pts: &[(f64, f64)]) -> [f64; 2] {
+    let n = pts.len().max(1) as f64;
+    let (cx, cy) = pts
+        .iter()
+        .fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+    let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+    for (x, y) in pts {
+        let (dx, dy) = (x - cx, y - cy);
+        sxx += dx * dx;
+        syy += dy * dy;
+        sxy += dx * dy;
+    }
+    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    [angle.cos(), angle.sin()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn phi_is_the_normal_cdf() {
+        assert!((phi(0.0) - 0.5).abs() < 1e-12);
+        assert!((phi(1.0) - 0.841_344_746_068_543).abs() < 1e-12);
+        assert!((phi(-2.0) - 0.022_750_131_948_179).abs() < 1e-12);
+    }
+
+    #[test]
+    fn an_image_without_a_pipette_says_so() {
+        let px = vec![1000u16; 64 * 64];
+        assert_eq!(locate(&px, 64, 64, 1e-6), Err(CellsError::NoPipette));
+    }
+}
