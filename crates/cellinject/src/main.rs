@@ -129,10 +129,10 @@ enum Command {
         after_help = "Examples:\n  cellinject experiment range --approach 2\n  cellinject experiment repeatability --approach 1 --control closed --runs 200\n  cellinject experiment tracking --control sensor"
     )]
     Experiment(experiment::ExperimentCommand),
-    /// The matrix feeder's description file: realistic plates from a seed, checks.
+    /// The matrix feeder's description file: realistic plates from a seed, checks, and cell detection on the twin.
     #[command(
         subcommand,
-        after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate check --plate plate.toml"
+        after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate check --plate plate.toml\n  cellinject plate detect --plate plate.toml"
     )]
     Plate(plate::PlateCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.

@@ -95,7 +95,7 @@ pub enum SimCommand {
         twin: TwinArgs,
     },
     /// The pipette's tip found in the image (never from the commanded position) against
-    /// the twin's truth, the stacks at random voltages between frames.
+    /// the twin's truth; A1 and A3 at random voltages between frames, A2 at 0 V (in focus).
     #[command(
         after_help = "Examples:\n  cellinject sim tip\n  cellinject sim tip --zoom 5 --runs 50 --format json"
     )]
