@@ -357,6 +357,26 @@ fn redo(path: &Path, why: &str) {
     );
 }
 
+/// The calibration `kind` from `path` if given and its check passes; a failing one is
+/// said and dropped (to be made again), never used.
+fn load_checked<T: DeserializeOwned>(
+    path: Option<PathBuf>,
+    kind: &str,
+    setup: &Setup,
+    problem: impl Fn(&T) -> Option<String>,
+) -> Result<Option<T>> {
+    let Some(p) = path else {
+        return Ok(None);
+    };
+    Ok(load::<T>(&p, kind, setup)?.filter(|c| match problem(c) {
+        None => true,
+        Some(why) => {
+            redo(&p, &why);
+            false
+        }
+    }))
+}
+
 /// Calibration files made by a command: (name, bytes).
 type MadeFiles = Vec<(String, Vec<u8>)>;
 
@@ -370,18 +390,10 @@ fn calibrations(
     let zoom = setup.made.zoom;
     let marker = setup.description.rig.optics.marker;
     let file = |name: &str| dir.map(|d| d.join(format!("{name}.json")));
-    let pixels: Option<PixelCalibration> = match file("pixels") {
-        Some(p) => {
-            load::<PixelCalibration>(&p, "pixels", setup)?.filter(|c| match c.problem(zoom) {
-                None => true,
-                Some(why) => {
-                    redo(&p, &why);
-                    false
-                }
-            })
-        }
-        None => None,
-    };
+    let pixels: Option<PixelCalibration> =
+        load_checked(file("pixels"), "pixels", setup, |c: &PixelCalibration| {
+            c.problem(zoom)
+        })?;
     let pixels = match pixels {
         Some(p) => p,
         None => {
@@ -391,18 +403,12 @@ fn calibrations(
             c
         }
     };
-    let hysteresis: Option<HysteresisCalibration> = match file("hysteresis") {
-        Some(p) => {
-            load::<HysteresisCalibration>(&p, "hysteresis", setup)?.filter(|c| match c.problem() {
-                None => true,
-                Some(why) => {
-                    redo(&p, &why);
-                    false
-                }
-            })
-        }
-        None => None,
-    };
+    let hysteresis: Option<HysteresisCalibration> = load_checked(
+        file("hysteresis"),
+        "hysteresis",
+        setup,
+        |c: &HysteresisCalibration| c.problem(),
+    )?;
     let hysteresis = match hysteresis {
         Some(h) => h,
         None => {
@@ -415,18 +421,12 @@ fn calibrations(
             c
         }
     };
-    let jacobian: Option<JacobianCalibration> = match file("jacobian") {
-        Some(p) => {
-            load::<JacobianCalibration>(&p, "jacobian", setup)?.filter(|c| match c.problem() {
-                None => true,
-                Some(why) => {
-                    redo(&p, &why);
-                    false
-                }
-            })
-        }
-        None => None,
-    };
+    let jacobian: Option<JacobianCalibration> = load_checked(
+        file("jacobian"),
+        "jacobian",
+        setup,
+        |c: &JacobianCalibration| c.problem(),
+    )?;
     let jacobian = match jacobian {
         Some(j) => j,
         None => {
