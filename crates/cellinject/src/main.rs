@@ -25,6 +25,7 @@ mod hysteresis;
 mod output;
 mod plate;
 mod progress;
+mod run;
 mod sim;
 
 use std::path::PathBuf;
@@ -135,6 +136,17 @@ enum Command {
         after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate check --plate plate.toml\n  cellinject plate detect --plate plate.toml"
     )]
     Plate(plate::PlateCommand),
+    /// The unattended injection workflow: every cell of a plate found, injected and checked, recorded in a database (the default command).
+    #[command(
+        after_help = "Examples:\n  cellinject run\n  cellinject run --plate plate.toml --db runs.sqlite --format json\n  cellinject run --resume\n  cellinject run --fault clog@5"
+    )]
+    Run(run::RunArgs),
+    /// The run records: list the runs, show one as JSON, export its attempts.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject runs list\n  cellinject runs show --run 2\n  cellinject runs export --format csv > attempts.csv"
+    )]
+    Runs(run::RunsCommand),
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     #[command(
         after_help = "Examples:\n  cellinject reproduce\n  cellinject reproduce --out my-reports --format json"
@@ -201,6 +213,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::HingeTable(args)) => {
             unused_config();
             hinge::table(&args)
+        }
+        Some(Command::Run(args)) => run::run(&description()?, &args),
+        Some(Command::Runs(cmd)) => {
+            unused_config();
+            run::runs(&cmd)
         }
         Some(Command::Reproduce { out, format }) => {
             commands::reproduce(&description()?, &out, format)

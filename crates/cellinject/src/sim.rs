@@ -34,6 +34,15 @@ pub struct TwinArgs {
 }
 
 impl TwinArgs {
+    /// The description's approach, this seed, text output.
+    pub(crate) fn with_seed(seed: u64) -> Self {
+        TwinArgs {
+            approach: None,
+            seed: Some(seed),
+            format: Format::Text,
+        }
+    }
+
     /// The output format asked for.
     pub(crate) fn format(&self) -> Format {
         self.format

@@ -224,10 +224,34 @@ pub(crate) fn bench(
         })
     })?;
     let mut injector_max_pressure = r.injector_max_pressure;
+    let mut pipette = r.pipette;
     let injector = with(top, "injector", d.injector, |s, d| {
         injector_max_pressure = s.num("max_pressure", injector_max_pressure, Check::Positive)?;
+        pipette = cellinject_rig::PipetteParams {
+            inner_diameter: s.num(
+                "tip_inner_diameter",
+                pipette.inner_diameter,
+                Check::Between(1e-8, 1e-5),
+            )?,
+            cone_half_angle: s.num(
+                "cone_half_angle",
+                pipette.cone_half_angle,
+                Check::Between(1e-3, 0.5),
+            )?,
+            viscosity: s.num("viscosity", pipette.viscosity, Check::Between(1e-4, 1.0))?,
+            dye_contrast: s.num(
+                "dye_contrast",
+                pipette.dye_contrast,
+                Check::Between(0.0, 10.0),
+            )?,
+        };
         Ok(cellinject_simparams::InjectorParams {
-            conductance: s.num("conductance", d.conductance, Check::Positive)?,
+            conductance_error: s.num(
+                "conductance_error",
+                d.conductance_error,
+                Check::Between(-0.9, 10.0),
+            )?,
+            pulse_noise: s.num("pulse_noise", d.pulse_noise, Check::Between(0.0, 0.5))?,
         })
     })?;
     let safety = with(top, "safety", r.safety, |s, d| {
@@ -246,6 +270,7 @@ pub(crate) fn bench(
         safety,
         stage_travel,
         injector_max_pressure,
+        pipette,
         optics,
         // Computed by the front end from the structural model (not a description key).
         j3_yield: None,
@@ -262,6 +287,7 @@ pub(crate) fn bench(
         lens,
         feeder,
         injector,
+        biology: d.biology,
     };
     Ok((rig, sim))
 }

@@ -37,6 +37,7 @@ pub mod dic;
 pub mod experiment;
 pub mod hinge;
 pub mod hysteresis;
+pub mod inject;
 pub mod model;
 pub mod reproduce;
 pub mod sim;

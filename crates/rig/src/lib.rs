@@ -16,9 +16,11 @@
 pub mod fake;
 pub mod guard;
 pub mod params;
+pub mod pipette;
 pub mod programs;
 mod rig;
 
 pub use guard::{PiezoEnvelope, SharedGuard};
 pub use params::RigParams;
+pub use pipette::PipetteParams;
 pub use rig::{Backend, Devices, Rig, RigError, envelope};

@@ -73,6 +73,8 @@ pub struct RigParams {
     pub stage_travel: f64,
     /// Pa, largest gauge pressure of the injector (`injector.max_pressure`).
     pub injector_max_pressure: f64,
+    /// The mounted pipette and the injected solution (`[injector]`).
+    pub pipette: crate::pipette::PipetteParams,
     /// The zoom lens.
     pub optics: OpticsSetup,
     /// J3's yield check for the envelope: numbers from the structural model and the
@@ -90,6 +92,7 @@ impl Default for RigParams {
             safety: SafetyMargins::default(),
             stage_travel: 0.025,
             injector_max_pressure: 2.0e5,
+            pipette: crate::pipette::PipetteParams::default(),
             optics: OpticsSetup::default(),
             j3_yield: None,
         }

@@ -9,7 +9,7 @@
 //! The description file's `[twin] seed`, `[actuators.*.amplifier|hysteresis|creep]`
 //! (all but `v_max`), `[dynamics]`, `[joints]`, `[thermal]`, `[stage]` (all but
 //! `travel`), `[camera]`, `[optics]` (`focus_blur`, `defocus_rate`), `[feeder]` and
-//! `[injector] conductance` fill these structures (crate `cellinject-config`).
+//! `[injector] conductance_error`, `pulse_noise` fill these structures (crate `cellinject-config`).
 //!
 //! **Architecture invariant:** plain data with defaults; no behaviour, no dependencies.
 
@@ -313,14 +313,55 @@ impl Default for FeederParams {
 /// The pressure injector's flow (its pressure limit is the rig's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InjectorParams {
-    /// m³/(s·Pa), hydraulic conductance of the pipette tip.
-    pub conductance: f64,
+    /// Relative deviation of this pipette's true conductance from what its nominal
+    /// geometry gives (`[injector] tip_inner_diameter`, `cone_half_angle`,
+    /// `viscosity`): the puller's spread.
+    pub conductance_error: f64,
+    /// Relative rms scatter of the volume from pulse to pulse.
+    pub pulse_noise: f64,
 }
 
 impl Default for InjectorParams {
     fn default() -> Self {
         InjectorParams {
-            conductance: 5.0e-20,
+            conductance_error: 0.04,
+            pulse_noise: 0.02,
+        }
+    }
+}
+
+/// How the twin's cells respond to the pipette (contact, puncture, dose, viability).
+/// Not description keys yet: the defaults are the twin's cell line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellBiology {
+    /// How far the cell is pushed ahead of the tip before its membrane gives, as a
+    /// fraction of the tip's advance into the undeformed cell (the rest dimples the
+    /// membrane).
+    pub push_fraction: f64,
+    /// Dimple depth at which the membrane gives, as a fraction of the cell's radius
+    /// (drawn uniformly per cell between the two).
+    pub puncture: [f64; 2],
+    /// Largest lateral offset of the tip from the cell's centre at entry, as a
+    /// fraction of the radius, that does not tear the membrane.
+    pub tear_offset: f64,
+    /// Largest sideways travel of the tip inside the cell, fraction of the radius.
+    pub tear_travel: f64,
+    /// Deepest the tip may go past the cell's centre, fraction of the radius, before
+    /// it damages the nucleus and the cell dies.
+    pub lethal_depth: f64,
+    /// Injected volume, fraction of the cell's, beyond which the cell lyses.
+    pub lethal_dose: f64,
+}
+
+impl Default for CellBiology {
+    fn default() -> Self {
+        CellBiology {
+            push_fraction: 0.5,
+            puncture: [0.18, 0.30],
+            tear_offset: 0.6,
+            tear_travel: 0.3,
+            lethal_depth: 0.45,
+            lethal_dose: 0.15,
         }
     }
 }
@@ -350,6 +391,8 @@ pub struct SimParams {
     pub feeder: FeederParams,
     /// Injector flow.
     pub injector: InjectorParams,
+    /// The cells' response to the pipette.
+    pub biology: CellBiology,
 }
 
 impl Default for SimParams {
@@ -366,6 +409,7 @@ impl Default for SimParams {
             lens: LensParams::default(),
             feeder: FeederParams::default(),
             injector: InjectorParams::default(),
+            biology: CellBiology::default(),
         }
     }
 }

@@ -42,6 +42,54 @@ pub struct TipPose {
     pub vz: f64,
 }
 
+/// How a cell looks now, when it differs from the scene's resting cell: pushed or
+/// moved, swollen by an injection, darkened by the dye, or dead.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CellLook {
+    /// m, displacement of the centre (x, z).
+    pub offset: [f64; 2],
+    /// Radius over the resting radius.
+    pub scale: f64,
+    /// Extra darkening of the cytoplasm by the injected dye.
+    pub dye: f64,
+    /// Lysed: the cell's contrast fades and its membrane ring breaks up.
+    pub dead: bool,
+}
+
+/// How much a cell of the scene darkens the point (dx, dz) from its resting centre
+/// (the factor the background is multiplied by), as it looks now.
+fn cell_factor(
+    c: &crate::scene::Cell,
+    look: &CellLook,
+    dx: f64,
+    dz: f64,
+    sigma: f64,
+    ring_w2: f64,
+) -> f32 {
+    let (dx, dz) = (dx - look.offset[0], dz - look.offset[1]);
+    let radius = c.radius * look.scale;
+    let rho = (dx * dx + dz * dz).sqrt();
+    let nx = dx - c.nucleus[0] * look.scale;
+    let nz = dz - c.nucleus[1] * look.scale;
+    let rn = (nx * nx + nz * nz).sqrt();
+    let inside = step(((radius - rho) / sigma) as f32);
+    let ring = (-(rho - radius).powi(2) / ring_w2).exp() as f32;
+    let nucleus = step(((c.nucleus_radius - rn) as f32) / sigma as f32);
+    let (k_in, k_ring, k_nuc) = if look.dead {
+        (0.35, 0.3, 0.5)
+    } else {
+        (1.0, 1.0, 1.0)
+    };
+    1.0 - (0.10 + look.dye as f32) * k_in * inside - 0.32 * k_ring * ring - 0.22 * k_nuc * nucleus
+}
+
+const REST: CellLook = CellLook {
+    offset: [0.0, 0.0],
+    scale: 1.0,
+    dye: 0.0,
+    dead: false,
+};
+
 /// The output pixel grid in the object plane.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Grid {
@@ -141,6 +189,10 @@ pub struct Microscope {
     scratch_z: Vec<f32>,
     /// Random stream of the sensor noise (each camera has its own).
     noise_stream: u64,
+    /// Cells (indices into the scene's) that look different from their resting state.
+    looks: Vec<(usize, CellLook)>,
+    /// Frames still to come with the illumination off (a fault of the twin).
+    dark_frames: u32,
 }
 
 impl Microscope {
@@ -174,7 +226,22 @@ impl Microscope {
             scratch_x: Vec::new(),
             scratch_z: Vec::new(),
             noise_stream: stream::CAMERA,
+            looks: Vec::new(),
+            dark_frames: 0,
         }
+    }
+
+    /// How the cells that changed look now (index into the scene's cells, look); the
+    /// others look as they rest. Drawn over the cached static layer each frame.
+    pub fn set_cell_looks(&mut self, looks: &[(usize, CellLook)]) {
+        self.looks.clear();
+        self.looks.extend_from_slice(looks);
+    }
+
+    /// The next `frames` frames come with the illumination off (a fault: the tip and
+    /// the cells cannot be seen).
+    pub fn go_dark(&mut self, frames: u32) {
+        self.dark_frames = frames;
     }
 
     /// Looks at another scene from now on (e.g. a plate file's).
@@ -368,20 +435,12 @@ impl Microscope {
             let (i0, i1) = span(g.x0, g.pitch, g.width, c.x - reach, c.x + reach);
             let (j0, j1) = span(g.z0, g.pitch, g.height, c.z - reach, c.z + reach);
             let ring_w2 = 2.0 * (0.5e-6f64.powi(2) + blur2);
-            let s = sigma as f32;
             for j in j0..j1 {
                 let dz = g.z0 + j as f64 * g.pitch - c.z;
                 let row = &mut self.static_layer[j * g.width..(j + 1) * g.width];
                 for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
                     let dx = g.x0 + i as f64 * g.pitch - c.x;
-                    let rho = (dx * dx + dz * dz).sqrt();
-                    let nx = dx - c.nucleus[0];
-                    let nz = dz - c.nucleus[1];
-                    let rn = (nx * nx + nz * nz).sqrt();
-                    let inside = step(((c.radius - rho) / sigma) as f32);
-                    let ring = (-(rho - c.radius).powi(2) / ring_w2).exp() as f32;
-                    let nucleus = step(((c.nucleus_radius - rn) as f32) / s);
-                    *px *= 1.0 - 0.10 * inside - 0.32 * ring - 0.22 * nucleus;
+                    *px *= cell_factor(c, &REST, dx, dz, sigma, ring_w2);
                 }
             }
         }
@@ -452,6 +511,37 @@ impl Microscope {
             let row = &mut buf[j * g.width + i0..j * g.width + i1];
             for (p, w) in row.iter_mut().zip(&self.scratch_x) {
                 *p *= 1.0 - a * w;
+            }
+        }
+    }
+
+    /// Redraws the cells whose look changed: divides their resting factor out of the
+    /// work buffer and multiplies their present one in (both never below 0.36).
+    fn render_looks(&mut self, g: &Grid) {
+        if self.looks.is_empty() {
+            return;
+        }
+        let blur2 = self.optics.focus_blur.powi(2) + g.pitch * g.pitch / 12.0;
+        let sigma = blur2.sqrt();
+        let ring_w2 = 2.0 * (0.5e-6f64.powi(2) + blur2);
+        for (k, look) in &self.looks {
+            let Some(c) = self.scene.cells.get(*k) else {
+                continue;
+            };
+            let reach = c.radius * look.scale.max(1.0)
+                + look.offset[0].abs().max(look.offset[1].abs())
+                + 4.0 * sigma
+                + 2e-6;
+            let (i0, i1) = span(g.x0, g.pitch, g.width, c.x - reach, c.x + reach);
+            let (j0, j1) = span(g.z0, g.pitch, g.height, c.z - reach, c.z + reach);
+            for j in j0..j1 {
+                let dz = g.z0 + j as f64 * g.pitch - c.z;
+                let row = &mut self.work[j * g.width..(j + 1) * g.width];
+                for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
+                    let dx = g.x0 + i as f64 * g.pitch - c.x;
+                    let rest = cell_factor(c, &REST, dx, dz, sigma, ring_w2);
+                    *px *= cell_factor(c, look, dx, dz, sigma, ring_w2) / rest;
+                }
             }
         }
     }
@@ -548,6 +638,11 @@ impl Microscope {
         }
         self.work.clear();
         self.work.extend_from_slice(&self.static_layer);
+        self.render_looks(&g);
+        if self.dark_frames > 0 {
+            self.dark_frames -= 1;
+            self.work.iter_mut().for_each(|p| *p *= 0.02);
+        }
         let exposure = self.settings.exposure;
         self.render_pipette(&g, pose, exposure);
         // Sensor.

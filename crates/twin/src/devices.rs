@@ -15,6 +15,7 @@ use cellinject_model::{ACTUATOR_NAMES, Design};
 use cellinject_numeric::Rng;
 use cellinject_rig::{Backend, Devices, Rig, RigError};
 
+use crate::biology::{Biology, Fault};
 use crate::camera::{Microscope, TipPose};
 use crate::scene::Scene;
 pub use crate::world::TwinParams;
@@ -58,6 +59,9 @@ pub struct Twin {
     origin: [f64; 3],
     last_frame: [Option<u64>; 2],
     exposure: Option<Exposure>,
+    /// The loaded plate's cells as living things (see [`Twin::load_plate`]).
+    pub biology: Option<Biology>,
+    pulse_rng: Rng,
 }
 
 /// A twin shared by its device handles.
@@ -71,8 +75,97 @@ impl Twin {
     /// Puts the cells and debris of `plate` under the microscope (in place of the
     /// feeder the twin generated from its seed): see [`Scene::from_plate`].
     pub fn load_plate(&mut self, plate: &cellinject_plate::Plate) {
-        let seed = self.world.params().sim.seed;
+        let params = *self.world.params();
+        let seed = params.sim.seed;
         self.camera.set_scene(Scene::from_plate(plate, seed));
+        let mut rng = Rng::new(seed, crate::world::stream::BIOLOGY);
+        self.biology = Some(Biology::new(
+            params.sim.biology,
+            params.rig.pipette.dye_contrast,
+            plate
+                .cells
+                .iter()
+                .map(|o| (plate.centre(o), 0.5 * o.diameter)),
+            &mut rng,
+        ));
+    }
+
+    /// Schedules faults on the loaded plate's cells (see [`Fault`]); refused without a
+    /// plate or for a cell the plate does not have.
+    pub fn set_faults(&mut self, faults: &[Fault]) -> Result<(), TwinError> {
+        let Some(b) = self.biology.as_mut() else {
+            return Err(TwinError::Invalid {
+                key: "fault".into(),
+                reason: "faults act on a plate's cells: load a plate first".into(),
+            });
+        };
+        if let Some(f) = faults.iter().find(|f| f.cell() >= b.cells.len()) {
+            return Err(TwinError::Invalid {
+                key: "fault".into(),
+                reason: format!(
+                    "cell {} does not exist: the plate has {} cells (numbered from 0)",
+                    f.cell(),
+                    b.cells.len()
+                ),
+            });
+        }
+        b.set_faults(faults);
+        Ok(())
+    }
+
+    /// Lets `seconds` pass in steps of at most 1 ms, updating the cells' contact with
+    /// the tip after each.
+    pub fn advance(&mut self, seconds: f64) {
+        self.advance_to(self.world.time() + seconds);
+    }
+
+    /// Advances to time `t` (see [`Twin::advance`]).
+    pub fn advance_to(&mut self, t: f64) {
+        if self.biology.is_none() {
+            self.world.advance_to(t);
+            return;
+        }
+        while self.world.time() < t - 1e-12 {
+            let before = self.world.time();
+            let next = (before + 1e-3).min(t);
+            self.world.advance_to(next);
+            if self.world.time() == before {
+                // Less than one integration step left.
+                break;
+            }
+            self.interact();
+        }
+        self.interact();
+    }
+
+    fn interact(&mut self) {
+        let tip = self.tip();
+        if let Some(b) = self.biology.as_mut() {
+            let fx = b.interact(&tip);
+            if fx.dark_frames > 0 {
+                self.camera.go_dark(fx.dark_frames);
+            }
+            if fx.stall_stage {
+                b.stall_pending = true;
+            }
+        }
+    }
+
+    /// A pressure pulse through the pipette: the volume its conductance lets through
+    /// (nominal geometry, this pipette's deviation, clog or break, pulse-to-pulse
+    /// scatter) goes into the cell the tip is in, or into the medium; then the pulse's
+    /// duration passes.
+    pub fn pulse(&mut self, pressure: f64, duration: f64) {
+        let p = *self.world.params();
+        let flow = self.biology.as_ref().map_or(1.0, |b| b.flow);
+        let scatter = 1.0 + p.sim.injector.pulse_noise * self.pulse_rng.gaussian_exact();
+        let g = p.rig.pipette.conductance() * (1.0 + p.sim.injector.conductance_error);
+        let volume = (g * flow * pressure * duration * scatter).max(0.0);
+        if let Some(b) = self.biology.as_mut() {
+            b.pulse(volume, pressure, 0.8 * p.rig.injector_max_pressure);
+        }
+        self.world.record_pulse(pressure, duration, volume);
+        self.advance(duration);
     }
 
     /// A twin of `design` at rest, assembled with `params.approach`.
@@ -104,6 +197,8 @@ impl Twin {
             origin: [x[0], x[1], x[2]],
             last_frame: [None; 2],
             exposure: None,
+            biology: None,
+            pulse_rng: Rng::new(sim.seed, crate::world::stream::PULSES),
         })
     }
 
@@ -112,9 +207,10 @@ impl Twin {
     pub fn tip(&self) -> TipPose {
         let s = self.world.snapshot();
         let o = self.origin;
+        let lost = self.biology.as_ref().map_or(0.0, |b| b.tip_loss);
         TipPose {
             x: self.world.stage.true_position(0) + s.x[0] - o[0],
-            z: self.world.stage.true_position(2) + s.x[2] - o[2],
+            z: self.world.stage.true_position(2) + s.x[2] - o[2] - lost,
             depth: self.world.stage.true_position(1) + s.x[1] - o[1],
             vx: 0.0,
             vz: 0.0,
@@ -160,9 +256,9 @@ impl Twin {
                     k = k.max(last + 1);
                 }
                 let start = k as f64 * period;
-                self.world.advance_to(start);
+                self.advance_to(start);
                 let from = self.tip();
-                self.world.advance(exposure);
+                self.advance(exposure);
                 let to = self.tip();
                 let e = Exposure {
                     index: k,
@@ -189,6 +285,9 @@ impl Twin {
             vz: (b.z - a.z) / t,
         };
         let seed = self.world.params().sim.seed;
+        if let (View::Top, Some(b)) = (view, self.biology.as_ref()) {
+            self.camera.set_cell_looks(&b.looks());
+        }
         let cam = match view {
             View::Top => &mut self.camera,
             View::Side => &mut self.side,
@@ -338,7 +437,14 @@ impl Stage for TwinStage {
         let (lo, hi) = self.travel(axis);
         check_range("stage axis", axis as f64, 0.0, 2.0)?;
         check_range("stage position", position, lo, hi)?;
-        lock(&self.twin).world.stage.move_to(axis, position);
+        let mut t = lock(&self.twin);
+        if let Some(b) = t.biology.as_mut()
+            && b.stall_pending
+        {
+            b.stall_pending = false;
+            t.world.stage.stall();
+        }
+        t.world.stage.move_to(axis, position);
         Ok(())
     }
     fn position(&mut self, axis: usize) -> Result<f64, HwError> {
@@ -362,7 +468,7 @@ impl Injector for TwinInjector {
     fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
         check_range("pressure", pressure, 0.0, self.max_pressure())?;
         check_range("pulse duration", duration, 0.0, 10.0)?;
-        lock(&self.twin).world.pulse(pressure, duration);
+        lock(&self.twin).pulse(pressure, duration);
         Ok(())
     }
 }
@@ -378,7 +484,7 @@ impl Clock for TwinClock {
     }
     fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
         check_range("sleep", seconds, 0.0, 1.0e6)?;
-        lock(&self.twin).world.advance(seconds);
+        lock(&self.twin).advance(seconds);
         Ok(())
     }
 }

@@ -11,6 +11,7 @@
 //! controllers only through the traits of `cellinject-hw`, as a backend of
 //! `cellinject-rig` ([`TwinBackend`]).
 
+pub mod biology;
 pub mod camera;
 pub mod devices;
 pub mod dynamics;
@@ -24,6 +25,7 @@ pub use cellinject_numeric::rng;
 /// The twin's simulation-only parameters (crate `cellinject-simparams`).
 pub use cellinject_simparams as params;
 
-pub use camera::{Microscope, TipPose};
+pub use biology::{Biology, CellState, Death, Fault};
+pub use camera::{CellLook, Microscope, TipPose};
 pub use devices::{SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, rig};
 pub use world::{Snapshot, TwinError, World};

@@ -75,6 +75,7 @@ pub struct StageSim {
     travel: f64,
     moves: [Move; 3],
     time: f64,
+    stalled: bool,
 }
 
 impl StageSim {
@@ -85,6 +86,7 @@ impl StageSim {
             travel,
             moves: [Move::plan(0.0, 0.0, 0.0, 1.0, 1.0); 3],
             time: 0.0,
+            stalled: false,
         }
     }
 
@@ -127,6 +129,9 @@ impl StageSim {
 
     /// Starts a move (the caller checks the travel).
     pub fn move_to(&mut self, axis: usize, position: f64) {
+        if self.stalled {
+            return;
+        }
         let from = self.true_position(axis);
         self.moves[axis] = Move::plan(
             self.time,
@@ -139,9 +144,22 @@ impl StageSim {
 
     /// Whether any axis is moving or settling.
     pub fn busy(&self) -> bool {
-        self.moves
-            .iter()
-            .any(|m| m.from != m.to && self.time < m.t0 + m.duration() + self.p.settling_time)
+        self.stalled
+            || self
+                .moves
+                .iter()
+                .any(|m| m.from != m.to && self.time < m.t0 + m.duration() + self.p.settling_time)
+    }
+
+    /// Puts an axis at `position` at once, at rest (the bench's initial condition).
+    pub fn place(&mut self, axis: usize, position: f64) {
+        self.moves[axis] = Move::plan(self.time, position, position, 1.0, 1.0);
+    }
+
+    /// Jams the stage (a fault of the twin): it accepts moves but never starts them and
+    /// stays busy.
+    pub fn stall(&mut self) {
+        self.stalled = true;
     }
 
     /// When the last axis will have settled.

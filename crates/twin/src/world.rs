@@ -27,6 +27,10 @@ pub(crate) mod stream {
     pub const SIDE_SCENE: u64 = 9;
     /// The top view's scene when it comes from a plate file.
     pub const PLATE_SCENE: u64 = 10;
+    /// The plate's cells' puncture thresholds.
+    pub const BIOLOGY: u64 = 11;
+    /// The injector's pulse-to-pulse scatter.
+    pub const PULSES: u64 = 12;
 }
 
 /// Why a twin could not be built.
@@ -456,16 +460,15 @@ impl World {
             .equilibrium_residual_of(&v3(&s.fq), &s.fw, &v3(&s.force))
     }
 
-    /// Records an injector pulse and lets its duration pass.
-    pub fn pulse(&mut self, pressure: f64, duration: f64) {
-        let volume = self.params.sim.injector.conductance * pressure * duration;
+    /// Records an injector pulse that delivered `volume` m³ (the twin computes the
+    /// flow; see `Twin::pulse`).
+    pub fn record_pulse(&mut self, pressure: f64, duration: f64, volume: f64) {
         self.pulses.push(Pulse {
             time: self.time(),
             pressure,
             duration,
             volume,
         });
-        self.advance(duration);
     }
 
     /// Pulses applied so far.

@@ -1,0 +1,588 @@
+//! `cellinject run`, `runs` and `report`: the unattended injection workflow on the twin
+//! (or any backend), its run records and their report.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, anyhow};
+use cellinject_config::Description;
+use cellinject_core::inject::{Attempt, Observer, Options, Target, Transition, Workflow};
+use cellinject_plate::{GenerateOptions, Plate, generate};
+use cellinject_records::{AttemptRow, Records, RecordsError, RunRow};
+use cellinject_twin::{Fault, SharedTwin};
+use clap::{Args, Subcommand};
+use serde::Serialize;
+
+use crate::output::print_json;
+use crate::{Format, InputError};
+
+/// `cellinject run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The plate (TOML; default: a generated 8 x 12 plate centred in the field of
+    /// view, from the seed).
+    #[arg(long)]
+    plate: Option<PathBuf>,
+    /// Seed of the twin (and of the default plate); default: the description's.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// The run database.
+    #[arg(long, default_value = "runs.sqlite")]
+    db: PathBuf,
+    /// Continue the database's latest run where it was killed.
+    #[arg(long)]
+    resume: bool,
+    /// A hysteresis calibration to use (JSON from `cellinject calibrate hysteresis`);
+    /// checked, and redone if it fails its check.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// Injected volume, fraction of each cell's volume.
+    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
+    dose: f64,
+    /// Inject a fault into the twin: KIND@CELL, KIND one of clog, hard-clog, break,
+    /// move, dark, stall; CELL the plate file's cell index (repeatable).
+    #[arg(long, value_name = "KIND@CELL")]
+    fault: Vec<String>,
+    /// What to print.
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    format: Format,
+}
+
+/// `cellinject runs`.
+#[derive(Debug, Subcommand)]
+pub enum RunsCommand {
+    /// One line per run.
+    List {
+        /// The run database.
+        #[arg(long, default_value = "runs.sqlite")]
+        db: PathBuf,
+        /// What to print.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+    },
+    /// A run and its attempts as JSON (the latest, or `--run ID`).
+    Show {
+        /// The run database.
+        #[arg(long, default_value = "runs.sqlite")]
+        db: PathBuf,
+        /// Run id.
+        #[arg(long)]
+        run: Option<i64>,
+    },
+    /// A run's attempts as CSV or JSON on standard output.
+    Export {
+        /// The run database.
+        #[arg(long, default_value = "runs.sqlite")]
+        db: PathBuf,
+        /// Run id (default: the latest).
+        #[arg(long)]
+        run: Option<i64>,
+        /// csv or json.
+        #[arg(long, default_value = "csv")]
+        format: String,
+    },
+}
+
+fn parse_fault(s: &str) -> Result<Fault> {
+    let bad = || {
+        InputError(format!(
+            "--fault `{s}`: expected KIND@CELL with KIND one of clog, hard-clog, break, move, dark, stall (e.g. clog@3)"
+        ))
+    };
+    let (kind, cell) = s.split_once('@').ok_or_else(bad)?;
+    let cell: usize = cell.parse().map_err(|_| bad())?;
+    Ok(match kind {
+        "clog" => Fault::Clog { cell, hard: false },
+        "hard-clog" => Fault::Clog { cell, hard: true },
+        "break" => Fault::Break { cell, length: 6e-6 },
+        "move" => Fault::CellMoves {
+            cell,
+            by: [3e-6, 2e-6],
+        },
+        "dark" => Fault::Dark { cell, frames: 12 },
+        "stall" => Fault::StageStall { cell },
+        _ => return Err(bad().into()),
+    })
+}
+
+/// The default plate: 8 x 12 wells of 150 um centred in the 2.5x field of view.
+pub fn default_plate(seed: u64) -> Result<Plate> {
+    let (rows, cols, pitch) = (8u32, 12u32, 150e-6);
+    generate(&GenerateOptions {
+        rows,
+        cols,
+        pitch,
+        origin: [
+            -0.5 * (cols - 1) as f64 * pitch,
+            -0.5 * (rows - 1) as f64 * pitch + 30e-6,
+        ],
+        seed,
+        ..GenerateOptions::default()
+    })
+    .map_err(|e| anyhow!("default plate: {e}"))
+}
+
+fn records_error(e: RecordsError) -> anyhow::Error {
+    match e {
+        RecordsError::Sql(_) => anyhow!("{e}"),
+        other => InputError(other.to_string()).into(),
+    }
+}
+
+/// What `run` prints as JSON.
+#[derive(Debug, Serialize)]
+struct Summary {
+    run: i64,
+    status: String,
+    cells_found: i64,
+    injected: usize,
+    failed: usize,
+    skipped: usize,
+    interrupted: usize,
+    sim_time_s: f64,
+    cell_time_s: f64,
+    cells_per_min: f64,
+    stopped: Option<String>,
+    attempts: Vec<AttemptRow>,
+}
+
+fn summary(run: &RunRow, attempts: Vec<AttemptRow>) -> Summary {
+    let n = |o: &str| attempts.iter().filter(|a| a.outcome == o).count();
+    Summary {
+        run: run.id,
+        status: run.status.clone(),
+        cells_found: run.cells_found,
+        injected: n("injected"),
+        failed: n("failed"),
+        skipped: n("skipped"),
+        interrupted: n("interrupted"),
+        sim_time_s: run.sim_time_s,
+        cell_time_s: run.cell_time_s,
+        cells_per_min: if run.cell_time_s > 0.0 {
+            attempts.len() as f64 / run.cell_time_s * 60.0
+        } else {
+            0.0
+        },
+        stopped: run.stopped.clone(),
+        attempts,
+    }
+}
+
+/// The twin's truth and the run records, as the workflow's observer.
+struct Recorder<'a> {
+    twin: SharedTwin,
+    plate: Plate,
+    db: &'a mut Records,
+    run: i64,
+    current: Option<i64>,
+    previous: Vec<AttemptRow>,
+    bar: Option<crate::progress::Progress>,
+}
+
+impl Recorder<'_> {
+    fn row(&self, a: &Attempt, outcome: &str) -> AttemptRow {
+        AttemptRow {
+            id: 0,
+            cell: a.target.index as i64,
+            well: a.target.well,
+            x_m: a.target.x_m,
+            y_m: a.target.y_m,
+            diameter_m: a.target.diameter_m,
+            tip_error_m: a.truth.tip_error_m,
+            measured_tip_error_m: a.measured_tip_error_m,
+            depth_m: a.depth_m,
+            dose_fraction: a.truth.dose_fraction.or(a.measured_dose_fraction),
+            measured_dose_fraction: a.measured_dose_fraction,
+            alive: a.truth.alive,
+            outcome: outcome.into(),
+            reason: a.reason.clone(),
+            t_start: a.t[0],
+            t_end: (a.t[1] > 0.0).then_some(a.t[1]),
+            transitions: serde_json::to_value(&a.transitions).unwrap_or_default(),
+        }
+    }
+
+    /// The twin's cell nearest to a target (plate coordinates).
+    fn nearest(&self, t: &Target) -> Option<cellinject_twin::CellState> {
+        let twin = self.twin.lock().unwrap_or_else(|e| e.into_inner());
+        let b = twin.biology.as_ref()?;
+        let p = [t.x_m + self.plate.origin[0], t.y_m + self.plate.origin[1]];
+        b.cells
+            .iter()
+            .min_by(|a, c| {
+                let da = (a.centre[0] - p[0]).hypot(a.centre[1] - p[1]);
+                let dc = (c.centre[0] - p[0]).hypot(c.centre[1] - p[1]);
+                da.total_cmp(&dc)
+            })
+            .copied()
+    }
+}
+
+impl Observer for Recorder<'_> {
+    fn transition(&mut self, _t: &Transition) {}
+    fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
+        let left = targets.iter().filter(|t| !self.done(t)).count();
+        self.bar = Some(crate::progress::bar(left as u64, "cells"));
+        Ok(())
+    }
+    fn done(&self, t: &Target) -> bool {
+        self.previous
+            .iter()
+            .any(|a| a.well == t.well && (a.x_m - t.x_m).hypot(a.y_m - t.y_m) < 3e-6)
+    }
+    fn started(&mut self, a: &Attempt) -> Result<(), String> {
+        let row = self.row(a, "started");
+        self.current = Some(
+            self.db
+                .write_attempt(self.run, None, &row)
+                .map_err(|e| e.to_string())?,
+        );
+        Ok(())
+    }
+    fn contact(&mut self, a: &Attempt) -> Result<(), String> {
+        let row = self.row(a, "contact");
+        self.db
+            .write_attempt(self.run, self.current, &row)
+            .map_err(|e| e.to_string())?;
+        Ok(())
+    }
+    fn finished(&mut self, a: &Attempt) -> Result<(), String> {
+        let row = self.row(a, a.outcome.name());
+        self.db
+            .write_attempt(self.run, self.current.take(), &row)
+            .map_err(|e| e.to_string())?;
+        if let Some(b) = &self.bar {
+            b.inc();
+        }
+        Ok(())
+    }
+    fn tip_error(&mut self, t: &Target) -> Option<f64> {
+        let c = self.nearest(t)?;
+        let tip = self.twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
+        Some((tip.x - c.centre[0]).hypot(tip.z - c.centre[1]))
+    }
+    fn cell_truth(&mut self, t: &Target) -> Option<(f64, bool)> {
+        let c = self.nearest(t)?;
+        Some((c.dose_fraction(), c.dead.is_none()))
+    }
+}
+
+/// `cellinject run`.
+pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
+    let faults = args
+        .fault
+        .iter()
+        .map(|f| parse_fault(f))
+        .collect::<Result<Vec<_>>>()?;
+    let options = Options {
+        target_fraction: args.dose,
+        ..Options::default()
+    };
+    options
+        .check(&d.rig)
+        .map_err(|e| InputError(e.to_string()))?;
+    let hysteresis = match &args.calibration {
+        None => None,
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .map_err(|e| InputError(format!("--calibration `{}`: {e}", p.display())))?;
+            Some(serde_json::from_str(&text).map_err(|e| {
+                InputError(format!(
+                    "--calibration `{}`: not a hysteresis calibration: {e}",
+                    p.display()
+                ))
+            })?)
+        }
+    };
+    let mut db = Records::open(&args.db).map_err(records_error)?;
+    let (run_id, plate_text, seed, previous, base) = if args.resume {
+        let r = db.run(None).map_err(records_error)?;
+        if r.status == "finished" {
+            let attempts = db.attempts(r.id).map_err(records_error)?;
+            if args.format == Format::Json {
+                return print_json(summary(&r, attempts), &[]);
+            }
+            outln!("run {} is finished: nothing to resume", r.id);
+            return Ok(());
+        }
+        if let Some(p) = &args.plate {
+            let text = read_text(p)?;
+            if text != r.plate {
+                return Err(InputError(format!(
+                    "--plate `{}` is not the plate of run {} (resume takes the plate from the database: leave --plate out)",
+                    p.display(),
+                    r.id
+                ))
+                .into());
+            }
+        }
+        if let Some(s) = args.seed
+            && Some(s) != r.seed
+        {
+            return Err(InputError(format!(
+                "--seed {s} is not run {}'s seed {:?} (resume takes it from the database: leave --seed out)",
+                r.id, r.seed
+            ))
+            .into());
+        }
+        let (dropped, interrupted) = db.prepare_resume(r.id).map_err(records_error)?;
+        if dropped + interrupted > 0 {
+            eprintln!(
+                "resuming run {}: {dropped} attempt(s) that had not reached their cell will be retried, {interrupted} recorded interrupted",
+                r.id
+            );
+        }
+        let previous = db.attempts(r.id).map_err(records_error)?;
+        (
+            r.id,
+            r.plate.clone(),
+            r.seed.unwrap_or(d.sim.seed),
+            previous,
+            (r.sim_time_s, r.cell_time_s),
+        )
+    } else {
+        let seed = args.seed.unwrap_or(d.sim.seed);
+        let text = match &args.plate {
+            Some(p) => read_text(p)?,
+            None => cellinject_config::plate::to_toml(
+                &default_plate(seed)?,
+                &format!("cellinject run's default plate: 8 x 12 wells, seed {seed}"),
+            ),
+        };
+        let settings = serde_json::json!({ "options": options, "faults": args.fault });
+        let created = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs() as i64)
+            .unwrap_or(0);
+        let id = db
+            .create_run(&text, Some(seed), "twin", &settings, created)
+            .map_err(records_error)?;
+        (id, text, seed, Vec::new(), (0.0, 0.0))
+    };
+    let plate = cellinject_config::plate::parse(&plate_text).map_err(|e| {
+        InputError(format!(
+            "{}: {e}",
+            args.plate
+                .as_ref()
+                .map_or("the run's plate".to_string(), |p| format!(
+                    "--plate `{}`",
+                    p.display()
+                ))
+        ))
+    })?;
+    plate
+        .check()
+        .map_err(|e| InputError(format!("plate: {e}")))?;
+    let targs = crate::sim::TwinArgs::with_seed(seed);
+    let (twin, mut rig) = crate::sim::build(d, &targs)?;
+    {
+        let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
+        t.load_plate(&plate);
+        t.set_faults(&faults)
+            .map_err(|e| InputError(format!("--fault: {e}")))?;
+        // The macro stage starts with the pipette lifted above the plate.
+        t.world.stage.place(1, options.focus + options.lift);
+    }
+    let mut rec = Recorder {
+        twin: twin.clone(),
+        plate: plate.clone(),
+        db: &mut db,
+        run: run_id,
+        current: None,
+        previous: previous.clone(),
+        bar: None,
+    };
+    let wf = Workflow::new(&mut rig, &d.design, &d.rig, &plate, options)
+        .map_err(|e| InputError(e.to_string()))?;
+    let result = wf.run(hysteresis, &mut rec);
+    rec.bar = None;
+    let (status, stopped, sim, cell, found) = match &result {
+        Ok((r, cal)) => {
+            rec.db
+                .set_calibration(
+                    run_id,
+                    &serde_json::json!({ "hysteresis": cal, "map": r.map }),
+                )
+                .map_err(records_error)?;
+            (
+                if r.stopped.is_some() {
+                    "stopped"
+                } else {
+                    "finished"
+                },
+                r.stopped.clone(),
+                r.sim_time_s,
+                r.cell_time_s,
+                r.cells_found as i64,
+            )
+        }
+        Err(e) => ("stopped", Some(e.to_string()), 0.0, 0.0, 0),
+    };
+    db.update_run(
+        run_id,
+        status,
+        base.0 + sim,
+        base.1 + cell,
+        found,
+        stopped.as_deref(),
+    )
+    .map_err(records_error)?;
+    let r = db.run(Some(run_id)).map_err(records_error)?;
+    let s = summary(&r, db.attempts(run_id).map_err(records_error)?);
+    if let Err(e) = &result
+        && matches!(
+            e,
+            cellinject_core::inject::WorkflowError::PlateTooLarge { .. }
+        )
+    {
+        return Err(InputError(e.to_string()).into());
+    }
+    if args.format == Format::Json {
+        print_json(&s, &[])?;
+    } else {
+        print_text(&s);
+    }
+    match (result, stopped) {
+        (Err(e), _) => Err(anyhow!("run {run_id} stopped: {e}")),
+        (Ok(_), Some(why)) => Err(anyhow!("run {run_id} stopped: {why}")),
+        _ => Ok(()),
+    }
+}
+
+fn print_text(s: &Summary) {
+    let real = |a: &&AttemptRow| a.tip_error_m.is_some();
+    let errs: Vec<f64> = s
+        .attempts
+        .iter()
+        .filter(real)
+        .filter_map(|a| a.tip_error_m)
+        .collect();
+    let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
+    outln!(
+        "run {} {}: {} cells found, {} injected, {} failed, {} skipped, {} interrupted",
+        s.run,
+        s.status,
+        s.cells_found,
+        s.injected,
+        s.failed,
+        s.skipped,
+        s.interrupted
+    );
+    outln!(
+        "{:.1} s simulated ({:.1} s on cells): {:.1} cells per minute; mean tip error at injection {:.2} um",
+        s.sim_time_s,
+        s.cell_time_s,
+        s.cells_per_min,
+        mean * 1e6
+    );
+    for a in s.attempts.iter().filter(|a| a.outcome != "injected") {
+        outln!(
+            "  cell {} well [{}, {}]: {}: {}",
+            a.cell,
+            a.well[0],
+            a.well[1],
+            a.outcome,
+            a.reason
+        );
+    }
+    if let Some(w) = &s.stopped {
+        outln!("stopped: {w}");
+    }
+}
+
+/// `cellinject runs`.
+pub fn runs(cmd: &RunsCommand) -> Result<()> {
+    match cmd {
+        RunsCommand::List { db, format } => {
+            let db = open_existing(db)?;
+            let runs = db.runs().map_err(records_error)?;
+            if *format == Format::Json {
+                return json_out(&runs);
+            }
+            for r in runs {
+                let a = db.attempts(r.id).map_err(records_error)?;
+                let inj = a.iter().filter(|a| a.outcome == "injected").count();
+                outln!(
+                    "run {}: {}, {} cells found, {} attempts, {} injected, {:.1} s simulated{}",
+                    r.id,
+                    r.status,
+                    r.cells_found,
+                    a.len(),
+                    inj,
+                    r.sim_time_s,
+                    r.stopped
+                        .map(|s| format!(" (stopped: {s})"))
+                        .unwrap_or_default()
+                );
+            }
+            Ok(())
+        }
+        RunsCommand::Show { db, run } => {
+            let db = open_existing(db)?;
+            let r = db.run(*run).map_err(records_error)?;
+            let a = db.attempts(r.id).map_err(records_error)?;
+            print_json(serde_json::json!({ "run": r, "attempts": a }), &[])
+        }
+        RunsCommand::Export { db, run, format } => {
+            let db = open_existing(db)?;
+            let r = db.run(*run).map_err(records_error)?;
+            let a = db.attempts(r.id).map_err(records_error)?;
+            match format.as_str() {
+                "json" => json_out(&a),
+                "csv" => {
+                    let mut out = String::from(
+                        "cell,well_row,well_col,x_m,y_m,diameter_m,tip_error_m,measured_tip_error_m,depth_m,dose_fraction,measured_dose_fraction,alive,outcome,reason,t_start_s,t_end_s\n",
+                    );
+                    let o = |v: Option<f64>| v.map(|v| format!("{v:e}")).unwrap_or_default();
+                    for a in &a {
+                        out.push_str(&format!(
+                            "{},{},{},{:e},{:e},{:e},{},{},{},{},{},{},{},\"{}\",{},{}\n",
+                            a.cell,
+                            a.well[0],
+                            a.well[1],
+                            a.x_m,
+                            a.y_m,
+                            a.diameter_m,
+                            o(a.tip_error_m),
+                            o(a.measured_tip_error_m),
+                            o(a.depth_m),
+                            o(a.dose_fraction),
+                            o(a.measured_dose_fraction),
+                            a.alive.map(|b| b.to_string()).unwrap_or_default(),
+                            a.outcome,
+                            a.reason.replace('"', "\"\""),
+                            a.t_start,
+                            o(a.t_end)
+                        ));
+                    }
+                    crate::output::print(format_args!("{out}"));
+                    Ok(())
+                }
+                other => {
+                    Err(InputError(format!("--format `{other}`: expected csv or json")).into())
+                }
+            }
+        }
+    }
+}
+
+fn json_out<T: Serialize>(v: &T) -> Result<()> {
+    crate::output::print(format_args!("{}\n", serde_json::to_string_pretty(v)?));
+    Ok(())
+}
+
+fn read_text(p: &Path) -> Result<String> {
+    std::fs::read_to_string(p)
+        .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())).into())
+}
+
+fn open_existing(p: &Path) -> Result<Records> {
+    if !p.exists() {
+        return Err(InputError(format!(
+            "--db `{}`: no such file (a run creates it: cellinject run --db {})",
+            p.display(),
+            p.display()
+        ))
+        .into());
+    }
+    Records::open(p).map_err(records_error)
+}

@@ -1,0 +1,1711 @@
+//! The unattended injection workflow (Sec. 3.1 of the paper and its next step): the
+//! macro stage brings the lifted pipette over each cell of the matrix feeder, A1 under
+//! closed-loop control puts the tip on the cell's axis, A3 advances it until the
+//! membrane gives and on to the cell's centre, a pressure pulse injects the dose, A3
+//! withdraws, and the cell is looked at again.
+//!
+//! The sequence is the state machine of [`machine`]; this module acts in each state
+//! over any backend's guarded [`Rig`] and reports an event. It does no IO: what is
+//! recorded, and the twin's truth, go through an [`Observer`].
+//!
+//! What the workflow knows comes from its own measurements: the cells from one image
+//! of the plate (the pipette out of view), the tip from each image
+//! (`cellinject_cells::tip`), the map between image and stage from four stage moves,
+//! the stacks' hysteresis from their sensors, the membrane's give from the cell being
+//! pushed ahead of the tip and snapping back, the dose from the dye's darkening. The
+//! plate file's cells are never read (only its grid).
+
+pub mod machine;
+
+use cellinject_cells::{Kind as BlobKind, Options as DetectOptions};
+use cellinject_control::{Controller, Feedforward, Measurement, SensorGains, SensorLoop, Stacks};
+use cellinject_hw::{Camera, CameraSettings, Clock, HwError, Injector, Optics, PiezoChannel};
+use cellinject_hw::{PositionSensor, Roi, Stage};
+use cellinject_model::Design;
+use cellinject_plate::Plate;
+use cellinject_rig::pipette::cell_volume;
+use cellinject_rig::{Backend, Rig, RigParams};
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::calibrate::HysteresisCalibration;
+pub use machine::{Event, State, Transition};
+
+/// Settings of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Options {
+    /// Magnification (the whole plate must be in view).
+    pub zoom: f64,
+    /// Injected volume aimed at, fraction of the cell's volume.
+    pub target_fraction: f64,
+    /// Pa, injection pressure.
+    pub pressure: f64,
+    /// m, tip-to-membrane gap before the approach.
+    pub gap: f64,
+    /// m, how high the stage lifts the pipette over the cells between wells (above the
+    /// focal plane: the tip cannot touch a cell lower than its radius).
+    pub lift: f64,
+    /// m, stage height (optical axis) at which the tip is in focus.
+    pub focus: f64,
+    /// m/s, A3's approach speed.
+    pub approach_speed: f64,
+    /// Deepest the tip may be driven past the cell's centre, fraction of its radius.
+    pub depth_limit: f64,
+    /// m, lateral tip-to-axis error accepted before the approach.
+    pub align_tolerance: f64,
+    /// s, longest a stage move may take.
+    pub stage_deadline: f64,
+    /// Excitation samples (1 ms apart) of the hysteresis identification.
+    pub hysteresis_samples: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            zoom: 2.5,
+            target_fraction: 0.05,
+            pressure: 2.0e4,
+            gap: 6e-6,
+            lift: 30e-6,
+            focus: 0.0,
+            approach_speed: 60e-6,
+            depth_limit: 0.25,
+            align_tolerance: 0.15e-6,
+            stage_deadline: 2.0,
+            hysteresis_samples: 20_000,
+        }
+    }
+}
+
+impl Options {
+    /// Refuses settings out of their domain, naming the option.
+    pub fn check(&self, rig: &RigParams) -> Result<(), WorkflowError> {
+        let bad = |arg: &'static str, value: f64, reason: &str| {
+            Err(WorkflowError::Invalid {
+                arg,
+                value,
+                reason: reason.into(),
+            })
+        };
+        let (z0, z1) = (rig.optics.zoom_range[0], rig.optics.zoom_range[1]);
+        if !(self.zoom.is_finite() && self.zoom >= z0 && self.zoom <= z1) {
+            return bad("--zoom", self.zoom, "must lie in the zoom range");
+        }
+        if !(self.target_fraction.is_finite()
+            && self.target_fraction > 0.0
+            && self.target_fraction <= 0.1)
+        {
+            return bad(
+                "--dose",
+                self.target_fraction,
+                "must lie in (0, 0.1] of the cell's volume",
+            );
+        }
+        if !(self.pressure.is_finite()
+            && self.pressure > 0.0
+            && self.pressure <= rig.injector_max_pressure)
+        {
+            return bad(
+                "--pressure",
+                self.pressure,
+                "must be positive and within the injector's limit",
+            );
+        }
+        if !(self.lift.is_finite() && self.lift >= 16e-6 && self.lift <= 1e-3) {
+            return bad(
+                "--lift",
+                self.lift,
+                "must lie in [16 um, 1 mm] (above the largest cell's radius)",
+            );
+        }
+        if !(self.stage_deadline.is_finite() && self.stage_deadline > 0.0) {
+            return bad("--stage-deadline", self.stage_deadline, "must be positive");
+        }
+        for (arg, v) in [
+            ("gap", self.gap),
+            ("approach speed", self.approach_speed),
+            ("depth limit", self.depth_limit),
+            ("align tolerance", self.align_tolerance),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(arg, v, "must be positive");
+            }
+        }
+        if !self.focus.is_finite() {
+            return bad("focus", self.focus, "must be finite");
+        }
+        Ok(())
+    }
+}
+
+/// Why a run could not start or had to stop.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum WorkflowError {
+    /// A setting out of its domain.
+    #[error("{arg} {reason}, got {value}")]
+    Invalid {
+        /// The option.
+        arg: &'static str,
+        /// Its value.
+        value: f64,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The plate does not fit in the field of view.
+    #[error(
+        "the plate spans {plate_mm:.2} x {plate_rows_mm:.2} mm but the camera sees {fov_mm:.2} x {fov_rows_mm:.2} mm at zoom {zoom}: use a smaller plate or a lower zoom"
+    )]
+    PlateTooLarge {
+        /// mm along x.
+        plate_mm: f64,
+        /// mm along y.
+        plate_rows_mm: f64,
+        /// mm.
+        fov_mm: f64,
+        /// mm.
+        fov_rows_mm: f64,
+        /// Zoom.
+        zoom: f64,
+    },
+    /// A calibration failed its check twice.
+    #[error("the {what} calibration failed its check: {reason}")]
+    Calibration {
+        /// Which.
+        what: &'static str,
+        /// Why, with numbers.
+        reason: String,
+    },
+    /// A device failed where the run cannot go on.
+    #[error("{what}: {source}")]
+    Device {
+        /// Doing what.
+        what: &'static str,
+        /// The device's error.
+        source: HwError,
+    },
+    /// The observer (the run records) failed.
+    #[error("recording the run failed: {0}")]
+    Record(String),
+    /// The workflow met an event its state does not expect (a bug).
+    #[error("the workflow got {event:?} in state {state:?}")]
+    Illegal {
+        /// State.
+        state: State,
+        /// Event.
+        event: Event,
+    },
+}
+
+fn dev(what: &'static str) -> impl Fn(HwError) -> WorkflowError {
+    move |source| WorkflowError::Device { what, source }
+}
+
+/// A cell found in the survey.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Target {
+    /// Order in the survey.
+    pub index: usize,
+    /// [row, column].
+    pub well: [u32; 2],
+    /// m, plate coordinates of its centre (as measured).
+    pub x_m: f64,
+    /// m.
+    pub y_m: f64,
+    /// m, as measured.
+    pub diameter_m: f64,
+    /// m, stage (x, z) that puts the resting tip on its centre.
+    #[serde(skip)]
+    pub stage_m: [f64; 2],
+}
+
+/// How an attempt ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// Injected with its dose, looks alive.
+    Injected,
+    /// Touched but not injected as intended (no give, dose off, the cell died).
+    Failed,
+    /// Not touched (unreachable, lost, a fault before contact).
+    Skipped,
+    /// The process was killed after contact.
+    Interrupted,
+}
+
+impl Outcome {
+    /// The name used in records and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Outcome::Injected => "injected",
+            Outcome::Failed => "failed",
+            Outcome::Skipped => "skipped",
+            Outcome::Interrupted => "interrupted",
+        }
+    }
+}
+
+/// What the backend's truth says about an attempt (the twin only).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+pub struct Truth {
+    /// m, tip to the cell's true centre in the focal plane when the pulse started.
+    pub tip_error_m: Option<f64>,
+    /// Injected volume over the cell's volume.
+    pub dose_fraction: Option<f64>,
+    /// The cell is alive.
+    pub alive: Option<bool>,
+}
+
+/// One cell attempt.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Attempt {
+    /// The cell.
+    pub target: Target,
+    /// How it ended.
+    pub outcome: Outcome,
+    /// Why (for anything but a clean injection).
+    pub reason: String,
+    /// The pipette touched the cell.
+    pub contact: bool,
+    /// m, tip to the cell's centre as vision and the A3 sensor saw it at injection.
+    pub measured_tip_error_m: Option<f64>,
+    /// m, how far the tip went into the cell past its membrane (A3's sensor).
+    pub depth_m: Option<f64>,
+    /// Pa and s of the pulse.
+    pub pulse: Option<[f64; 2]>,
+    /// Dose fraction the dye's darkening shows.
+    pub measured_dose_fraction: Option<f64>,
+    /// The backend's truth.
+    pub truth: Truth,
+    /// s, start and end (device time).
+    pub t: [f64; 2],
+    /// The transitions of this attempt.
+    pub transitions: Vec<Transition>,
+}
+
+/// Where the run's records and the backend's truth go.
+pub trait Observer {
+    /// A transition happened.
+    fn transition(&mut self, _t: &Transition) {}
+    /// The survey found these cells.
+    fn surveyed(&mut self, _targets: &[Target]) -> Result<(), String> {
+        Ok(())
+    }
+    /// Whether this cell was already attempted (a resumed run).
+    fn done(&self, _target: &Target) -> bool {
+        false
+    }
+    /// An attempt starts (nothing touched yet).
+    fn started(&mut self, _a: &Attempt) -> Result<(), String> {
+        Ok(())
+    }
+    /// The pipette touched the cell: from now on, the cell is never attempted again.
+    fn contact(&mut self, _a: &Attempt) -> Result<(), String> {
+        Ok(())
+    }
+    /// An attempt ended.
+    fn finished(&mut self, _a: &Attempt) -> Result<(), String> {
+        Ok(())
+    }
+    /// The tip's true distance to the cell (the twin), when the pulse starts.
+    fn tip_error(&mut self, _target: &Target) -> Option<f64> {
+        None
+    }
+    /// The cell's true dose and life (the twin), after the attempt.
+    fn cell_truth(&mut self, _target: &Target) -> Option<(f64, bool)> {
+        None
+    }
+}
+
+/// The image-to-stage map and the actuators' directions in the image.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ImageMap {
+    /// Full-frame pixel of the tip with the stage at `stage0` (A1, A2, A3 at rest).
+    pub pixel0: [f64; 2],
+    /// m, stage (x, z) of `pixel0`.
+    pub stage0: [f64; 2],
+    /// Pixels per metre of stage motion: columns and rows by stage x and z.
+    pub b: [[f64; 2]; 2],
+    /// RMS residual of the four-point fit, pixels.
+    pub residual_px: f64,
+    /// Pixels per metre of A1's extension (its sensor).
+    pub a1: [f64; 2],
+    /// Pixels per metre of A3's extension.
+    pub a3: [f64; 2],
+    /// m per pixel of the frames.
+    pub pixel_size: f64,
+}
+
+impl ImageMap {
+    fn stage_of(&self, px: [f64; 2]) -> [f64; 2] {
+        let [[a, b], [c, d]] = self.b;
+        let det = a * d - b * c;
+        let (u, v) = (px[0] - self.pixel0[0], px[1] - self.pixel0[1]);
+        [
+            self.stage0[0] + (d * u - b * v) / det,
+            self.stage0[1] + (-c * u + a * v) / det,
+        ]
+    }
+}
+
+/// The run's summary.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunReport {
+    /// Cells the survey found.
+    pub cells_found: usize,
+    /// Attempts by outcome.
+    pub injected: usize,
+    /// Failed.
+    pub failed: usize,
+    /// Skipped.
+    pub skipped: usize,
+    /// s, device time of the whole run (calibration included).
+    pub sim_time_s: f64,
+    /// s, device time from the first cell to the last.
+    pub cell_time_s: f64,
+    /// Attempts per minute of `cell_time_s`.
+    pub cells_per_min: f64,
+    /// Why the run stopped early, if it did.
+    pub stopped: Option<String>,
+    /// The map and directions in use.
+    pub map: Option<ImageMap>,
+    /// This run's attempts (a resumed run: only the new ones).
+    pub attempts: Vec<Attempt>,
+    /// The transitions outside attempts (calibration, survey, the end).
+    pub transitions: Vec<Transition>,
+}
+
+/// The closed loops that hold the stacks: A1/A2 in the control crate's sensor loop
+/// (inverse hysteresis model plus PI on the strain gauges), A3 by feedforward plus an
+/// integrator on its gauge. Stepped at 1 kHz whenever time passes.
+struct Servo {
+    ctl: SensorLoop,
+    refs: [f64; 2],
+    a3_ref: f64,
+    a3_int: f64,
+    a3_gain: f64,
+    a3_vmax: f64,
+    zero: [f64; 3],
+    t: f64,
+}
+
+const DT: f64 = 1e-3;
+
+impl Servo {
+    fn step<B: Backend>(&mut self, rig: &mut Rig<B>) -> Result<(), WorkflowError> {
+        let mut e = [0.0; 3];
+        for (k, e) in e.iter_mut().enumerate() {
+            *e = rig.sensors[k].read().map_err(dev("stack sensor"))? - self.zero[k];
+        }
+        let m = Measurement {
+            stacks: Some([e[0], e[1]]),
+            ..Measurement::default()
+        };
+        let v = self.ctl.step(self.t, self.refs, &m);
+        let applied = rig.command_tilt(v).map_err(dev("A1/A2"))?;
+        self.ctl.applied(applied);
+        let err = self.a3_ref - e[2];
+        self.a3_int = (self.a3_int + 0.05 * err / self.a3_gain)
+            .clamp(-0.3 * self.a3_vmax, 0.3 * self.a3_vmax);
+        let v3 = (self.a3_ref / self.a3_gain + self.a3_int).clamp(0.0, self.a3_vmax);
+        rig.piezo[2].set_voltage(v3).map_err(dev("A3"))?;
+        Ok(())
+    }
+
+    /// Lets `seconds` pass, stepping the loops; `ramp` moves A3's reference towards
+    /// `(target, speed)` meanwhile.
+    fn wait<B: Backend>(
+        &mut self,
+        rig: &mut Rig<B>,
+        seconds: f64,
+        ramp: Option<(f64, f64)>,
+    ) -> Result<(), WorkflowError> {
+        let end = rig.clock.now() + seconds;
+        loop {
+            let now = rig.clock.now();
+            if now >= end - 1e-9 {
+                return Ok(());
+            }
+            if let Some((target, speed)) = ramp {
+                let step = speed * DT;
+                self.a3_ref += (target - self.a3_ref).clamp(-step, step);
+            }
+            self.step(rig)?;
+            let dt = DT.min(end - now);
+            rig.clock.sleep(dt).map_err(dev("clock"))?;
+            self.t += dt;
+        }
+    }
+
+    fn a3(&mut self, rig: &mut Rig<impl Backend>) -> Result<f64, WorkflowError> {
+        Ok(rig.sensors[2].read().map_err(dev("A3 sensor"))? - self.zero[2])
+    }
+}
+
+/// A frame and where its pixel (0, 0) is on the full sensor.
+struct Shot {
+    frame: cellinject_hw::Frame,
+    origin: [f64; 2],
+}
+
+impl Shot {
+    fn full(&self, p: [f64; 2]) -> [f64; 2] {
+        [p[0] + self.origin[0], p[1] + self.origin[1]]
+    }
+    fn local(&self, p: [f64; 2]) -> [f64; 2] {
+        [p[0] - self.origin[0], p[1] - self.origin[1]]
+    }
+    /// The tip, found in this frame divided by the background (the same view with the
+    /// pipette out of it: the feeder's walls and the cells divide out, the pipette
+    /// stays).
+    fn tip(&self, background: &Background) -> Option<[f64; 2]> {
+        let f = &self.frame;
+        let (w, h) = (f.width as usize, f.height as usize);
+        let (ox, oy) = (self.origin[0] as usize, self.origin[1] as usize);
+        let mut norm = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let b = background.pixels[(oy + j) * background.width + ox + i].max(1) as f64;
+                let v = f.pixels[j * w + i] as f64 / b * 2000.0;
+                norm.push(v.clamp(0.0, 65535.0) as u16);
+            }
+        }
+        cellinject_cells::tip::locate(&norm, w, h, f.pixel_size)
+            .ok()
+            .map(|t| self.full([t.x, t.y]))
+    }
+    /// Mean intensity of pixel (column, row) rounded, or None outside.
+    fn at(&self, c: f64, r: f64) -> Option<f64> {
+        let (w, h) = (self.frame.width as i64, self.frame.height as i64);
+        let (i, j) = (c.round() as i64, r.round() as i64);
+        (i >= 0 && j >= 0 && i < w && j < h).then(|| self.frame.pixels[(j * w + i) as usize] as f64)
+    }
+}
+
+/// A full frame of the plate with the pipette out of view.
+struct Background {
+    pixels: Vec<u16>,
+    width: usize,
+}
+
+/// The workflow over one rig.
+pub struct Workflow<'r, B: Backend> {
+    rig: &'r mut Rig<B>,
+    plate: Plate,
+    options: Options,
+    stacks: Stacks,
+    gain_a3: f64,
+    dye_contrast: f64,
+    conductance: f64,
+    state: State,
+    log: Vec<Transition>,
+    servo: Option<Servo>,
+    map: Option<ImageMap>,
+    settings_full: Option<CameraSettings>,
+    home: [f64; 3],
+    consecutive_faults: usize,
+    low_doses: usize,
+    survey_cells: Vec<Target>,
+    background: Option<Background>,
+}
+
+/// How a cell's procedure ended early.
+enum Fail {
+    /// A fault on this cell; the run goes on.
+    Cell(String),
+    /// A fault the run stops on.
+    Fatal(String),
+    /// The records failed.
+    Error(WorkflowError),
+}
+
+impl From<WorkflowError> for Fail {
+    fn from(e: WorkflowError) -> Self {
+        match e {
+            WorkflowError::Device {
+                source: HwError::Refused(r),
+                what,
+            } => Fail::Cell(format!("{what}: refused by the safety envelope: {r}")),
+            WorkflowError::Record(_) | WorkflowError::Illegal { .. } => Fail::Error(e),
+            other => Fail::Fatal(other.to_string()),
+        }
+    }
+}
+
+impl<'r, B: Backend> Workflow<'r, B> {
+    /// A workflow on `rig` for `plate` (its grid only). The stacks are described by
+    /// `design` and `params`.
+    pub fn new(
+        rig: &'r mut Rig<B>,
+        design: &Design,
+        params: &RigParams,
+        plate: &Plate,
+        options: Options,
+    ) -> Result<Self, WorkflowError> {
+        options.check(params)?;
+        let stacks = Stacks {
+            gain: [0, 1].map(|i| design.actuators[i].travel / params.amplifiers[i].v_max),
+            v_max: [params.amplifiers[0].v_max, params.amplifiers[1].v_max],
+        };
+        Ok(Workflow {
+            rig,
+            plate: Plate {
+                cells: Vec::new(),
+                debris: Vec::new(),
+                ..plate.clone()
+            },
+            options,
+            stacks,
+            gain_a3: design.actuators[2].travel / params.amplifiers[2].v_max,
+            dye_contrast: params.pipette.dye_contrast,
+            conductance: params.pipette.conductance(),
+            state: State::Start,
+            log: Vec::new(),
+            servo: None,
+            map: None,
+            settings_full: None,
+            home: [0.0; 3],
+            consecutive_faults: 0,
+            low_doses: 0,
+            survey_cells: Vec::new(),
+            background: None,
+        })
+    }
+
+    fn now(&self) -> f64 {
+        self.rig.clock.now()
+    }
+
+    fn fire(
+        &mut self,
+        event: Event,
+        reason: String,
+        obs: &mut dyn Observer,
+        into: Option<&mut Vec<Transition>>,
+    ) -> Result<(), WorkflowError> {
+        let to = machine::next(self.state, event).ok_or(WorkflowError::Illegal {
+            state: self.state,
+            event,
+        })?;
+        let t = Transition {
+            t: self.now(),
+            from: self.state,
+            event,
+            to,
+            reason,
+        };
+        obs.transition(&t);
+        match into {
+            Some(v) => v.push(t),
+            None => self.log.push(t),
+        }
+        self.state = to;
+        Ok(())
+    }
+
+    /// Runs the whole plate. `hysteresis`: a calibration to use if it passes its
+    /// check (else the stacks are identified again). Cells the observer says are done
+    /// are left alone.
+    pub fn run(
+        mut self,
+        hysteresis: Option<HysteresisCalibration>,
+        obs: &mut dyn Observer,
+    ) -> Result<(RunReport, HysteresisCalibration), WorkflowError> {
+        let t_start = self.now();
+        self.fire(Event::Begin, "run started".into(), obs, None)?;
+        let (cal, why) = self.calibrate(hysteresis)?;
+        self.fire(Event::Calibrated, why, obs, None)?;
+        let targets = match self.survey() {
+            Ok(t) => t,
+            Err(e) => {
+                let _ = self.fire(Event::Fatal, e.to_string(), obs, None);
+                return Err(e);
+            }
+        };
+        obs.surveyed(&targets).map_err(WorkflowError::Record)?;
+        self.fire(
+            Event::Surveyed,
+            format!("{} cells found on the plate", targets.len()),
+            obs,
+            None,
+        )?;
+        let t_cells = self.now();
+        let mut attempts = Vec::new();
+        let mut stopped = None;
+        for target in &targets {
+            if obs.done(target) {
+                self.fire(
+                    Event::CellSkipped,
+                    format!(
+                        "cell {} in well {:?} already attempted",
+                        target.index, target.well
+                    ),
+                    obs,
+                    None,
+                )?;
+                continue;
+            }
+            match self.attempt(*target, obs)? {
+                (a, None) => attempts.push(a),
+                (a, Some(fatal)) => {
+                    attempts.push(a);
+                    stopped = Some(fatal);
+                    break;
+                }
+            }
+        }
+        if stopped.is_none() {
+            self.fire(Event::NoMoreCells, "every cell done".into(), obs, None)?;
+        }
+        self.park()?;
+        let end = self.now();
+        let count = |o: Outcome| attempts.iter().filter(|a| a.outcome == o).count();
+        let cell_time = end - t_cells;
+        Ok((
+            RunReport {
+                cells_found: targets.len(),
+                injected: count(Outcome::Injected),
+                failed: count(Outcome::Failed),
+                skipped: count(Outcome::Skipped),
+                sim_time_s: end - t_start,
+                cell_time_s: cell_time,
+                cells_per_min: if cell_time > 0.0 {
+                    attempts.len() as f64 / cell_time * 60.0
+                } else {
+                    0.0
+                },
+                stopped,
+                map: self.map,
+                attempts,
+                transitions: self.log,
+            },
+            cal,
+        ))
+    }
+
+    /// Retracts A3, relaxes A1/A2 and lifts the pipette: the safe state.
+    fn park(&mut self) -> Result<(), WorkflowError> {
+        if let Some(mut s) = self.servo.take() {
+            s.refs = [0.0; 2];
+            let r = s.wait(self.rig, 0.15, Some((0.0, 500e-6)));
+            self.servo = Some(s);
+            r?;
+        }
+        let lift = self.home[1].max(self.options.focus + self.options.lift);
+        self.rig.stage.move_to(1, lift).map_err(dev("stage lift"))?;
+        Ok(())
+    }
+
+    fn wait(&mut self, seconds: f64) -> Result<(), WorkflowError> {
+        let mut s = self.servo.take().expect("servo");
+        let r = s.wait(self.rig, seconds, None);
+        self.servo = Some(s);
+        r
+    }
+
+    fn ramp_a3(&mut self, target: f64, speed: f64, seconds: f64) -> Result<(), WorkflowError> {
+        let mut s = self.servo.take().expect("servo");
+        let r = s.wait(self.rig, seconds, Some((target, speed)));
+        self.servo = Some(s);
+        r
+    }
+
+    fn stage_to(&mut self, p: [Option<f64>; 3]) -> Result<Result<(), String>, WorkflowError> {
+        for (axis, v) in p.iter().enumerate() {
+            if let Some(v) = v
+                && let Err(e) = self.rig.stage.move_to(axis, *v)
+            {
+                return Ok(Err(format!("stage move refused: {e}")));
+            }
+        }
+        let t0 = self.now();
+        while self.rig.stage.is_busy().map_err(dev("stage"))? {
+            if self.now() - t0 > self.options.stage_deadline {
+                return Err(WorkflowError::Device {
+                    what: "stage",
+                    source: HwError::Timeout {
+                        device: "stage (missed its deadline)".into(),
+                        seconds: self.options.stage_deadline,
+                    },
+                });
+            }
+            self.wait(0.005)?;
+        }
+        Ok(Ok(()))
+    }
+
+    fn shoot(&mut self, roi: Option<[f64; 2]>) -> Result<Shot, WorkflowError> {
+        let full = self.settings_full.expect("full settings");
+        let s = match roi {
+            None => full,
+            Some(c) => {
+                let (sw, sh) = self.rig.camera.sensor_size();
+                let (w, h) = (640u32.min(sw), 480u32.min(sh));
+                let x = (c[0] - 0.5 * w as f64).round().clamp(0.0, (sw - w) as f64) as u32;
+                let y = (c[1] - 0.5 * h as f64).round().clamp(0.0, (sh - h) as f64) as u32;
+                CameraSettings {
+                    roi: Roi {
+                        x,
+                        y,
+                        width: w,
+                        height: h,
+                    },
+                    binning: 1,
+                    ..full
+                }
+            }
+        };
+        if self.rig.camera.settings() != s {
+            self.rig.camera.configure(s).map_err(dev("camera"))?;
+        }
+        // Keep the loops running until just before the next exposure.
+        let period = 1.0 / self.rig.camera.frame_rate();
+        let wait = (period - s.exposure - 2e-3).max(0.0);
+        self.wait(wait)?;
+        let frame = self.rig.camera.grab().map_err(dev("camera"))?;
+        Ok(Shot {
+            frame,
+            origin: [s.roi.x as f64, s.roi.y as f64],
+        })
+    }
+
+    fn tip_full(&mut self, tries: usize) -> Result<Option<[f64; 2]>, WorkflowError> {
+        for _ in 0..tries {
+            let shot = self.shoot(None)?;
+            if let Some(t) = shot.tip(self.background.as_ref().expect("background")) {
+                return Ok(Some(t));
+            }
+        }
+        Ok(None)
+    }
+
+    fn calibrate(
+        &mut self,
+        hysteresis: Option<HysteresisCalibration>,
+    ) -> Result<(HysteresisCalibration, String), WorkflowError> {
+        let mut why = Vec::new();
+        // Safe start: A3 and the tilt stacks at 0 V, the pipette lifted.
+        self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))?;
+        self.rig.command_tilt([0.0, 0.0]).map_err(dev("A1/A2"))?;
+        for axis in 0..3 {
+            self.home[axis] = self.rig.stage.position(axis).map_err(dev("stage"))?;
+        }
+        let lift = self.options.focus + self.options.lift;
+        self.rig.stage.move_to(1, lift).map_err(dev("stage lift"))?;
+        self.rig.clock.sleep(0.3).map_err(dev("clock"))?;
+        self.home[1] = lift;
+        self.rig
+            .optics
+            .set_zoom(self.options.zoom)
+            .map_err(dev("zoom"))?;
+        let cal = match hysteresis {
+            Some(c) if c.problem().is_none() => {
+                why.push("hysteresis calibration loaded and checked".to_string());
+                c
+            }
+            other => {
+                if let Some(c) = other {
+                    why.push(format!(
+                        "hysteresis calibration failed its check ({}): identified again",
+                        c.problem().unwrap_or_default()
+                    ));
+                }
+                let c = crate::calibrate::hysteresis(self.rig, self.options.hysteresis_samples, 20)
+                    .map_err(|e| WorkflowError::Calibration {
+                        what: "hysteresis",
+                        reason: e.to_string(),
+                    })?;
+                if let Some(p) = c.problem() {
+                    return Err(WorkflowError::Calibration {
+                        what: "hysteresis",
+                        reason: p,
+                    });
+                }
+                why.push(format!(
+                    "stacks identified: fit rms {:.2}/{:.2} %",
+                    100.0 * c.fit_rms_relative[0],
+                    100.0 * c.fit_rms_relative[1]
+                ));
+                c
+            }
+        };
+        let ff = Feedforward::new(self.stacks, cal.models.clone(), [None, None]).map_err(|e| {
+            WorkflowError::Calibration {
+                what: "hysteresis",
+                reason: e.to_string(),
+            }
+        })?;
+        let ctl = SensorLoop::new(ff, SensorGains::default()).map_err(|e| {
+            WorkflowError::Calibration {
+                what: "sensor loop",
+                reason: e.to_string(),
+            }
+        })?;
+        self.rig.command_tilt([0.0, 0.0]).map_err(dev("A1/A2"))?;
+        self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))?;
+        self.rig.clock.sleep(0.3).map_err(dev("clock"))?;
+        let mut zero = [0.0; 3];
+        for (k, z) in zero.iter_mut().enumerate() {
+            let mut s = 0.0;
+            for _ in 0..20 {
+                s += self.rig.sensors[k].read().map_err(dev("stack sensor"))?;
+            }
+            *z = s / 20.0;
+        }
+        let a3_vmax = self.rig.piezo[2].voltage_range().1;
+        self.servo = Some(Servo {
+            ctl,
+            refs: [0.0; 2],
+            a3_ref: 0.0,
+            a3_int: 0.0,
+            a3_gain: self.gain_a3,
+            a3_vmax,
+            zero,
+            t: 0.0,
+        });
+        // Full frames for the map and the survey.
+        let (sw, sh) = self.rig.camera.sensor_size();
+        self.settings_full = Some(CameraSettings {
+            roi: Roi {
+                x: 0,
+                y: 0,
+                width: sw,
+                height: sh,
+            },
+            binning: 1,
+            ..self.rig.camera.settings()
+        });
+        // The background: the plate with the pipette one field width to its left.
+        let half = 0.5 * self.plate.pitch;
+        let x0 = self.plate.well_centre([0, 0])[0];
+        let fov = sw as f64 * self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
+            / self.rig.camera.settings().binning as f64;
+        let away = x0 - half - fov - 0.3e-3;
+        if let Err(e) = self.stage_to([Some(away), Some(lift), None])? {
+            return Err(WorkflowError::Calibration {
+                what: "background",
+                reason: format!("the pipette cannot be moved out of view: {e}"),
+            });
+        }
+        let shot = self.shoot(None)?;
+        self.background = Some(Background {
+            pixels: shot.frame.pixels,
+            width: shot.frame.width as usize,
+        });
+        let mut last = String::new();
+        for attempt in 0..2 {
+            match self.map_image()? {
+                Ok(map) => {
+                    why.push(format!(
+                        "image mapped to the stage (4 points, rms {:.2} px){}",
+                        map.residual_px,
+                        if attempt > 0 {
+                            " on the second try"
+                        } else {
+                            ""
+                        }
+                    ));
+                    self.map = Some(map);
+                    return Ok((cal, why.join("; ")));
+                }
+                Err(reason) => last = reason,
+            }
+        }
+        Err(WorkflowError::Calibration {
+            what: "image-to-stage",
+            reason: last,
+        })
+    }
+
+    /// Maps the image to the stage: the tip located (lifted, over the plate) at four
+    /// stage positions 200 um apart, and its motion under A1 and A3.
+    fn map_image(&mut self) -> Result<Result<ImageMap, String>, WorkflowError> {
+        let d: f64 = 200e-6;
+        let (hx, hz) = (self.home[0], self.home[2]);
+        // Centre of the plate, where the tip is surely in view.
+        // Between the wells' centres and their walls (where cells rarely are), in focus.
+        let [cx, cz] = self
+            .plate
+            .well_centre([self.plate.rows / 2, self.plate.cols / 2]);
+        let q = 0.3 * self.plate.pitch;
+        let d = self.plate.pitch.max(d.min(2.0 * self.plate.pitch));
+        let d = (d / self.plate.pitch).round() * self.plate.pitch;
+        let (cx, cz) = (cx + q, cz - q);
+        let lift = self.home[1];
+        let mut pts = Vec::new();
+        for (dx, dz) in [(0.0, 0.0), (d, 0.0), (0.0, d), (d, d)] {
+            let s = [cx + dx, cz + dz];
+            for p in [
+                [None, Some(lift), None],
+                [Some(s[0]), None, Some(s[1])],
+                [None, Some(self.options.focus), None],
+            ] {
+                if let Err(e) = self.stage_to(p)? {
+                    return Ok(Err(e));
+                }
+            }
+            let Some(px) = self.tip_full(3)? else {
+                return Ok(Err(format!(
+                    "the tip was not found in the image with the stage at ({:.0}, {:.0}) um",
+                    s[0] * 1e6,
+                    s[1] * 1e6
+                )));
+            };
+            pts.push((s, px));
+            if let Err(e) = self.stage_to([None, Some(lift), None])? {
+                return Ok(Err(e));
+            }
+        }
+        let _ = (hx, hz);
+        // Affine least squares px = p0 + B (s - s0) with s0 the first point.
+        let s0 = pts[0].0;
+        let mut b = [[0.0; 2]; 2];
+        let mut p0 = [0.0; 2];
+        for c in 0..2 {
+            // Unknowns p0, b_c0, b_c1 from 4 points: normal equations 3x3.
+            let mut ata = nalgebra::Matrix3::<f64>::zeros();
+            let mut atb = nalgebra::Vector3::<f64>::zeros();
+            for (s, px) in &pts {
+                let row = nalgebra::Vector3::new(1.0, s[0] - s0[0], s[1] - s0[1]);
+                ata += row * row.transpose();
+                atb += row * px[c];
+            }
+            let Some(x) = ata.lu().solve(&atb) else {
+                return Ok(Err("the four stage positions are degenerate".into()));
+            };
+            p0[c] = x[0];
+            b[c] = [x[1], x[2]];
+        }
+        let mut ss = 0.0;
+        for (s, px) in &pts {
+            for c in 0..2 {
+                let pred = p0[c] + b[c][0] * (s[0] - s0[0]) + b[c][1] * (s[1] - s0[1]);
+                ss += (pred - px[c]).powi(2);
+            }
+        }
+        let residual = (ss / 8.0).sqrt();
+        if residual > 0.5 {
+            return Ok(Err(format!(
+                "the four-point fit leaves {residual:.2} px rms (more than 0.5)"
+            )));
+        }
+        let pixel = self.shoot(None)?.frame.pixel_size;
+        let scale = 1.0 / pixel;
+        let sx = b[0][0].hypot(b[1][0]);
+        if (sx / scale - 1.0).abs() > 0.05 {
+            return Ok(Err(format!(
+                "stage x moves the tip {:.4} px/um, the camera says {:.4}: more than 5 % apart",
+                sx * 1e-6,
+                scale * 1e-6
+            )));
+        }
+        // A1 and A3 in the image: 1 um of A1 extension, 5 um of A3, from rest.
+        let base = pts[0].1;
+        self.stage_to([Some(s0[0]), None, Some(s0[1])])?.ok();
+        self.stage_to([None, Some(self.options.focus), None])?.ok();
+        let mut dir = [[0.0; 2]; 2];
+        for (k, (e, what)) in [(1e-6, "A1"), (5e-6, "A3")].into_iter().enumerate() {
+            let s = self.servo.as_mut().expect("servo");
+            if k == 0 {
+                s.refs = [e, 0.0];
+            } else {
+                s.a3_ref = e;
+            }
+            self.wait(0.3)?;
+            let Some(px) = self.tip_full(3)? else {
+                return Ok(Err(format!("the tip was lost while {what} moved")));
+            };
+            let s = self.servo.as_mut().expect("servo");
+            s.refs = [0.0; 2];
+            s.a3_ref = 0.0;
+            self.wait(0.3)?;
+            dir[k] = [(px[0] - base[0]) / e, (px[1] - base[1]) / e];
+        }
+        self.stage_to([None, Some(lift), None])?.ok();
+        let a3m = dir[1][0].hypot(dir[1][1]) / scale;
+        if !(0.8..1.25).contains(&a3m) {
+            return Ok(Err(format!(
+                "A3 moved the tip {a3m:.2} times its own extension (it carries the pipette directly: expected 1)"
+            )));
+        }
+        if dir[0][0].hypot(dir[0][1]) / scale < 0.5 {
+            return Ok(Err("A1 barely moves the tip in the image".into()));
+        }
+        Ok(Ok(ImageMap {
+            pixel0: p0,
+            stage0: s0,
+            b,
+            residual_px: residual,
+            a1: dir[0],
+            a3: dir[1],
+            pixel_size: pixel,
+        }))
+    }
+
+    fn survey(&mut self) -> Result<Vec<Target>, WorkflowError> {
+        let map = self.map.expect("map");
+        // The pipette out of view: one field width to the left of the plate.
+        let shot = self.shoot(None)?;
+        let fov = [
+            shot.frame.width as f64 * map.pixel_size,
+            shot.frame.height as f64 * map.pixel_size,
+        ];
+        let span = [
+            self.plate.cols as f64 * self.plate.pitch,
+            self.plate.rows as f64 * self.plate.pitch,
+        ];
+        // The plate's corners must be in view.
+        let corners = [
+            self.plate.well_centre([0, 0]),
+            self.plate
+                .well_centre([self.plate.rows - 1, self.plate.cols - 1]),
+        ];
+        let to_px = |s: [f64; 2]| {
+            let (u, v) = (s[0] - map.stage0[0], s[1] - map.stage0[1]);
+            [
+                map.pixel0[0] + map.b[0][0] * u + map.b[0][1] * v,
+                map.pixel0[1] + map.b[1][0] * u + map.b[1][1] * v,
+            ]
+        };
+        let half = 0.5 * self.plate.pitch;
+        let inside = corners.iter().all(|c| {
+            [[-half, -half], [half, half]].iter().all(|o| {
+                let p = to_px([c[0] + o[0], c[1] + o[1]]);
+                p[0] >= 0.0
+                    && p[1] >= 0.0
+                    && p[0] < shot.frame.width as f64
+                    && p[1] < shot.frame.height as f64
+            })
+        });
+        if !inside {
+            return Err(WorkflowError::PlateTooLarge {
+                plate_mm: span[0] * 1e3,
+                plate_rows_mm: span[1] * 1e3,
+                fov_mm: fov[0] * 1e3,
+                fov_rows_mm: fov[1] * 1e3,
+                zoom: self.options.zoom,
+            });
+        }
+        let bg = self.background.as_ref().expect("background");
+        let shot = Shot {
+            frame: cellinject_hw::Frame {
+                width: bg.width as u32,
+                height: (bg.pixels.len() / bg.width) as u32,
+                pixels: bg.pixels.clone(),
+                pixel_size: map.pixel_size,
+                ..cellinject_hw::Frame::default()
+            },
+            origin: [0.0, 0.0],
+        };
+        let f = &shot.frame;
+        let o = DetectOptions::for_pixel_size(f.pixel_size);
+        let blobs =
+            cellinject_cells::detect(&f.pixels, f.width as usize, f.height as usize, &[], &o)
+                .map_err(|e| WorkflowError::Calibration {
+                    what: "survey",
+                    reason: e.to_string(),
+                })?;
+        let mut targets = Vec::new();
+        for b in blobs.iter().filter(|b| b.kind == BlobKind::Cell) {
+            let s = map.stage_of(shot.full([b.x, b.y]));
+            let p = [s[0] - self.plate.origin[0], s[1] - self.plate.origin[1]];
+            let (c, r) = (
+                (p[0] / self.plate.pitch).round(),
+                (p[1] / self.plate.pitch).round(),
+            );
+            if c < 0.0 || r < 0.0 || c >= self.plate.cols as f64 || r >= self.plate.rows as f64 {
+                continue;
+            }
+            let w = self.plate.well_centre([r as u32, c as u32]);
+            if (s[0] - w[0]).abs() > half || (s[1] - w[1]).abs() > half {
+                continue;
+            }
+            targets.push(Target {
+                index: 0,
+                well: [r as u32, c as u32],
+                x_m: p[0],
+                y_m: p[1],
+                diameter_m: b.diameter,
+                stage_m: s,
+            });
+        }
+        // Row by row, alternating direction (short stage moves); within a well, top
+        // cell first.
+        targets.sort_by(|a, b| {
+            let ka = (
+                a.well[0],
+                if a.well[0] % 2 == 0 {
+                    a.well[1]
+                } else {
+                    u32::MAX - a.well[1]
+                },
+            );
+            let kb = (
+                b.well[0],
+                if b.well[0] % 2 == 0 {
+                    b.well[1]
+                } else {
+                    u32::MAX - b.well[1]
+                },
+            );
+            ka.cmp(&kb)
+                .then(a.y_m.total_cmp(&b.y_m))
+                .then(a.x_m.total_cmp(&b.x_m))
+        });
+        for (k, t) in targets.iter_mut().enumerate() {
+            t.index = k;
+        }
+        self.survey_cells = targets.clone();
+        Ok(targets)
+    }
+}
+
+/// Solves `e = α u + β v` for (α, β).
+fn decompose(e: [f64; 2], u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
+    let det = u[0] * v[1] - u[1] * v[0];
+    [
+        (e[0] * v[1] - e[1] * v[0]) / det,
+        (u[0] * e[1] - u[1] * e[0]) / det,
+    ]
+}
+
+fn unit(v: [f64; 2]) -> [f64; 2] {
+    let n = v[0].hypot(v[1]);
+    [v[0] / n, v[1] / n]
+}
+
+/// Darkness of a cell's interior against its local background: one minus the mean
+/// intensity inside 0.7 radius over the mean of the ring 1.3-1.7 radii below the
+/// pipette's side (pixels, full-frame coordinates).
+fn cell_darkness(shot: &Shot, c: [f64; 2], r: f64) -> Option<f64> {
+    let c = shot.local(c);
+    let (mut inner, mut ni, mut outer, mut no) = (0.0, 0, 0.0, 0);
+    let k = (1.8 * r).ceil() as i64;
+    for j in -k..=k {
+        for i in -k..=k {
+            let rho = ((i * i + j * j) as f64).sqrt();
+            let Some(v) = shot.at(c[0] + i as f64, c[1] + j as f64) else {
+                continue;
+            };
+            if rho < 0.7 * r {
+                inner += v;
+                ni += 1;
+            } else if rho > 1.3 * r && rho < 1.7 * r && j >= 0 {
+                outer += v;
+                no += 1;
+            }
+        }
+    }
+    (ni > 10 && no > 10).then(|| 1.0 - (inner / ni as f64) / (outer / no as f64))
+}
+
+/// The far membrane's row (pixels, full frame): the darkest row of the cell's ring
+/// beyond its centre, in two column bands either side of the pipette's axis, with
+/// sub-pixel interpolation.
+fn far_edge(shot: &Shot, c: [f64; 2], r: f64) -> Option<f64> {
+    let c = shot.local(c);
+    let rows: Vec<i64> =
+        ((c[1] + 0.5 * r).floor() as i64..=(c[1] + 1.5 * r).ceil() as i64).collect();
+    let mut means = Vec::with_capacity(rows.len());
+    for &j in &rows {
+        let (mut s, mut n) = (0.0, 0);
+        let (a, b) = ((0.15 * r).ceil() as i64, (0.5 * r).floor() as i64);
+        for i in (a..=b).flat_map(|i| [-i, i]) {
+            if let Some(v) = shot.at(c[0] + i as f64, j as f64) {
+                s += v;
+                n += 1;
+            }
+        }
+        if n == 0 {
+            return None;
+        }
+        means.push(s / n as f64);
+    }
+    let k = (1..means.len().saturating_sub(1)).min_by(|&a, &b| means[a].total_cmp(&means[b]))?;
+    let (l, m, h) = (means[k - 1], means[k], means[k + 1]);
+    let den = l - 2.0 * m + h;
+    let off = if den > 0.0 {
+        (0.5 * (l - h) / den).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    };
+    Some(rows[k] as f64 + off + shot.origin[1])
+}
+
+impl<B: Backend> Workflow<'_, B> {
+    fn to_px(&self, s: [f64; 2]) -> [f64; 2] {
+        let m = self.map.expect("map");
+        let (u, v) = (s[0] - m.stage0[0], s[1] - m.stage0[1]);
+        [
+            m.pixel0[0] + m.b[0][0] * u + m.b[0][1] * v,
+            m.pixel0[1] + m.b[1][0] * u + m.b[1][1] * v,
+        ]
+    }
+
+    /// One cell: an attempt from the stage move to the verification. Returns the
+    /// attempt and, if the run must stop, why.
+    fn attempt(
+        &mut self,
+        target: Target,
+        obs: &mut dyn Observer,
+    ) -> Result<(Attempt, Option<String>), WorkflowError> {
+        let mut a = Attempt {
+            target,
+            outcome: Outcome::Skipped,
+            reason: String::new(),
+            contact: false,
+            measured_tip_error_m: None,
+            depth_m: None,
+            pulse: None,
+            measured_dose_fraction: None,
+            truth: Truth::default(),
+            t: [self.now(), 0.0],
+            transitions: Vec::new(),
+        };
+        obs.started(&a).map_err(WorkflowError::Record)?;
+        let why = format!(
+            "cell {} in well [{}, {}], {:.1} um at ({:.1}, {:.1}) um",
+            target.index,
+            target.well[0],
+            target.well[1],
+            target.diameter_m * 1e6,
+            target.x_m * 1e6,
+            target.y_m * 1e6
+        );
+        self.fire(Event::CellChosen, why, obs, Some(&mut a.transitions))?;
+        let result = self.procedure(&mut a, obs);
+        let mut fatal = None;
+        match result {
+            Ok(()) => self.consecutive_faults = 0,
+            Err(Fail::Error(e)) => return Err(e),
+            Err(Fail::Cell(reason)) => {
+                self.consecutive_faults += 1;
+                self.fire(
+                    Event::CellFault,
+                    reason.clone(),
+                    obs,
+                    Some(&mut a.transitions),
+                )?;
+                a.outcome = if a.contact {
+                    Outcome::Failed
+                } else {
+                    Outcome::Skipped
+                };
+                a.reason = reason;
+                match self.park() {
+                    Ok(()) if self.consecutive_faults < 3 => {
+                        self.fire(
+                            Event::Recovered,
+                            "pipette retracted, stacks at rest, pipette lifted".into(),
+                            obs,
+                            Some(&mut a.transitions),
+                        )?;
+                    }
+                    Ok(()) => {
+                        let r = format!(
+                            "{} cells in a row failed (last: {}): stopping",
+                            self.consecutive_faults, a.reason
+                        );
+                        self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
+                        fatal = Some(r);
+                    }
+                    Err(e) => {
+                        let r = format!("the safe state could not be reached: {e}");
+                        self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
+                        fatal = Some(r);
+                    }
+                }
+            }
+            Err(Fail::Fatal(reason)) => {
+                let parked = self.park();
+                let r = match parked {
+                    Ok(()) => format!("{reason} (pipette retracted, stacks at rest)"),
+                    Err(e) => format!("{reason}; the safe state could not be reached either: {e}"),
+                };
+                if a.outcome == Outcome::Skipped && a.contact {
+                    a.outcome = Outcome::Failed;
+                }
+                if a.reason.is_empty() {
+                    a.reason = reason;
+                }
+                self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
+                fatal = Some(r);
+            }
+        }
+        if a.contact
+            && let Some((dose, alive)) = obs.cell_truth(&a.target)
+        {
+            a.truth.dose_fraction = Some(dose);
+            a.truth.alive = Some(alive);
+        }
+        a.t[1] = self.now();
+        obs.finished(&a).map_err(WorkflowError::Record)?;
+        Ok((a, fatal))
+    }
+
+    fn procedure(&mut self, a: &mut Attempt, obs: &mut dyn Observer) -> Result<(), Fail> {
+        let map = self.map.expect("map");
+        let o = self.options;
+        let pix = map.pixel_size;
+        let r = 0.5 * a.target.diameter_m;
+        // Directions of A1 and A3 on the stage.
+        let to_stage_dir = |v: [f64; 2]| {
+            let [[p, q], [s, t]] = map.b;
+            let det = p * t - q * s;
+            unit([(t * v[0] - q * v[1]) / det, (-s * v[0] + p * v[1]) / det])
+        };
+        let (d1, d3) = (to_stage_dir(map.a1), to_stage_dir(map.a3));
+        let c = a.target.stage_m;
+        let back = r + o.gap;
+        let lead = 1.5e-6;
+        let start = [
+            c[0] - d3[0] * back - d1[0] * lead,
+            c[1] - d3[1] * back - d1[1] * lead,
+        ];
+        // The path from the start to the centre must not cross another cell.
+        for other in &self.survey_cells {
+            if other.index == a.target.index {
+                continue;
+            }
+            let q = other.stage_m;
+            let (vx, vz) = (c[0] - start[0], c[1] - start[1]);
+            let l2 = vx * vx + vz * vz;
+            let t = (((q[0] - start[0]) * vx + (q[1] - start[1]) * vz) / l2).clamp(0.0, 1.0);
+            let dist = (start[0] + t * vx - q[0]).hypot(start[1] + t * vz - q[1]);
+            if dist < 0.5 * other.diameter_m + 1.5e-6 {
+                return Err(Fail::Cell(format!(
+                    "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path)",
+                    other.index,
+                    other.well[0],
+                    other.well[1],
+                    (dist - 0.5 * other.diameter_m) * 1e6
+                )));
+            }
+        }
+        // Lift, travel, lower.
+        let t0 = self.now();
+        let lift = self.home[1];
+        for p in [
+            [None, Some(lift), None],
+            [Some(start[0]), None, Some(start[1])],
+            [None, Some(o.focus), None],
+        ] {
+            if let Err(e) = self.stage_to(p)? {
+                return Err(Fail::Cell(e));
+            }
+        }
+        let why = format!(
+            "tip {:.1} um before the membrane, in focus, after {:.2} s",
+            o.gap * 1e6,
+            self.now() - t0
+        );
+        self.fire(Event::StageArrived, why, obs, Some(&mut a.transitions))
+            .map_err(Fail::Error)?;
+        // Look.
+        let mut cell_px = self.to_px(c);
+        let roi_centre = [cell_px[0], cell_px[1] - 60e-6 / pix];
+        let r_px = r / pix;
+        let mut shot = self.shoot(Some(roi_centre))?;
+        let mut tip = None;
+        for k in 0..6 {
+            if k > 0 {
+                shot = self.shoot(Some(roi_centre))?;
+            }
+            tip = shot.tip(self.background.as_ref().expect("background"));
+            if tip.is_some() {
+                break;
+            }
+        }
+        let Some(mut tip) = tip else {
+            return Err(Fail::Cell(
+                "lost tracking: the tip was not found in 6 frames".into(),
+            ));
+        };
+        // The cell, with the pipette masked out.
+        let f = &shot.frame;
+        let (w, h) = (f.width as usize, f.height as usize);
+        let tl = shot.local(tip);
+        let mut exclude = vec![false; w * h];
+        for j in 0..h.min((tl[1] - 1.0).max(0.0) as usize) {
+            let half = 4.0 + (0.5e-6 + 0.12 * (tl[1] - j as f64) * pix) / pix;
+            for i in 0..w {
+                if (i as f64 - tl[0]).abs() < half {
+                    exclude[j * w + i] = true;
+                }
+            }
+        }
+        let blobs = cellinject_cells::detect(
+            &f.pixels,
+            w,
+            h,
+            &exclude,
+            &DetectOptions::for_pixel_size(pix),
+        )
+        .map_err(|e| Fail::Cell(format!("cell detection failed: {e}")))?;
+        let found = blobs
+            .iter()
+            .filter(|b| b.kind == BlobKind::Cell)
+            .map(|b| (shot.full([b.x, b.y]), b.diameter))
+            .min_by(|x, y| {
+                let dx = (x.0[0] - cell_px[0]).hypot(x.0[1] - cell_px[1]);
+                let dy = (y.0[0] - cell_px[0]).hypot(y.0[1] - cell_px[1]);
+                dx.total_cmp(&dy)
+            });
+        let Some((p, _)) = found
+            .filter(|(p, _)| (p[0] - cell_px[0]).hypot(p[1] - cell_px[1]) * pix < 0.5 * r + 5e-6)
+        else {
+            return Err(Fail::Cell(format!(
+                "the cell is gone: nothing within {:.1} um of where the survey saw it",
+                (0.5 * r + 5e-6) * 1e6
+            )));
+        };
+        let moved = (p[0] - cell_px[0]).hypot(p[1] - cell_px[1]) * pix;
+        cell_px = p;
+        if moved > 1.5e-6 {
+            let why = format!(
+                "the cell moved {:.1} um since the survey: target follows it",
+                moved * 1e6
+            );
+            self.fire(Event::CellMoved, why, obs, Some(&mut a.transitions))
+                .map_err(Fail::Error)?;
+        } else {
+            let why = format!("tip and cell found ({:.2} um from the survey)", moved * 1e6);
+            self.fire(Event::Found, why, obs, Some(&mut a.transitions))
+                .map_err(Fail::Error)?;
+        }
+        let dark0 = cell_darkness(&shot, cell_px, r_px);
+        // Align: A1 under the sensor loop, its reference corrected from each frame.
+        let mut lateral = f64::INFINITY;
+        let mut beta = 0.0;
+        let mut misses = 0;
+        let mut converged = 0;
+        for _ in 0..15 {
+            let e = [cell_px[0] - tip[0], cell_px[1] - tip[1]];
+            let [alpha, b] = decompose(e, map.a1, map.a3);
+            beta = b;
+            lateral = alpha.abs() * map.a1[0].hypot(map.a1[1]) * pix;
+            if lateral < o.align_tolerance {
+                converged += 1;
+                if converged >= 2 {
+                    break;
+                }
+            } else {
+                converged = 0;
+            }
+            let s = self.servo.as_mut().expect("servo");
+            s.refs[0] = (s.refs[0] + 0.8 * alpha).clamp(0.0, 8e-6);
+            shot = self.shoot(Some(roi_centre))?;
+            match shot.tip(self.background.as_ref().expect("background")) {
+                Some(t) => {
+                    tip = t;
+                    misses = 0;
+                }
+                None => {
+                    misses += 1;
+                    if misses >= 3 {
+                        return Err(Fail::Cell(
+                            "lost tracking: the tip vanished while aligning".into(),
+                        ));
+                    }
+                }
+            }
+        }
+        if lateral > 3.0 * o.align_tolerance {
+            return Err(Fail::Cell(format!(
+                "alignment did not converge: {:.2} um off the cell's axis after 15 frames",
+                lateral * 1e6
+            )));
+        }
+        a.measured_tip_error_m = Some(lateral);
+        let why = format!("tip {:.2} um off the cell's axis", lateral * 1e6);
+        self.fire(Event::Aligned, why, obs, Some(&mut a.transitions))
+            .map_err(Fail::Error)?;
+        // Approach: from here on the cell counts as touched.
+        a.contact = true;
+        obs.contact(a)
+            .map_err(|e| Fail::Error(WorkflowError::Record(e)))?;
+        let e3_0 = self.servo.as_mut().expect("servo").a3(self.rig)?;
+        let target_ext = e3_0 + beta;
+        let limit = target_ext + o.depth_limit * r;
+        let edge0 = far_edge(&shot, cell_px, r_px);
+        let Some(edge0) = edge0 else {
+            return Err(Fail::Cell("the cell's far membrane is not visible".into()));
+        };
+        let period = 1.0 / self.rig.camera.frame_rate();
+        let exposure = self.rig.camera.settings().exposure;
+        let (mut max_push, mut gave_at) = (0.0f64, None);
+        let mut held = 0;
+        let mut frames = 0;
+        loop {
+            frames += 1;
+            if frames > 200 {
+                return Err(Fail::Cell("the approach took more than 200 frames".into()));
+            }
+            self.ramp_a3(
+                target_ext.min(limit),
+                o.approach_speed,
+                (period - exposure - 2e-3).max(1e-3),
+            )?;
+            let s = self.rig.camera.grab().map_err(dev("camera"))?;
+            shot.frame = s;
+            let ext = self.servo.as_mut().expect("servo").a3(self.rig)?;
+            if ext > limit + 0.2e-6 {
+                return Err(Fail::Cell(format!(
+                    "A3 overshot the depth limit ({:.2} um past it)",
+                    (ext - limit) * 1e6
+                )));
+            }
+            if let Some(edge) = far_edge(&shot, cell_px, r_px) {
+                let push = (edge - edge0) * pix;
+                max_push = max_push.max(push);
+                if gave_at.is_none() && max_push > 0.6e-6 && push < 0.4 * max_push {
+                    gave_at = Some(ext - e3_0);
+                }
+            }
+            if ext >= target_ext - 0.15e-6 {
+                held += 1;
+                if gave_at.is_some() && held >= 2 {
+                    break;
+                }
+                if held >= 4 {
+                    return Err(Fail::Cell(format!(
+                        "the membrane did not give (the cell was pushed {:.2} um, the tip is at the centre)",
+                        max_push * 1e6
+                    )));
+                }
+            }
+        }
+        let ext = self.servo.as_mut().expect("servo").a3(self.rig)?;
+        a.depth_m = Some(ext - e3_0 - o.gap);
+        let why = format!(
+            "the membrane gave {:.1} um into the approach (pushed {:.2} um); tip at the centre, {:.1} um past the membrane",
+            gave_at.unwrap_or(0.0) * 1e6,
+            max_push * 1e6,
+            (ext - e3_0 - o.gap) * 1e6
+        );
+        self.fire(Event::Penetrated, why, obs, Some(&mut a.transitions))
+            .map_err(Fail::Error)?;
+        // Inject.
+        let volume = o.target_fraction * cell_volume(a.target.diameter_m);
+        let mut pressure = o.pressure;
+        let mut duration = volume / (self.conductance * pressure);
+        if duration < 0.05 {
+            pressure *= duration / 0.05;
+            duration = 0.05;
+        } else if duration > 2.0 {
+            pressure = (pressure * duration / 2.0).min(self.rig.injector.max_pressure());
+            duration = volume / (self.conductance * pressure);
+        }
+        a.truth.tip_error_m = obs.tip_error(&a.target);
+        self.rig
+            .injector
+            .pulse(pressure, duration)
+            .map_err(dev("injector"))?;
+        a.pulse = Some([pressure, duration]);
+        let why = format!(
+            "{:.3} pL at {:.1} kPa for {:.3} s",
+            volume * 1e15,
+            pressure * 1e-3,
+            duration
+        );
+        self.fire(Event::Pulsed, why, obs, Some(&mut a.transitions))
+            .map_err(Fail::Error)?;
+        // Retract.
+        self.ramp_a3(0.0, 500e-6, 0.08)?;
+        let mut k = 0;
+        while self.servo.as_mut().expect("servo").a3(self.rig)? > 0.3e-6 {
+            self.wait(0.01)?;
+            k += 1;
+            if k > 50 {
+                return Err(Fail::Fatal("A3 does not retract".into()));
+            }
+        }
+        self.servo.as_mut().expect("servo").refs = [0.0; 2];
+        self.fire(
+            Event::Retracted,
+            "tip out of the cell".into(),
+            obs,
+            Some(&mut a.transitions),
+        )
+        .map_err(Fail::Error)?;
+        // Verify.
+        let shot = self.shoot(Some(roi_centre))?;
+        let dark1 = cell_darkness(&shot, cell_px, r_px);
+        let (Some(d0), Some(d1)) = (dark0, dark1) else {
+            return Err(Fail::Cell(
+                "the cell's darkness could not be measured".into(),
+            ));
+        };
+        let dose = (d1 - d0) / self.dye_contrast;
+        a.measured_dose_fraction = Some(dose);
+        let ratio = dose / o.target_fraction;
+        if ratio > 3.0 {
+            a.outcome = Outcome::Failed;
+            a.reason = format!("dose {:.1} times the target: the pipette is broken", ratio);
+            return Err(Fail::Fatal(a.reason.clone()));
+        }
+        if d1 < 0.6 * d0 {
+            a.outcome = Outcome::Failed;
+            a.reason = format!(
+                "the cell looks dead after the injection (darkness {:.3} -> {:.3})",
+                d0, d1
+            );
+            self.low_doses = 0;
+            self.fire(
+                Event::DoseOk,
+                a.reason.clone(),
+                obs,
+                Some(&mut a.transitions),
+            )
+            .map_err(Fail::Error)?;
+            return Ok(());
+        }
+        if ratio < 0.3 {
+            a.outcome = Outcome::Failed;
+            a.reason = format!(
+                "dose {:.0} % of the target: the pipette may be clogged",
+                100.0 * ratio
+            );
+            self.fire(
+                Event::DoseLow,
+                a.reason.clone(),
+                obs,
+                Some(&mut a.transitions),
+            )
+            .map_err(Fail::Error)?;
+            self.low_doses += 1;
+            if self.low_doses >= 2 {
+                return Err(Fail::Fatal(format!(
+                    "no flow after clearing: the pipette is blocked ({})",
+                    a.reason
+                )));
+            }
+            let p = 0.85 * self.rig.injector.max_pressure();
+            self.rig.injector.pulse(p, 0.2).map_err(dev("injector"))?;
+            self.fire(
+                Event::Cleared,
+                format!("clearing pulse {:.0} kPa for 0.2 s in the medium", p * 1e-3),
+                obs,
+                Some(&mut a.transitions),
+            )
+            .map_err(Fail::Error)?;
+            return Ok(());
+        }
+        self.low_doses = 0;
+        if !(0.5..=2.0).contains(&ratio) {
+            a.outcome = Outcome::Failed;
+            a.reason = format!("dose {:.0} % of the target", 100.0 * ratio);
+        } else {
+            a.outcome = Outcome::Injected;
+        }
+        let why = format!(
+            "dose {:.0} % of the target, the cell looks alive",
+            100.0 * ratio
+        );
+        self.fire(Event::DoseOk, why, obs, Some(&mut a.transitions))
+            .map_err(Fail::Error)?;
+        // Lift for the next cell.
+        self.stage_to([None, Some(lift), None])?
+            .map_err(Fail::Cell)?;
+        Ok(())
+    }
+}

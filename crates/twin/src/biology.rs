@@ -1,0 +1,466 @@
+//! The cells of a loaded plate as living things: the pipette's contact with them
+//! (the cell pushed ahead of the tip, the membrane dimpling until it gives), the dose a
+//! pressure pulse delivers into a punctured cell, and whether the cell survives; and
+//! the faults the twin can inject into a run (a clogged or broken pipette, a cell that
+//! moves, a stage that jams, the light going out).
+//!
+//! Geometry is the top view's object plane (x along the image columns, z along the
+//! rows); the pipette's axis is z (A3 pushes the tip towards +z). The tip interacts
+//! with a cell only within a cell radius of the focal plane (depth).
+
+use cellinject_numeric::Rng;
+use cellinject_rig::pipette::cell_volume;
+use cellinject_simparams::CellBiology;
+
+use crate::camera::{CellLook, TipPose};
+
+/// Why a cell died.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Death {
+    /// The tip entered too far off-centre and tore the membrane.
+    TornAtEntry,
+    /// The tip moved sideways inside the cell.
+    TornInside,
+    /// The tip went too deep past the centre (the nucleus).
+    TooDeep,
+    /// Too large a volume was injected.
+    Lysed,
+}
+
+impl Death {
+    /// A short description.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Death::TornAtEntry => "membrane torn: the tip entered too far off-centre",
+            Death::TornInside => "membrane torn: the tip moved sideways inside",
+            Death::TooDeep => "the tip went too deep (nucleus damaged)",
+            Death::Lysed => "lysed: too large a volume",
+        }
+    }
+}
+
+/// One cell's state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellState {
+    /// m, resting centre now (x, z); a cell can move in its well.
+    pub centre: [f64; 2],
+    /// m, resting centre in the plate file.
+    pub origin: [f64; 2],
+    /// m, radius before any injection.
+    pub radius: f64,
+    /// m, dimple depth at which this cell's membrane gives.
+    pub puncture_dimple: f64,
+    /// m, how far the tip pushes the cell now (x, z).
+    pub push: [f64; 2],
+    /// The tip is inside (the membrane gave and has not resealed).
+    pub punctured: bool,
+    /// The pipette has touched the cell.
+    pub touched: bool,
+    /// Times the membrane was punctured.
+    pub punctures: u32,
+    /// m, the tip's lateral (x) extent while inside: min, max.
+    pub inside_x: [f64; 2],
+    /// m, deepest the tip went past the centre (along z).
+    pub max_depth: f64,
+    /// m³, injected.
+    pub injected: f64,
+    /// Dead, and why.
+    pub dead: Option<Death>,
+}
+
+impl CellState {
+    /// Injected volume over the cell's volume.
+    pub fn dose_fraction(&self) -> f64 {
+        self.injected / cell_volume(2.0 * self.radius)
+    }
+
+    fn look(&self, dye_contrast: f64) -> CellLook {
+        let f = self.dose_fraction();
+        CellLook {
+            offset: [
+                self.centre[0] - self.origin[0] + self.push[0],
+                self.centre[1] - self.origin[1] + self.push[1],
+            ],
+            scale: (1.0 + f).cbrt(),
+            dye: dye_contrast * f,
+            dead: self.dead.is_some(),
+        }
+    }
+
+    fn changed(&self) -> bool {
+        self.centre != self.origin
+            || self.push != [0.0, 0.0]
+            || self.injected > 0.0
+            || self.dead.is_some()
+    }
+}
+
+/// A fault the twin injects, tied to one cell of the plate (index in the plate file's
+/// `[[cell]]` order).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Fault {
+    /// The pipette clogs when it punctures the cell (no flow); a clearing pulse
+    /// (at least 80 % of the injector's pressure limit, outside any cell) clears it,
+    /// unless `hard`.
+    Clog {
+        /// Cell.
+        cell: usize,
+        /// The clog does not clear.
+        hard: bool,
+    },
+    /// The tip breaks on touching the cell: it is `length` m shorter from then on and
+    /// its orifice much wider.
+    Break {
+        /// Cell.
+        cell: usize,
+        /// m lost.
+        length: f64,
+    },
+    /// The cell moves by `by` (m, x and z) when the pipette arrives near it.
+    CellMoves {
+        /// Cell.
+        cell: usize,
+        /// m.
+        by: [f64; 2],
+    },
+    /// The light goes out for `frames` frames when the pipette arrives near the cell.
+    Dark {
+        /// Cell.
+        cell: usize,
+        /// Frames.
+        frames: u32,
+    },
+    /// The stage jams on the first move after the pipette has been near the cell.
+    StageStall {
+        /// Cell.
+        cell: usize,
+    },
+}
+
+impl Fault {
+    /// The cell it is tied to.
+    pub fn cell(&self) -> usize {
+        match *self {
+            Fault::Clog { cell, .. }
+            | Fault::Break { cell, .. }
+            | Fault::CellMoves { cell, .. }
+            | Fault::Dark { cell, .. }
+            | Fault::StageStall { cell } => cell,
+        }
+    }
+}
+
+/// What the biology asks of the rest of the twin after an update.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Effects {
+    /// Frames of darkness to start.
+    pub dark_frames: u32,
+    /// The stage should jam on its next move.
+    pub stall_stage: bool,
+}
+
+/// The cells of a plate, the pipette's state and the pending faults.
+#[derive(Debug, Clone)]
+pub struct Biology {
+    params: CellBiology,
+    dye_contrast: f64,
+    /// Per cell of the plate.
+    pub cells: Vec<CellState>,
+    faults: Vec<(Fault, bool)>,
+    /// Flow multiplier of the pipette now (1 nominal, 0 clogged, > 1 broken).
+    pub flow: f64,
+    /// m the tip has lost by breaking.
+    pub tip_loss: f64,
+    hard_clog: bool,
+    /// The stage must jam on its next move.
+    pub stall_pending: bool,
+}
+
+/// How close (m) the tip comes to a cell for a fault tied to it to "arrive".
+const ARRIVAL: f64 = 60e-6;
+
+impl Biology {
+    /// The cells at `centres` (m, x and z) with `radii` (m), each with its own puncture
+    /// threshold drawn from `rng`.
+    pub fn new(
+        params: CellBiology,
+        dye_contrast: f64,
+        cells: impl IntoIterator<Item = ([f64; 2], f64)>,
+        rng: &mut Rng,
+    ) -> Self {
+        let cells = cells
+            .into_iter()
+            .map(|(c, r)| CellState {
+                centre: c,
+                origin: c,
+                radius: r,
+                puncture_dimple: r * rng.range(params.puncture[0], params.puncture[1]),
+                push: [0.0; 2],
+                punctured: false,
+                touched: false,
+                punctures: 0,
+                inside_x: [0.0; 2],
+                max_depth: 0.0,
+                injected: 0.0,
+                dead: None,
+            })
+            .collect();
+        Biology {
+            params,
+            dye_contrast,
+            cells,
+            faults: Vec::new(),
+            flow: 1.0,
+            tip_loss: 0.0,
+            hard_clog: false,
+            stall_pending: false,
+        }
+    }
+
+    /// Schedules faults (each fires once).
+    pub fn set_faults(&mut self, faults: &[Fault]) {
+        self.faults = faults.iter().map(|f| (*f, false)).collect();
+    }
+
+    /// The cells that look different from their resting state, for the camera.
+    pub fn looks(&self) -> Vec<(usize, CellLook)> {
+        self.cells
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.changed())
+            .map(|(i, c)| (i, c.look(self.dye_contrast)))
+            .collect()
+    }
+
+    /// The cell the tip is inside, if any.
+    pub fn inside(&self) -> Option<usize> {
+        self.cells.iter().position(|c| c.punctured)
+    }
+
+    /// Updates contact, puncture and viability for the tip at `tip` (its true pose,
+    /// the broken length already taken off).
+    pub fn interact(&mut self, tip: &TipPose) -> Effects {
+        let mut fx = Effects::default();
+        let p = self.params;
+        for k in 0..self.cells.len() {
+            let c = &mut self.cells[k];
+            let (dx, dz) = (tip.x - c.centre[0], tip.z - c.centre[1]);
+            let d = dx.hypot(dz);
+            if d > c.radius + ARRIVAL && !c.punctured && c.push == [0.0, 0.0] {
+                continue;
+            }
+            // Faults tied to this cell fire on arrival or on touch.
+            let touching = tip.depth.abs() < c.radius && d < c.radius;
+            for (f, fired) in self.faults.iter_mut() {
+                if *fired || f.cell() != k {
+                    continue;
+                }
+                match *f {
+                    Fault::CellMoves { by, .. } if d < c.radius + ARRIVAL => {
+                        c.centre = [c.centre[0] + by[0], c.centre[1] + by[1]];
+                        *fired = true;
+                    }
+                    Fault::Dark { frames, .. } if d < c.radius + ARRIVAL => {
+                        fx.dark_frames = frames;
+                        *fired = true;
+                    }
+                    Fault::StageStall { .. } if d < c.radius + ARRIVAL => {
+                        fx.stall_stage = true;
+                        *fired = true;
+                    }
+                    Fault::Break { length, .. } if touching => {
+                        self.tip_loss += length;
+                        self.flow *= 30.0;
+                        *fired = true;
+                    }
+                    _ => {}
+                }
+            }
+            let (dx, dz) = (tip.x - c.centre[0], tip.z - c.centre[1]);
+            let d = dx.hypot(dz);
+            if tip.depth.abs() >= c.radius {
+                c.push = [0.0; 2];
+                continue;
+            }
+            if !c.punctured {
+                let advance = c.radius - d;
+                if advance <= 0.0 || d == 0.0 {
+                    c.push = [0.0; 2];
+                    continue;
+                }
+                c.touched = true;
+                let dimple = (1.0 - p.push_fraction) * advance;
+                if dimple < c.puncture_dimple {
+                    // Pushed away from the tip.
+                    let s = p.push_fraction * advance / d;
+                    c.push = [-dx * s, -dz * s];
+                    continue;
+                }
+                c.punctured = true;
+                c.punctures += 1;
+                c.push = [0.0; 2];
+                c.inside_x = [tip.x, tip.x];
+                if dx.abs() > p.tear_offset * c.radius && c.dead.is_none() {
+                    c.dead = Some(Death::TornAtEntry);
+                }
+                for (f, fired) in self.faults.iter_mut() {
+                    if let Fault::Clog { cell, hard } = *f
+                        && cell == k
+                        && !*fired
+                    {
+                        self.flow = 0.0;
+                        self.hard_clog = hard;
+                        *fired = true;
+                    }
+                }
+            }
+            // Inside.
+            if d < c.radius {
+                c.inside_x = [c.inside_x[0].min(tip.x), c.inside_x[1].max(tip.x)];
+                c.max_depth = c.max_depth.max(dz);
+                if c.dead.is_none() {
+                    if c.inside_x[1] - c.inside_x[0] > p.tear_travel * c.radius {
+                        c.dead = Some(Death::TornInside);
+                    } else if dz > p.lethal_depth * c.radius {
+                        c.dead = Some(Death::TooDeep);
+                    }
+                }
+            } else {
+                // The tip left the cell (the membrane reseals behind it; leaving through
+                // the far side means it went too deep on the way).
+                c.punctured = false;
+            }
+        }
+        fx
+    }
+
+    /// A pressure pulse delivering `volume` m³ (already through the pipette's flow):
+    /// into the cell the tip is inside, or into the medium. A pulse of at least
+    /// `clear_pressure` Pa in the medium clears a soft clog.
+    pub fn pulse(&mut self, volume: f64, pressure: f64, clear_pressure: f64) {
+        match self.inside() {
+            Some(k) => {
+                let c = &mut self.cells[k];
+                c.injected += volume;
+                if c.dose_fraction() > self.params.lethal_dose && c.dead.is_none() {
+                    c.dead = Some(Death::Lysed);
+                }
+            }
+            None => {
+                if self.flow == 0.0 && !self.hard_clog && pressure >= clear_pressure {
+                    self.flow = 1.0;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_cell() -> Biology {
+        let mut rng = Rng::new(1, 99);
+        Biology::new(
+            CellBiology {
+                // The membrane gives at a 1.35 um dimple (a 2.7 um advance).
+                puncture: [0.15, 0.15],
+                ..CellBiology::default()
+            },
+            0.8,
+            [([0.0, 0.0], 9e-6)],
+            &mut rng,
+        )
+    }
+
+    fn tip(x: f64, z: f64) -> TipPose {
+        TipPose {
+            x,
+            z,
+            ..TipPose::default()
+        }
+    }
+
+    #[test]
+    fn the_membrane_gives_after_the_cell_was_pushed_and_then_relaxes() {
+        let mut b = one_cell();
+        let threshold = b.cells[0].puncture_dimple;
+        let mut last_push = 0.0;
+        let mut gave_at = None;
+        let mut z = -12e-6;
+        while z < 0.0 {
+            b.interact(&tip(0.0, z));
+            let c = b.cells[0];
+            if c.punctured {
+                gave_at = Some(z);
+                assert_eq!(
+                    c.push,
+                    [0.0, 0.0],
+                    "the cell snaps back when the membrane gives"
+                );
+                break;
+            }
+            assert!(c.push[1] >= last_push, "pushed ahead of the tip");
+            last_push = c.push[1];
+            z += 0.05e-6;
+        }
+        let z = gave_at.expect("gave before the centre");
+        // Advance into the undeformed cell at the give: dimple / (1 - push fraction).
+        let advance = 9e-6 + z;
+        assert!(
+            (advance * 0.5 - threshold).abs() < 0.05e-6,
+            "{advance} {threshold}"
+        );
+        assert!(
+            last_push > 0.5 * threshold,
+            "visible push before the give: {last_push}"
+        );
+        assert!(b.cells[0].dead.is_none());
+    }
+
+    #[test]
+    fn too_deep_and_sideways_kill_and_a_clean_entry_and_exit_does_not() {
+        for (path, dead) in [
+            (vec![(0.0, -10e-6), (0.0, 0.0), (0.0, -10e-6)], None),
+            (vec![(0.0, -10e-6), (0.0, 5e-6)], Some(Death::TooDeep)),
+            (
+                vec![(0.0, -10e-6), (0.0, 0.0), (4e-6, 0.0)],
+                Some(Death::TornInside),
+            ),
+            // 5.8 um off-centre (tear limit 5.4 um): the membrane gives, torn.
+            (
+                vec![(5.8e-6, -10e-6), (5.8e-6, 0.0)],
+                Some(Death::TornAtEntry),
+            ),
+            // 7 um off-centre: the tip only pushes the cell aside, never enters.
+            (vec![(7e-6, -10e-6), (7e-6, 0.0), (7e-6, -10e-6)], None),
+            (vec![(0.0, -10e-6), (0.0, 12e-6)], Some(Death::TooDeep)),
+        ] {
+            let mut b = one_cell();
+            let mut at = path[0];
+            for &(x, z) in &path[1..] {
+                for k in 1..=400 {
+                    let a = k as f64 / 400.0;
+                    b.interact(&tip(at.0 + a * (x - at.0), at.1 + a * (z - at.1)));
+                }
+                at = (x, z);
+            }
+            assert_eq!(b.cells[0].dead, dead, "{path:?}");
+        }
+    }
+
+    #[test]
+    fn a_pulse_doses_the_cell_the_tip_is_in_and_too_much_lyses_it() {
+        let mut b = one_cell();
+        for k in 0..=100 {
+            b.interact(&tip(0.0, -10e-6 + k as f64 * 0.1e-6));
+        }
+        assert!(b.cells[0].punctured);
+        let v = cell_volume(18e-6);
+        b.pulse(0.05 * v, 2e4, 1.6e5);
+        assert!((b.cells[0].dose_fraction() - 0.05).abs() < 1e-12);
+        assert!(b.cells[0].dead.is_none());
+        b.pulse(0.11 * v, 2e4, 1.6e5);
+        assert_eq!(b.cells[0].dead, Some(Death::Lysed));
+    }
+}
