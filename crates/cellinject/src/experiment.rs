@@ -236,6 +236,40 @@ struct CalibrationFile<T> {
     calibration: T,
 }
 
+/// A hysteresis calibration file for `run`: its kind and approach checked (a file made
+/// under the other approach is not used: `None`, with a note).
+pub(crate) fn read_hysteresis(path: &Path, approach: u8) -> Result<Option<HysteresisCalibration>> {
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        InputError(format!(
+            "--calibration: cannot read `{}`: {e}",
+            path.display()
+        ))
+    })?;
+    let f: CalibrationFile<HysteresisCalibration> = serde_json::from_str(&text).map_err(|e| {
+        InputError(format!(
+            "--calibration: `{}` is not a hysteresis calibration file: {e}",
+            path.display()
+        ))
+    })?;
+    if f.kind != "hysteresis" {
+        return Err(InputError(format!(
+            "--calibration: `{}` holds a {} calibration, not a hysteresis one",
+            path.display(),
+            f.kind
+        ))
+        .into());
+    }
+    if f.made.approach != approach {
+        eprintln!(
+            "note: `{}` was made under approach {}, the bench is assembled with approach {approach}: identifying the stacks again",
+            path.display(),
+            f.made.approach
+        );
+        return Ok(None);
+    }
+    Ok(Some(f.calibration))
+}
+
 /// Now as `YYYY-MM-DDTHH:MM:SSZ`.
 fn utc_now() -> String {
     let secs = std::time::SystemTime::now()

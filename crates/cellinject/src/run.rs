@@ -218,7 +218,19 @@ impl Recorder<'_> {
 }
 
 impl Observer for Recorder<'_> {
-    fn transition(&mut self, _t: &Transition) {}
+    fn transition(&mut self, t: &Transition) {
+        if std::env::var_os("CELLINJECT_DEBUG").is_some() {
+            let tip = self.twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
+            eprintln!(
+                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um]",
+                t.from,
+                t.to,
+                t.reason,
+                tip.x * 1e6,
+                tip.z * 1e6
+            );
+        }
+    }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         let left = targets.iter().filter(|t| !self.done(t)).count();
         self.bar = Some(crate::progress::bar(left as u64, "cells"));
@@ -258,10 +270,32 @@ impl Observer for Recorder<'_> {
     fn tip_error(&mut self, t: &Target) -> Option<f64> {
         let c = self.nearest(t)?;
         let tip = self.twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
+        if std::env::var_os("CELLINJECT_DEBUG").is_some() {
+            eprintln!(
+                "tip - cell: ({:.2}, {:.2}) um; target ({:.2}, {:.2}) um vs true ({:.2}, {:.2})",
+                (tip.x - c.centre[0]) * 1e6,
+                (tip.z - c.centre[1]) * 1e6,
+                (t.x_m + self.plate.origin[0]) * 1e6,
+                (t.y_m + self.plate.origin[1]) * 1e6,
+                c.centre[0] * 1e6,
+                c.centre[1] * 1e6
+            );
+        }
         Some((tip.x - c.centre[0]).hypot(tip.z - c.centre[1]))
     }
     fn cell_truth(&mut self, t: &Target) -> Option<(f64, bool)> {
         let c = self.nearest(t)?;
+        if std::env::var_os("CELLINJECT_DEBUG").is_some() {
+            eprintln!(
+                "cell {}: punctures {}, max depth {:.2} um of r {:.2}, inside x {:.2} um, dead {:?}",
+                t.index,
+                c.punctures,
+                c.max_depth * 1e6,
+                c.radius * 1e6,
+                (c.inside_x[1] - c.inside_x[0]) * 1e6,
+                c.dead
+            );
+        }
         Some((c.dose_fraction(), c.dead.is_none()))
     }
 }
@@ -282,16 +316,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         .map_err(|e| InputError(e.to_string()))?;
     let hysteresis = match &args.calibration {
         None => None,
-        Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .map_err(|e| InputError(format!("--calibration `{}`: {e}", p.display())))?;
-            Some(serde_json::from_str(&text).map_err(|e| {
-                InputError(format!(
-                    "--calibration `{}`: not a hysteresis calibration: {e}",
-                    p.display()
-                ))
-            })?)
-        }
+        Some(p) => crate::experiment::read_hysteresis(p, d.rig.approach.number())?,
     };
     let mut db = Records::open(&args.db).map_err(records_error)?;
     let (run_id, plate_text, seed, previous, base) = if args.resume {

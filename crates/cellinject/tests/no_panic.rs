@@ -137,6 +137,10 @@ fn values(opt: &Opt) -> Vec<String> {
         ]),
         "config" => v(&["missing.toml", "bad.toml", "r.png"]),
         "plate" => v(&["", "missing.toml", "bad.toml", "r.png", "plate.toml", "."]),
+        "dose" => v(&["0.05", "0", "-1", "nan", "0.5", "x"]),
+        "fault" => v(&["clog@0", "break@0", "stall@0", "melt@1", "clog@99", "x"]),
+        "db" => v(&["", "r.png", "nr.sqlite", "no/dir/x.sqlite", "."]),
+        "run" => v(&["1", "0", "-1", "99", "x"]),
         "origin" => v(&["0,0", "-1e-3,2e-3", "1", "nan,0", "1e300,0", "x"]),
         "rows" | "cols" => v(&["0", "1", "1001", "-1", "x", "3"]),
         "frames" => v(&["", "missing", "frames/*.png", "frames/*.tif", "r.png"]),
@@ -257,6 +261,15 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ["plate", "check"] => vec!["--plate", "plate.toml"],
         ["plate", "detect"] => vec!["--plate", "plate.toml"],
         ["sim", "tip"] => vec!["--runs", "2"],
+        ["run"] => vec![
+            "--plate",
+            "plate.toml",
+            "--calibration",
+            "cal/hysteresis.json",
+            "--db",
+            "nr.sqlite",
+        ],
+        ["runs", "show"] | ["runs", "list"] | ["runs", "export"] => vec!["--db", "nr.sqlite"],
         _ => vec![],
     }
 }

@@ -685,8 +685,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// Retracts A3, relaxes A1/A2 and lifts the pipette: the safe state.
     fn park(&mut self) -> Result<(), WorkflowError> {
         if let Some(mut s) = self.servo.take() {
-            s.refs = [0.0; 2];
-            let r = s.wait(self.rig, 0.15, Some((0.0, 500e-6)));
+            // A3 out first (straight back along its axis), then A1/A2 relaxed: never
+            // sideways inside a cell.
+            let r = s.wait(self.rig, 0.15, Some((0.0, 500e-6))).and_then(|()| {
+                s.refs = [0.0; 2];
+                s.wait(self.rig, 0.05, None)
+            });
             self.servo = Some(s);
             r?;
         }
@@ -998,12 +1002,25 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 scale * 1e-6
             )));
         }
-        // A1 and A3 in the image: 1 um of A1 extension, 5 um of A3, from rest.
-        let base = pts[0].1;
+        // A1 and A3 in the image: 1 um of A1 extension, 5 um of A3, from rest; per metre
+        // of extension as the stacks' own sensors read it.
         self.stage_to([Some(s0[0]), None, Some(s0[1])])?.ok();
         self.stage_to([None, Some(self.options.focus), None])?.ok();
         let mut dir = [[0.0; 2]; 2];
         for (k, (e, what)) in [(1e-6, "A1"), (5e-6, "A3")].into_iter().enumerate() {
+            let ch = if k == 0 { 0 } else { 2 };
+            let extension = |w: &mut Self| -> Result<f64, WorkflowError> {
+                let s = w.servo.as_mut().expect("servo");
+                let mut sum = 0.0;
+                for _ in 0..10 {
+                    sum += w.rig.sensors[ch].read().map_err(dev("stack sensor"))? - s.zero[ch];
+                }
+                Ok(sum / 10.0)
+            };
+            let Some(p0) = self.tip_full(3)? else {
+                return Ok(Err(format!("the tip was lost before {what} moved")));
+            };
+            let e0 = extension(self)?;
             let s = self.servo.as_mut().expect("servo");
             if k == 0 {
                 s.refs = [e, 0.0];
@@ -1011,14 +1028,23 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 s.a3_ref = e;
             }
             self.wait(0.3)?;
-            let Some(px) = self.tip_full(3)? else {
+            let Some(p1) = self.tip_full(3)? else {
                 return Ok(Err(format!("the tip was lost while {what} moved")));
             };
+            let e1 = extension(self)?;
             let s = self.servo.as_mut().expect("servo");
             s.refs = [0.0; 2];
             s.a3_ref = 0.0;
             self.wait(0.3)?;
-            dir[k] = [(px[0] - base[0]) / e, (px[1] - base[1]) / e];
+            let de = e1 - e0;
+            if de.abs() < 0.3 * e {
+                return Ok(Err(format!(
+                    "{what} extended {:.2} um when asked for {:.2} um",
+                    de * 1e6,
+                    e * 1e6
+                )));
+            }
+            dir[k] = [(p1[0] - p0[0]) / de, (p1[1] - p0[1]) / de];
         }
         self.stage_to([None, Some(lift), None])?.ok();
         let a3m = dir[1][0].hypot(dir[1][1]) / scale;
@@ -1232,6 +1258,28 @@ fn far_edge(shot: &Shot, c: [f64; 2], r: f64) -> Option<f64> {
 }
 
 impl<B: Backend> Workflow<'_, B> {
+    fn refresh_background(&mut self, shot: &Shot, c: [f64; 2], reach: f64) {
+        let Some(bg) = self.background.as_mut() else {
+            return;
+        };
+        let (w, h) = (shot.frame.width as i64, shot.frame.height as i64);
+        let l = shot.local(c);
+        let k = reach.ceil() as i64;
+        for j in (l[1] as i64 - k)..=(l[1] as i64 + k) {
+            for i in (l[0] as i64 - k)..=(l[0] as i64 + k) {
+                let (dx, dy) = (i as f64 - l[0], j as f64 - l[1]);
+                if i < 0 || j < 0 || i >= w || j >= h || dx.hypot(dy) > reach {
+                    continue;
+                }
+                let (fi, fj) = (
+                    (i + shot.origin[0] as i64) as usize,
+                    (j + shot.origin[1] as i64) as usize,
+                );
+                bg.pixels[fj * bg.width + fi] = shot.frame.pixels[(j * w + i) as usize];
+            }
+        }
+    }
+
     fn to_px(&self, s: [f64; 2]) -> [f64; 2] {
         let m = self.map.expect("map");
         let (u, v) = (s[0] - m.stage0[0], s[1] - m.stage0[1]);
@@ -1516,7 +1564,12 @@ impl<B: Backend> Workflow<'_, B> {
             )));
         }
         a.measured_tip_error_m = Some(lateral);
-        let why = format!("tip {:.2} um off the cell's axis", lateral * 1e6);
+        let along = beta * map.a3[0].hypot(map.a3[1]) * pix;
+        let why = format!(
+            "tip {:.2} um off the cell's axis, {:.2} um from its centre along it",
+            lateral * 1e6,
+            along * 1e6
+        );
         self.fire(Event::Aligned, why, obs, Some(&mut a.transitions))
             .map_err(Fail::Error)?;
         // Approach: from here on the cell counts as touched.
@@ -1557,7 +1610,7 @@ impl<B: Backend> Workflow<'_, B> {
             if let Some(edge) = far_edge(&shot, cell_px, r_px) {
                 let push = (edge - edge0) * pix;
                 max_push = max_push.max(push);
-                if gave_at.is_none() && max_push > 0.6e-6 && push < 0.4 * max_push {
+                if gave_at.is_none() && max_push > 0.3e-6 && push < 0.4 * max_push {
                     gave_at = Some(ext - e3_0);
                 }
             }
@@ -1573,6 +1626,22 @@ impl<B: Backend> Workflow<'_, B> {
                     )));
                 }
             }
+        }
+        // The last micrometres in closed loop on the image: the tip, seen through the
+        // cell (the background divides the resting cell out), brought to the centre.
+        let mut target_ext = target_ext;
+        for _ in 0..4 {
+            let shot = self.shoot(Some(roi_centre))?;
+            let Some(t) = shot.tip(self.background.as_ref().expect("background")) else {
+                break;
+            };
+            let e = [cell_px[0] - t[0], cell_px[1] - t[1]];
+            let step = decompose(e, map.a1, map.a3)[1];
+            if (step * map.a3[0].hypot(map.a3[1]) * pix).abs() < 0.1e-6 {
+                break;
+            }
+            target_ext = (target_ext + step).min(limit);
+            self.ramp_a3(target_ext, o.approach_speed, 0.03)?;
         }
         let ext = self.servo.as_mut().expect("servo").a3(self.rig)?;
         a.depth_m = Some(ext - e3_0 - o.gap);
@@ -1635,6 +1704,10 @@ impl<B: Backend> Workflow<'_, B> {
                 "the cell's darkness could not be measured".into(),
             ));
         };
+        // The injected cell looks different from now on: renew the background there
+        // (a disc around the cell that stops short of the retracted tip).
+        let reach = r_px + (0.5 * r).min(o.gap - 2e-6) / pix;
+        self.refresh_background(&shot, cell_px, reach);
         let dose = (d1 - d0) / self.dye_contrast;
         a.measured_dose_fraction = Some(dose);
         let ratio = dose / o.target_fraction;
