@@ -33,6 +33,8 @@ pub enum Kind {
     Markdown,
     /// TOML (`.toml`).
     Toml,
+    /// HTML (`.html`).
+    Html,
 }
 
 impl Kind {
@@ -47,6 +49,7 @@ impl Kind {
             "json" => Kind::Json,
             "md" => Kind::Markdown,
             "toml" => Kind::Toml,
+            "html" | "htm" => Kind::Html,
             _ => return None,
         })
     }
@@ -61,6 +64,7 @@ impl Kind {
             Kind::Json => "json",
             Kind::Markdown => "md",
             Kind::Toml => "toml",
+            Kind::Html => "html",
         }
     }
 }

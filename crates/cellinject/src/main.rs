@@ -25,6 +25,7 @@ mod hysteresis;
 mod output;
 mod plate;
 mod progress;
+mod report;
 mod run;
 mod sim;
 
@@ -36,14 +37,15 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 
 /// Software for a piezo-actuated compliant micromanipulator that injects biological cells.
 ///
-/// With no command, runs `reproduce` on the embedded prototype.
+/// With no command, runs `run`: the injection workflow on the default plate of the
+/// embedded prototype's twin.
 #[derive(Debug, Parser)]
 #[command(
     name = "cellinject",
     version,
     about,
     long_about,
-    after_help = "Examples:\n  cellinject                      (reproduce the paper's Sec. 3.2 on the embedded prototype)\n  cellinject tension --approach 2\n  cellinject sim frame --vga --out frame.png\n\nExit codes: 0 success; 1 the computation ran but its result is not usable; 2 bad input or usage."
+    after_help = "Examples:\n  cellinject                      (inject every cell of the default plate on the twin: cellinject run)\n  cellinject reproduce            (the paper's Sec. 3.2 on the embedded prototype)\n  cellinject tension --approach 2\n  cellinject sim frame --vga --out frame.png\n\nExit codes: 0 success; 1 the computation ran but its result is not usable; 2 bad input or usage."
 )]
 struct Cli {
     /// Manipulator description file (TOML, SI units). Default: the embedded ICINCO-2012 prototype.
@@ -147,6 +149,21 @@ enum Command {
         after_help = "Examples:\n  cellinject runs list\n  cellinject runs show --run 2\n  cellinject runs export --format csv > attempts.csv"
     )]
     Runs(run::RunsCommand),
+    /// A run's records as one self-contained HTML page: plate map, tip-error and dose histograms, throughput, settings and calibrations.
+    #[command(
+        after_help = "Examples:\n  cellinject report --out report\n  cellinject report --db runs.sqlite --run 2 --out run2"
+    )]
+    Report {
+        /// The run database.
+        #[arg(long, default_value = "runs.sqlite")]
+        db: PathBuf,
+        /// Run id (default: the latest).
+        #[arg(long)]
+        run: Option<i64>,
+        /// Directory for `report.html` (created if needed).
+        #[arg(long, value_name = "DIR", default_value = "report")]
+        out: PathBuf,
+    },
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.
     #[command(
         after_help = "Examples:\n  cellinject reproduce\n  cellinject reproduce --out my-reports --format json"
@@ -215,6 +232,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             hinge::table(&args)
         }
         Some(Command::Run(args)) => run::run(&description()?, &args),
+        Some(Command::Report { db, run, out }) => {
+            unused_config();
+            let f = report::report(&db, run, &out)?;
+            outln!("wrote {}", f.display());
+            Ok(())
+        }
         Some(Command::Runs(cmd)) => {
             unused_config();
             run::runs(&cmd)
@@ -222,11 +245,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Reproduce { out, format }) => {
             commands::reproduce(&description()?, &out, format)
         }
-        None => commands::reproduce(
-            &description()?,
-            std::path::Path::new("reports"),
-            Format::Text,
-        ),
+        None => {
+            // No command: the main job, `cellinject run` with its defaults.
+            let mut default = Cli::parse_from(["cellinject", "run"]);
+            default.config = cli.config.clone();
+            run(default)
+        }
     }
 }
 

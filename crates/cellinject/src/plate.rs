@@ -177,23 +177,15 @@ fn detect(
 ) -> Result<()> {
     use cellinject_core::cells::{PixelFrame, detect_and_score};
     use cellinject_core::sim::{Acquisition, frame};
-    use cellinject_hw::{Clock, Stage};
     let plate = load("--plate", plate_path)?;
     let (twin, mut rig) = crate::sim::build(d, args)?;
     let lock = || twin.lock().unwrap_or_else(|e| e.into_inner());
-    lock().load_plate(&plate);
-    // The pipette rides on the stage: move it 2 mm to the side, out of the view.
-    let device = |what: &str, e: cellinject_hw::HwError| anyhow::anyhow!("{what}: {e}");
-    rig.stage
-        .move_to(0, -2e-3)
-        .map_err(|e| device("stage", e))?;
-    let mut waited = 0.0;
-    while rig.stage.is_busy().map_err(|e| device("stage", e))? {
-        rig.clock.sleep(0.05).map_err(|e| device("clock", e))?;
-        waited += 0.05;
-        if waited > 10.0 {
-            anyhow::bail!("the stage did not settle within 10 s");
-        }
+    {
+        // The pipette rides on the stage: it starts 2 mm to the side, out of the view
+        // (and never sweeps through the cells on its way there).
+        let mut t = lock();
+        t.load_plate(&plate);
+        t.world.stage.place(0, -2e-3);
     }
     let f = frame(&mut rig, zoom, Acquisition::Full, None).map_err(|e| match e {
         cellinject_core::sim::SimError::Device { what, source } => {

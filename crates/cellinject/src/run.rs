@@ -51,6 +51,9 @@ pub struct RunArgs {
 #[derive(Debug, Subcommand)]
 pub enum RunsCommand {
     /// One line per run.
+    #[command(
+        after_help = "Examples:\n  cellinject runs list\n  cellinject runs list --db runs.sqlite --format json"
+    )]
     List {
         /// The run database.
         #[arg(long, default_value = "runs.sqlite")]
@@ -60,6 +63,9 @@ pub enum RunsCommand {
         format: Format,
     },
     /// A run and its attempts as JSON (the latest, or `--run ID`).
+    #[command(
+        after_help = "Examples:\n  cellinject runs show\n  cellinject runs show --db runs.sqlite --run 2"
+    )]
     Show {
         /// The run database.
         #[arg(long, default_value = "runs.sqlite")]
@@ -69,6 +75,9 @@ pub enum RunsCommand {
         run: Option<i64>,
     },
     /// A run's attempts as CSV or JSON on standard output.
+    #[command(
+        after_help = "Examples:\n  cellinject runs export > attempts.csv\n  cellinject runs export --run 2 --format json"
+    )]
     Export {
         /// The run database.
         #[arg(long, default_value = "runs.sqlite")]
@@ -98,7 +107,7 @@ fn parse_fault(s: &str) -> Result<Fault> {
             cell,
             by: [3e-6, 2e-6],
         },
-        "dark" => Fault::Dark { cell, frames: 12 },
+        "dark" => Fault::Dark { cell, frames: 40 },
         "stall" => Fault::StageStall { cell },
         _ => return Err(bad().into()),
     })
@@ -121,7 +130,7 @@ pub fn default_plate(seed: u64) -> Result<Plate> {
     .map_err(|e| anyhow!("default plate: {e}"))
 }
 
-fn records_error(e: RecordsError) -> anyhow::Error {
+pub(crate) fn records_error(e: RecordsError) -> anyhow::Error {
     match e {
         RecordsError::Sql(_) => anyhow!("{e}"),
         other => InputError(other.to_string()).into(),
@@ -457,6 +466,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         && matches!(
             e,
             cellinject_core::inject::WorkflowError::PlateTooLarge { .. }
+                | cellinject_core::inject::WorkflowError::TooHigh { .. }
         )
     {
         return Err(InputError(e.to_string()).into());
@@ -492,12 +502,16 @@ fn print_text(s: &Summary) {
         s.skipped,
         s.interrupted
     );
+    let tip = if errs.is_empty() {
+        "no injection".to_string()
+    } else {
+        format!("mean tip error at injection {:.2} µm", mean * 1e6)
+    };
     outln!(
-        "{:.1} s simulated ({:.1} s on cells): {:.1} cells per minute; mean tip error at injection {:.2} um",
+        "{:.1} s simulated ({:.1} s on cells): {:.1} cells per minute; {tip}",
         s.sim_time_s,
         s.cell_time_s,
-        s.cells_per_min,
-        mean * 1e6
+        s.cells_per_min
     );
     for a in s.attempts.iter().filter(|a| a.outcome != "injected") {
         outln!(
@@ -600,7 +614,7 @@ fn read_text(p: &Path) -> Result<String> {
         .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())).into())
 }
 
-fn open_existing(p: &Path) -> Result<Records> {
+pub(crate) fn open_existing(p: &Path) -> Result<Records> {
     if !p.exists() {
         return Err(InputError(format!(
             "--db `{}`: no such file (a run creates it: cellinject run --db {})",

@@ -151,12 +151,12 @@ fn reproduce_prints_the_table_and_writes_the_golden_report() {
 }
 
 #[test]
-fn no_arguments_runs_the_reproduction_on_the_embedded_prototype() {
+fn no_arguments_runs_the_injection_workflow_on_the_default_plate() {
     let dir = tempdir("noargs");
     let o = bin().current_dir(&dir).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stdout(&o).contains("ICINCO-2012 prototype"));
-    assert!(dir.join("reports/reproduce.md").exists());
+    assert!(stdout(&o).contains("cells found"), "{}", stdout(&o));
+    assert!(dir.join("runs.sqlite").exists());
     fs::remove_dir_all(&dir).unwrap();
 }
 

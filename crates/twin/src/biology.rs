@@ -176,8 +176,9 @@ pub struct Biology {
     pub stall_pending: bool,
 }
 
-/// How close (m) the tip comes to a cell for a fault tied to it to "arrive".
-const ARRIVAL: f64 = 60e-6;
+/// How close (m) to a cell's membrane the tip comes, in focus, for a fault tied to the
+/// cell to "arrive" (the workflow stops 6 um before the membrane).
+const ARRIVAL: f64 = 20e-6;
 
 impl Biology {
     /// The cells at `centres` (m, x and z) with `radii` (m), each with its own puncture
@@ -249,22 +250,23 @@ impl Biology {
             if d > c.radius + ARRIVAL && !c.punctured && c.push == [0.0, 0.0] {
                 continue;
             }
-            // Faults tied to this cell fire on arrival or on touch.
+            // Faults tied to this cell fire on arrival (in focus) or on touch.
             let touching = tip.depth.abs() < c.radius && d < c.radius;
+            let near = tip.depth.abs() < c.radius && d < c.radius + ARRIVAL;
             for (f, fired) in self.faults.iter_mut() {
                 if *fired || f.cell() != k {
                     continue;
                 }
                 match *f {
-                    Fault::CellMoves { by, .. } if d < c.radius + ARRIVAL => {
+                    Fault::CellMoves { by, .. } if near => {
                         c.centre = [c.centre[0] + by[0], c.centre[1] + by[1]];
                         *fired = true;
                     }
-                    Fault::Dark { frames, .. } if d < c.radius + ARRIVAL => {
+                    Fault::Dark { frames, .. } if near => {
                         fx.dark_frames = frames;
                         *fired = true;
                     }
-                    Fault::StageStall { .. } if d < c.radius + ARRIVAL => {
+                    Fault::StageStall { .. } if near => {
                         fx.stall_stage = true;
                         *fired = true;
                     }
