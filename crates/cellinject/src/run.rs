@@ -330,14 +330,6 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     let mut db = Records::open(&args.db).map_err(records_error)?;
     let (run_id, plate_text, seed, previous, base) = if args.resume {
         let r = db.run(None).map_err(records_error)?;
-        if r.status == "finished" {
-            let attempts = db.attempts(r.id).map_err(records_error)?;
-            if args.format == Format::Json {
-                return print_json(summary(&r, attempts), &[]);
-            }
-            outln!("run {} is finished: nothing to resume", r.id);
-            return Ok(());
-        }
         if let Some(p) = &args.plate {
             let text = read_text(p)?;
             if text != r.plate {
@@ -353,10 +345,19 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             && Some(s) != r.seed
         {
             return Err(InputError(format!(
-                "--seed {s} is not run {}'s seed {:?} (resume takes it from the database: leave --seed out)",
-                r.id, r.seed
+                "--seed {s} is not run {}'s seed {} (resume takes it from the database: leave --seed out)",
+                r.id,
+                r.seed.map_or("(none)".to_string(), |s| s.to_string())
             ))
             .into());
+        }
+        if r.status == "finished" {
+            let attempts = db.attempts(r.id).map_err(records_error)?;
+            if args.format == Format::Json {
+                return print_json(summary(&r, attempts), &[]);
+            }
+            outln!("run {} is finished: nothing to resume", r.id);
+            return Ok(());
         }
         let (dropped, interrupted) = db.prepare_resume(r.id).map_err(records_error)?;
         if dropped + interrupted > 0 {

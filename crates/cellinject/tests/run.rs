@@ -83,10 +83,45 @@ fn a_small_plate_is_injected_recorded_and_a_finished_run_resumes_to_nothing() {
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let shown: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(shown["attempts"], s["attempts"]);
+    // Resume takes the plate and the seed from the database: others are refused.
+    let o = run(&d, &["run", "--db", "r.sqlite", "--resume", "--seed", "99"]);
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    assert!(err(&o).contains("--seed 99"), "{}", err(&o));
+    fs::write(
+        d.join("other.toml"),
+        fs::read_to_string(d.join("p.toml")).unwrap() + "\n",
+    )
+    .unwrap();
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--db",
+            "r.sqlite",
+            "--resume",
+            "--plate",
+            "other.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    assert!(err(&o).contains("other.toml"), "{}", err(&o));
     // A finished run: resume does nothing.
     let o = run(&d, &["run", "--db", "r.sqlite", "--resume"]);
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("nothing to resume"));
+    // The report: one HTML file with the plate map, refused over an existing file.
+    let o = run(&d, &["report", "--db", "r.sqlite", "--out", "rep"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let html = fs::read_to_string(d.join("rep/report.html")).unwrap();
+    assert_eq!(html.matches("<circle").count(), cells);
+    assert!(html.contains("Tip error at injection") && html.contains("Throughput"));
+    let o = run(&d, &["report", "--db", "r.sqlite", "--out", "p.toml"]);
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    assert!(
+        fs::read_to_string(d.join("p.toml"))
+            .unwrap()
+            .contains("[plate]")
+    );
     // Export to CSV: a header and one line per attempt.
     let o = run(&d, &["runs", "export", "--db", "r.sqlite"]);
     assert_eq!(
@@ -284,4 +319,24 @@ fn a_run_killed_at_any_moment_resumes_without_touching_a_cell_twice() {
             + interrupted;
         assert!(touched_twice <= cells);
     }
+}
+
+#[test]
+fn a_move_the_safety_envelope_refuses_stops_the_run_with_the_refusal_recorded() {
+    let d = bench("refuse");
+    // A stage of 5 mm travel: moving the pipette out of view (2.9 mm to the left of
+    // the plate's centre) is beyond it, and the guard refuses before the stage moves.
+    let proto = fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/prototype.toml"),
+    )
+    .unwrap();
+    let short = proto.replace("travel = 0.025 ", "travel = 0.005 ");
+    assert_ne!(short, proto);
+    fs::write(d.join("short.toml"), short).unwrap();
+    let (code, s, e) = json_run(&d, &["--config", "short.toml", "--db", "ref.sqlite"]);
+    assert_eq!(code, Some(1), "{e}");
+    assert_eq!(s["status"], "stopped");
+    let why = s["stopped"].as_str().unwrap();
+    assert!(why.contains("refused") && why.contains("travel"), "{why}");
+    assert_eq!(s["attempts"].as_array().unwrap().len(), 0);
 }
