@@ -327,12 +327,24 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         None => None,
         Some(p) => crate::experiment::read_hysteresis(p, d.rig.approach.number())?,
     };
+    // The plate is read and checked before the database is touched.
+    let given_plate = match &args.plate {
+        None => None,
+        Some(p) => {
+            let text = read_text(p)?;
+            let plate = cellinject_config::plate::parse(&text)
+                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
+            plate
+                .check()
+                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
+            Some(text)
+        }
+    };
     let mut db = Records::open(&args.db).map_err(records_error)?;
     let (run_id, plate_text, seed, previous, base) = if args.resume {
         let r = db.run(None).map_err(records_error)?;
-        if let Some(p) = &args.plate {
-            let text = read_text(p)?;
-            if text != r.plate {
+        if let (Some(p), Some(text)) = (&args.plate, &given_plate) {
+            if *text != r.plate {
                 return Err(InputError(format!(
                     "--plate `{}` is not the plate of run {} (resume takes the plate from the database: leave --plate out)",
                     p.display(),
@@ -377,7 +389,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     } else {
         let seed = args.seed.unwrap_or(d.sim.seed);
         let text = match &args.plate {
-            Some(p) => read_text(p)?,
+            Some(_) => given_plate.clone().unwrap_or_default(),
             None => cellinject_config::plate::to_toml(
                 &default_plate(seed)?,
                 &format!("cellinject run's default plate: 8 x 12 wells, seed {seed}"),
