@@ -42,6 +42,28 @@ pub fn bar(len: u64, what: impl Into<String>) -> Progress {
     Progress(Some(pb))
 }
 
+/// A bar over `len` items of `what` that also shows the rate (items per minute of
+/// wall time) and the time left.
+pub fn rate_bar(len: u64, what: impl Into<String>) -> Progress {
+    if !shown() {
+        return Progress(None);
+    }
+    let pb = ProgressBar::new(len);
+    let template = "{msg} [{bar:32}] {pos}/{len} ({elapsed}, {per_min}, {eta} left)";
+    if let Ok(style) = ProgressStyle::with_template(template).map(|s| {
+        s.with_key(
+            "per_min",
+            |st: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                let _ = write!(w, "{:.0}/min", st.per_sec() * 60.0);
+            },
+        )
+    }) {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_message(what.into());
+    Progress(Some(pb))
+}
+
 impl Progress {
     /// One more step done.
     pub fn inc(&self) {

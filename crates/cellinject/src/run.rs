@@ -242,7 +242,7 @@ impl Observer for Recorder<'_> {
     }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         let left = targets.iter().filter(|t| !self.done(t)).count();
-        self.bar = Some(crate::progress::bar(left as u64, "cells"));
+        self.bar = Some(crate::progress::rate_bar(left as u64, "cells"));
         Ok(())
     }
     fn done(&self, t: &Target) -> bool {
