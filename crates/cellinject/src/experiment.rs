@@ -239,35 +239,7 @@ struct CalibrationFile<T> {
 /// A hysteresis calibration file for `run`: its kind and approach checked (a file made
 /// under the other approach is not used: `None`, with a note).
 pub(crate) fn read_hysteresis(path: &Path, approach: u8) -> Result<Option<HysteresisCalibration>> {
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        InputError(format!(
-            "--calibration: cannot read `{}`: {e}",
-            path.display()
-        ))
-    })?;
-    let f: CalibrationFile<HysteresisCalibration> = serde_json::from_str(&text).map_err(|e| {
-        InputError(format!(
-            "--calibration: `{}` is not a hysteresis calibration file: {e}",
-            path.display()
-        ))
-    })?;
-    if f.kind != "hysteresis" {
-        return Err(InputError(format!(
-            "--calibration: `{}` holds a {} calibration, not a hysteresis one",
-            path.display(),
-            f.kind
-        ))
-        .into());
-    }
-    if f.made.approach != approach {
-        eprintln!(
-            "note: `{}` was made under approach {}, the bench is assembled with approach {approach}: identifying the stacks again",
-            path.display(),
-            f.made.approach
-        );
-        return Ok(None);
-    }
-    Ok(Some(f.calibration))
+    load(path, "hysteresis", approach)
 }
 
 /// Now as `YYYY-MM-DDTHH:MM:SSZ`.
@@ -351,7 +323,7 @@ fn json_bytes<T: Serialize>(v: &T) -> Result<Vec<u8>> {
 
 /// Reads a calibration file of `kind`; `Ok(None)` with a message on standard error if
 /// it was made for another bench (the caller redoes it).
-fn load<T: DeserializeOwned>(path: &Path, kind: &str, setup: &Setup) -> Result<Option<T>> {
+fn load<T: DeserializeOwned>(path: &Path, kind: &str, approach: u8) -> Result<Option<T>> {
     let text = std::fs::read_to_string(path).map_err(|e| {
         InputError(format!(
             "--calibration: cannot read `{}`: {e}",
@@ -372,12 +344,11 @@ fn load<T: DeserializeOwned>(path: &Path, kind: &str, setup: &Setup) -> Result<O
         ))
         .into());
     }
-    if kind != "pixels" && f.made.approach != setup.made.approach {
+    if kind != "pixels" && f.made.approach != approach {
         eprintln!(
-            "note: `{}` was made under approach {}, the bench is assembled with approach {}: calibrating again",
+            "note: `{}` was made under approach {}, the bench is assembled with approach {approach}: calibrating again",
             path.display(),
-            f.made.approach,
-            setup.made.approach
+            f.made.approach
         );
         return Ok(None);
     }
@@ -402,13 +373,15 @@ fn load_checked<T: DeserializeOwned>(
     let Some(p) = path else {
         return Ok(None);
     };
-    Ok(load::<T>(&p, kind, setup)?.filter(|c| match problem(c) {
-        None => true,
-        Some(why) => {
-            redo(&p, &why);
-            false
-        }
-    }))
+    Ok(
+        load::<T>(&p, kind, setup.made.approach)?.filter(|c| match problem(c) {
+            None => true,
+            Some(why) => {
+                redo(&p, &why);
+                false
+            }
+        }),
+    )
 }
 
 /// Calibration files made by a command: (name, bytes).
@@ -1135,7 +1108,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             let mut s = setup(d, twin)?;
             let zoom = s.made.zoom;
             let px = match pixels {
-                Some(p) => load::<PixelCalibration>(p, "pixels", &s)?.and_then(|c| {
+                Some(p) => load::<PixelCalibration>(p, "pixels", s.made.approach)?.and_then(|c| {
                     c.problem(zoom)
                         .map(|why| redo(p, &why))
                         .map_or(Some(c), |()| None)

@@ -347,13 +347,25 @@ pub struct ImageMap {
 }
 
 impl ImageMap {
+    /// The stage motion (m) that moves the tip by `d` pixels.
+    fn stage_delta(&self, d: [f64; 2]) -> [f64; 2] {
+        let [[a, b], [c, e]] = self.b;
+        let det = a * e - b * c;
+        [(e * d[0] - b * d[1]) / det, (-c * d[0] + a * d[1]) / det]
+    }
+
+    /// The stage position (m) that puts the resting tip at full-frame pixel `px`.
     fn stage_of(&self, px: [f64; 2]) -> [f64; 2] {
-        let [[a, b], [c, d]] = self.b;
-        let det = a * d - b * c;
-        let (u, v) = (px[0] - self.pixel0[0], px[1] - self.pixel0[1]);
+        let d = self.stage_delta([px[0] - self.pixel0[0], px[1] - self.pixel0[1]]);
+        [self.stage0[0] + d[0], self.stage0[1] + d[1]]
+    }
+
+    /// The full-frame pixel of the resting tip with the stage at `s` (m).
+    fn pixel_of(&self, s: [f64; 2]) -> [f64; 2] {
+        let (u, v) = (s[0] - self.stage0[0], s[1] - self.stage0[1]);
         [
-            self.stage0[0] + (d * u - b * v) / det,
-            self.stage0[1] + (-c * u + a * v) / det,
+            self.pixel0[0] + self.b[0][0] * u + self.b[0][1] * v,
+            self.pixel0[1] + self.b[1][0] * u + self.b[1][1] * v,
         ]
     }
 }
@@ -502,6 +514,8 @@ impl Shot {
 struct Background {
     pixels: Vec<u16>,
     width: usize,
+    /// m per pixel.
+    pixel_size: f64,
 }
 
 /// The workflow over one rig.
@@ -718,18 +732,21 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok(())
     }
 
-    fn wait(&mut self, seconds: f64) -> Result<(), WorkflowError> {
+    /// Lets `seconds` pass with the loops running; `ramp`: A3's reference moves
+    /// towards (target, speed) meanwhile.
+    fn servo_wait(&mut self, seconds: f64, ramp: Option<(f64, f64)>) -> Result<(), WorkflowError> {
         let mut s = self.servo.take().expect("servo");
-        let r = s.wait(self.rig, seconds, None);
+        let r = s.wait(self.rig, seconds, ramp);
         self.servo = Some(s);
         r
     }
 
+    fn wait(&mut self, seconds: f64) -> Result<(), WorkflowError> {
+        self.servo_wait(seconds, None)
+    }
+
     fn ramp_a3(&mut self, target: f64, speed: f64, seconds: f64) -> Result<(), WorkflowError> {
-        let mut s = self.servo.take().expect("servo");
-        let r = s.wait(self.rig, seconds, Some((target, speed)));
-        self.servo = Some(s);
-        r
+        self.servo_wait(seconds, Some((target, speed)))
     }
 
     /// Moves the stage; the deadline is the option's for moves of up to 1 mm, plus
@@ -923,6 +940,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
         self.background = Some(Background {
             pixels: shot.frame.pixels,
             width: shot.frame.width as usize,
+            pixel_size: shot.frame.pixel_size,
         });
         let mut last = String::new();
         for attempt in 0..2 {
@@ -1022,7 +1040,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 "the four-point fit leaves {residual:.2} px rms (more than 0.5)"
             )));
         }
-        let pixel = self.shoot(None)?.frame.pixel_size;
+        let pixel = self.background.as_ref().expect("background").pixel_size;
         let scale = 1.0 / pixel;
         let sx = b[0][0].hypot(b[1][0]);
         if (sx / scale - 1.0).abs() > 0.05 {
@@ -1107,12 +1125,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
 
     fn survey(&mut self) -> Result<Vec<Target>, WorkflowError> {
         let map = self.map.expect("map");
-        // The pipette out of view: one field width to the left of the plate.
-        let shot = self.shoot(None)?;
-        let fov = [
-            shot.frame.width as f64 * map.pixel_size,
-            shot.frame.height as f64 * map.pixel_size,
-        ];
+        // The background frame (taken with the pipette out of view) is the survey.
+        let (width, height) = {
+            let bg = self.background.as_ref().expect("background");
+            (bg.width as f64, (bg.pixels.len() / bg.width) as f64)
+        };
+        let fov = [width * map.pixel_size, height * map.pixel_size];
         let span = [
             self.plate.cols as f64 * self.plate.pitch,
             self.plate.rows as f64 * self.plate.pitch,
@@ -1123,21 +1141,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
             self.plate
                 .well_centre([self.plate.rows - 1, self.plate.cols - 1]),
         ];
-        let to_px = |s: [f64; 2]| {
-            let (u, v) = (s[0] - map.stage0[0], s[1] - map.stage0[1]);
-            [
-                map.pixel0[0] + map.b[0][0] * u + map.b[0][1] * v,
-                map.pixel0[1] + map.b[1][0] * u + map.b[1][1] * v,
-            ]
-        };
+        let to_px = |s: [f64; 2]| map.pixel_of(s);
         let half = 0.5 * self.plate.pitch;
         let inside = corners.iter().all(|c| {
             [[-half, -half], [half, half]].iter().all(|o| {
                 let p = to_px([c[0] + o[0], c[1] + o[1]]);
-                p[0] >= 0.0
-                    && p[1] >= 0.0
-                    && p[0] < shot.frame.width as f64
-                    && p[1] < shot.frame.height as f64
+                p[0] >= 0.0 && p[1] >= 0.0 && p[0] < width && p[1] < height
             })
         });
         if !inside {
@@ -1326,15 +1335,6 @@ impl<B: Backend> Workflow<'_, B> {
         }
     }
 
-    fn to_px(&self, s: [f64; 2]) -> [f64; 2] {
-        let m = self.map.expect("map");
-        let (u, v) = (s[0] - m.stage0[0], s[1] - m.stage0[1]);
-        [
-            m.pixel0[0] + m.b[0][0] * u + m.b[0][1] * v,
-            m.pixel0[1] + m.b[1][0] * u + m.b[1][1] * v,
-        ]
-    }
-
     /// One cell: an attempt from the stage move to the verification. Returns the
     /// attempt and, if the run must stop, why.
     fn attempt(
@@ -1442,11 +1442,7 @@ impl<B: Backend> Workflow<'_, B> {
         let pix = map.pixel_size;
         let r = 0.5 * a.target.diameter_m;
         // Directions of A1 and A3 on the stage.
-        let to_stage_dir = |v: [f64; 2]| {
-            let [[p, q], [s, t]] = map.b;
-            let det = p * t - q * s;
-            unit([(t * v[0] - q * v[1]) / det, (-s * v[0] + p * v[1]) / det])
-        };
+        let to_stage_dir = |v: [f64; 2]| unit(map.stage_delta(v));
         let (d1, d3) = (to_stage_dir(map.a1), to_stage_dir(map.a3));
         let c = a.target.stage_m;
         let back = r + o.gap;
@@ -1523,7 +1519,7 @@ impl<B: Backend> Workflow<'_, B> {
         self.fire(Event::StageArrived, why, obs, Some(&mut a.transitions))
             .map_err(Fail::Error)?;
         // Look.
-        let mut cell_px = self.to_px(c);
+        let mut cell_px = map.pixel_of(c);
         let roi_centre = [cell_px[0], cell_px[1] - 60e-6 / pix];
         let r_px = r / pix;
         let mut shot = self.shoot(Some(roi_centre))?;
