@@ -152,8 +152,9 @@ pub fn report(db: &Path, id: Option<i64>, out: &Path) -> Result<PathBuf> {
         title: title.into(),
         x_label: x.into(),
         y_label: y.into(),
+        // One series: no legend (an unnamed series gets none), the title says it.
         series: vec![Series {
-            name: title.into(),
+            name: String::new(),
             points: pts,
             style: Style::Line,
         }],
