@@ -38,6 +38,10 @@ pub struct RunArgs {
     /// Injected volume, fraction of each cell's volume.
     #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
     dose: f64,
+    /// Farthest the aim may move off a cell's centre, fraction of its radius, to pass a
+    /// touching neighbour in the pipette's path (the twin's membrane tears past 0.6).
+    #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
+    max_off_centre: f64,
     /// Inject a fault into the twin: KIND@CELL, KIND one of clog, hard-clog, break,
     /// move, dark, stall; CELL the plate file's cell index (repeatable).
     #[arg(long, value_name = "KIND@CELL")]
@@ -318,6 +322,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let options = Options {
         target_fraction: args.dose,
+        max_off_centre: args.max_off_centre,
         ..Options::default()
     };
     options

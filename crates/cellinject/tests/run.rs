@@ -143,6 +143,8 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
         (vec!["run", "--fault", "melt@1"], "--fault"),
         (vec!["run", "--dose", "NaN"], "--dose"),
         (vec!["run", "--dose", "0.5"], "--dose"),
+        (vec!["run", "--max-off-centre", "0.7"], "--max-off-centre"),
+        (vec!["run", "--max-off-centre", "-0.1"], "--max-off-centre"),
         (
             vec!["runs", "show", "--db", "missing.sqlite"],
             "missing.sqlite",

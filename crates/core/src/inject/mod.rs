@@ -57,6 +57,10 @@ pub struct Options {
     pub stage_deadline: f64,
     /// Excitation samples (1 ms apart) of the hysteresis identification.
     pub hysteresis_samples: usize,
+    /// Farthest the aim may move sideways off the cell's centre, fraction of its
+    /// radius, to pass a touching neighbour that blocks the straight approach; keep it
+    /// below the membrane's tear limit with room for the tip error.
+    pub max_off_centre: f64,
 }
 
 impl Default for Options {
@@ -73,6 +77,7 @@ impl Default for Options {
             align_tolerance: 0.15e-6,
             stage_deadline: 2.0,
             hysteresis_samples: 20_000,
+            max_off_centre: 0.3,
         }
     }
 }
@@ -116,6 +121,13 @@ impl Options {
                 "--lift",
                 self.lift,
                 "must lie in [16 um, 1 mm] (above the largest cell's radius)",
+            );
+        }
+        if !(self.max_off_centre.is_finite() && (0.0..=0.6).contains(&self.max_off_centre)) {
+            return bad(
+                "--max-off-centre",
+                self.max_off_centre,
+                "must lie in [0, 0.6] of the cell's radius",
             );
         }
         if !(self.stage_deadline.is_finite() && self.stage_deadline > 0.0) {
@@ -1449,8 +1461,8 @@ impl<B: Backend> Workflow<'_, B> {
         let lead = 1.5e-6;
         // The path from the start to the aim must not pass within 0.6 um (the tip's
         // radius and a margin) of another cell; if a touching neighbour is in the way,
-        // the aim may move sideways by up to 0.3 of the radius (the membrane takes an
-        // entry that far off-centre), else the cell is skipped.
+        // the aim may move sideways by up to `max_off_centre` of the radius (the membrane
+        // takes an entry that far off-centre), else the cell is skipped.
         let clear = |shift: f64| -> Result<(), (usize, f64)> {
             let aim = [c[0] + d1[0] * shift, c[1] + d1[1] * shift];
             let start = [aim[0] - d3[0] * back, aim[1] - d3[1] * back];
@@ -1471,7 +1483,12 @@ impl<B: Backend> Workflow<'_, B> {
         };
         let mut shift = None;
         let mut blocked = None;
-        for k in [0.0, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3] {
+        let steps = (o.max_off_centre / 0.05 + 1e-9).floor() as usize;
+        let shifts = (0..=2 * steps).map(|j| {
+            let k = j.div_ceil(2) as f64 * 0.05;
+            if j % 2 == 0 { -k } else { k }
+        });
+        for k in shifts {
             match clear(k * r) {
                 Ok(()) => {
                     shift = Some(k * r);
@@ -1485,11 +1502,12 @@ impl<B: Backend> Workflow<'_, B> {
             let (k, gap) = blocked.unwrap_or((0, 0.0));
             let other = self.survey_cells[k];
             return Err(Fail::Cell(format!(
-                "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path, even 0.3 radius off-centre)",
+                "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
                 other.index,
                 other.well[0],
                 other.well[1],
-                gap * 1e6
+                gap * 1e6,
+                o.max_off_centre
             )));
         };
         let start = [
