@@ -17,9 +17,12 @@ use cellinject_core::experiment::{
     TrackingReport,
 };
 use cellinject_core::vision::Acquisition;
+use cellinject_hw::Optics as _;
 use cellinject_plot::{Chart, Series, Style};
-use cellinject_rig::Rig;
-use cellinject_twin::{SharedTwin, TwinBackend};
+use cellinject_rig::{DynBackend, Rig};
+use cellinject_twin::SharedTwin;
+
+use crate::backend::BackendArgs;
 use clap::{Args, Subcommand, ValueEnum};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -71,6 +74,8 @@ pub struct BenchArgs {
     latency: f64,
     #[command(flatten)]
     twin: TwinArgs,
+    #[command(flatten)]
+    backend: BackendArgs,
 }
 
 /// The experiments.
@@ -162,6 +167,8 @@ pub enum CalibrateCommand {
         out: PathBuf,
         #[command(flatten)]
         twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
     },
     /// How each tilt stack moves the tip: the 2x2 Jacobian, checked against the model.
     #[command(
@@ -182,6 +189,8 @@ pub enum CalibrateCommand {
         out: PathBuf,
         #[command(flatten)]
         twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
     },
     /// The tilt stacks' hysteresis (Preisach) and creep from their position sensors.
     #[command(after_help = "Examples:\n  cellinject calibrate hysteresis --out hysteresis.json")]
@@ -197,6 +206,8 @@ pub enum CalibrateCommand {
         out: PathBuf,
         #[command(flatten)]
         twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
     },
     /// All three, into one directory (what `experiment --calibration DIR` reads).
     #[command(after_help = "Examples:\n  cellinject calibrate all --out calibration")]
@@ -206,6 +217,8 @@ pub enum CalibrateCommand {
         out: PathBuf,
         #[command(flatten)]
         twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
     },
 }
 
@@ -269,41 +282,46 @@ fn utc_now() -> String {
 
 /// The bench a command runs on.
 struct Setup {
-    twin: SharedTwin,
-    rig: Rig<TwinBackend>,
+    /// The twin, when it is the backend (its truth).
+    twin: Option<SharedTwin>,
+    rig: Rig<DynBackend>,
     made: Made,
     description: Description,
 }
 
-fn setup(d: &Description, args: &TwinArgs) -> Result<Setup> {
-    let (twin, rig) = crate::sim::build(d, args)?;
-    let (approach, seed, zoom) = {
-        let t = twin.lock().unwrap_or_else(|e| e.into_inner());
-        let p = t.world.params();
-        (p.rig.approach, p.sim.seed, t.camera.zoom())
+fn setup(d: &Description, args: &TwinArgs, backend: &BackendArgs) -> Result<Setup> {
+    let o = crate::backend::open(d, args, backend)?;
+    let (seed, zoom) = match &o.twin {
+        Some(twin) => {
+            let t = twin.lock().unwrap_or_else(|e| e.into_inner());
+            (Some(t.world.params().sim.seed), t.camera.zoom())
+        }
+        None => (None, o.rig.optics.zoom()),
     };
     let mut description = d.clone();
-    description.rig.approach = approach;
+    description.rig.approach = o.approach;
     Ok(Setup {
-        twin,
-        rig,
+        twin: o.twin,
+        rig: o.rig,
         made: Made {
             created_utc: utc_now(),
-            backend: "twin".into(),
+            backend: o.name,
             design: d.name.clone(),
-            approach: approach.number(),
-            seed: Some(seed),
+            approach: o.approach.number(),
+            seed,
             zoom,
         },
         description,
     })
 }
 
-fn truth(twin: &SharedTwin) -> Box<dyn FnMut() -> [f64; 3] + '_> {
-    Box::new(move || {
+/// The twin's truth of the tip position, when the backend is the twin.
+fn truth(twin: &Option<SharedTwin>) -> Option<Box<dyn FnMut() -> [f64; 3] + '_>> {
+    let twin = twin.as_ref()?;
+    Some(Box::new(move || {
         let p = twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
         [p.x, p.depth, p.z]
-    })
+    }))
 }
 
 /// Bench errors are the user's to fix (arguments, refusals) or the bench's (a check
@@ -642,7 +660,7 @@ fn range(d: &Description, sweep: f64, args: &BenchArgs) -> Result<()> {
         return Err(InputError(format!("--sweep must lie in [0.5, 600] s, got {sweep}")).into());
     }
     check_out(args)?;
-    let mut s = setup(d, &args.twin)?;
+    let mut s = setup(d, &args.twin, &args.backend)?;
     let (pixels, _cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
     let marker = s.description.rig.optics.marker;
     let r = {
@@ -652,7 +670,7 @@ fn range(d: &Description, sweep: f64, args: &BenchArgs) -> Result<()> {
             Acquisition::Wide,
             marker,
             pixels.maps,
-            Some(truth(&s.twin)),
+            truth(&s.twin),
             timing(args),
         )
         .map_err(bench_error)?;
@@ -770,7 +788,7 @@ fn repeatability(
 ) -> Result<()> {
     opts.check().map_err(bench_error)?;
     check_out(args)?;
-    let mut s = setup(d, &args.twin)?;
+    let mut s = setup(d, &args.twin, &args.backend)?;
     let (pixels, cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
     let stacks = experiment::stacks(&s.description.design, &s.description.rig, &cal.hysteresis);
     let mut controller = experiment::controller(kind, stacks, &cal)
@@ -784,7 +802,7 @@ fn repeatability(
             Acquisition::Marker,
             marker,
             pixels.maps,
-            Some(truth(&s.twin)),
+            truth(&s.twin),
             timing(args),
         )
         .map_err(bench_error)?;
@@ -925,7 +943,7 @@ fn repeatability_chart(r: &RepeatabilityReport) -> Chart {
 fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs) -> Result<()> {
     opts.check().map_err(bench_error)?;
     check_out(args)?;
-    let mut s = setup(d, &args.twin)?;
+    let mut s = setup(d, &args.twin, &args.backend)?;
     let (pixels, cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
     let stacks = experiment::stacks(&s.description.design, &s.description.rig, &cal.hysteresis);
     let mut controller = experiment::controller(kind, stacks, &cal)
@@ -939,7 +957,7 @@ fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs
             Acquisition::Marker,
             marker,
             pixels.maps,
-            Some(truth(&s.twin)),
+            truth(&s.twin),
             timing(args),
         )
         .map_err(bench_error)?;
@@ -1063,9 +1081,14 @@ fn tracking_charts(r: &TrackingReport) -> Vec<Chart> {
 /// Runs a `calibrate` command.
 pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
     match cmd {
-        CalibrateCommand::Pixels { step, out, twin } => {
+        CalibrateCommand::Pixels {
+            step,
+            out,
+            twin,
+            backend,
+        } => {
             let path = plan_json(out, None)?;
-            let mut s = setup(d, twin)?;
+            let mut s = setup(d, twin, backend)?;
             let marker = s.description.rig.optics.marker;
             let c = {
                 let _p = crate::progress::spinner("calibrating the cameras' pixels");
@@ -1097,6 +1120,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             repeats,
             out,
             twin,
+            backend,
         } => {
             if !(volts.is_finite() && *volts > 0.0 && *volts <= 30.0) {
                 return Err(InputError(format!(
@@ -1105,7 +1129,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
                 .into());
             }
             let path = plan_json(out, pixels.as_deref().map(|p| ("--pixels", p)))?;
-            let mut s = setup(d, twin)?;
+            let mut s = setup(d, twin, backend)?;
             let zoom = s.made.zoom;
             let px = match pixels {
                 Some(p) => load::<PixelCalibration>(p, "pixels", s.made.approach)?.and_then(|c| {
@@ -1170,9 +1194,10 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             size,
             out,
             twin,
+            backend,
         } => {
             let path = plan_json(out, None)?;
-            let mut s = setup(d, twin)?;
+            let mut s = setup(d, twin, backend)?;
             let c = {
                 let _p = crate::progress::spinner("exciting A1 and A2");
                 calibrate::hysteresis(&mut s.rig, *samples as usize, *size as usize)
@@ -1195,9 +1220,9 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             outln!("wrote {}", path.display());
             Ok(())
         }
-        CalibrateCommand::All { out, twin } => {
+        CalibrateCommand::All { out, twin, backend } => {
             make_dir("--out", out)?;
-            let mut s = setup(d, twin)?;
+            let mut s = setup(d, twin, backend)?;
             let (_, _, made) = calibrations(&mut s, None)?;
             let mut o = Outputs::new();
             for (name, bytes) in made {

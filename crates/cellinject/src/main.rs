@@ -15,8 +15,10 @@ macro_rules! outln {
     }};
 }
 
+mod backend;
 mod commands;
 mod dic;
+mod emulate;
 mod experiment;
 mod fea;
 mod files;
@@ -149,6 +151,9 @@ enum Command {
         after_help = "Examples:\n  cellinject runs list\n  cellinject runs show --run 2\n  cellinject runs export --format csv > attempts.csv"
     )]
     Runs(run::RunsCommand),
+    /// Emulated hardware backed by the twin, for drivers and third-party clients.
+    #[command(subcommand)]
+    Emulate(emulate::EmulateCommand),
     /// A run's records as one self-contained HTML page: plate map, tip-error and dose histograms, throughput, settings and calibrations.
     #[command(
         after_help = "Examples:\n  cellinject report --out report\n  cellinject report --db runs.sqlite --run 2 --out run2"
@@ -232,6 +237,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             hinge::table(&args)
         }
         Some(Command::Run(args)) => run::run(&description()?, &args),
+        Some(Command::Emulate(cmd)) => emulate::run(&description()?, &cmd),
         Some(Command::Report { db, run, out }) => {
             unused_config();
             let f = report::report(&db, run, &out)?;

@@ -46,6 +46,8 @@ pub struct RunArgs {
     /// move, dark, stall; CELL the plate file's cell index (repeatable).
     #[arg(long, value_name = "KIND@CELL")]
     fault: Vec<String>,
+    #[command(flatten)]
+    backend: crate::backend::BackendArgs,
     /// What to print.
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
@@ -95,7 +97,7 @@ pub enum RunsCommand {
     },
 }
 
-fn parse_fault(s: &str) -> Result<Fault> {
+pub(crate) fn parse_fault(s: &str) -> Result<Fault> {
     let bad = || {
         InputError(format!(
             "--fault `{s}`: expected KIND@CELL with KIND one of clog, hard-clog, break, move, dark, stall (e.g. clog@3)"
@@ -146,6 +148,8 @@ pub(crate) fn records_error(e: RecordsError) -> anyhow::Error {
 struct Summary {
     run: i64,
     status: String,
+    /// `twin` or the controller's address (`gcs://...`).
+    backend: String,
     cells_found: i64,
     injected: usize,
     failed: usize,
@@ -163,6 +167,7 @@ fn summary(run: &RunRow, attempts: Vec<AttemptRow>) -> Summary {
     Summary {
         run: run.id,
         status: run.status.clone(),
+        backend: run.backend.clone(),
         cells_found: run.cells_found,
         injected: n("injected"),
         failed: n("failed"),
@@ -182,7 +187,8 @@ fn summary(run: &RunRow, attempts: Vec<AttemptRow>) -> Summary {
 
 /// The twin's truth and the run records, as the workflow's observer.
 struct Recorder<'a> {
-    twin: SharedTwin,
+    /// The twin, when it is the backend (else no truth).
+    twin: Option<SharedTwin>,
     plate: Plate,
     db: &'a mut Records,
     run: i64,
@@ -216,7 +222,11 @@ impl Recorder<'_> {
 
     /// The twin's cell nearest to a target (plate coordinates).
     fn nearest(&self, t: &Target) -> Option<cellinject_twin::CellState> {
-        let twin = self.twin.lock().unwrap_or_else(|e| e.into_inner());
+        let twin = self
+            .twin
+            .as_ref()?
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
         let b = twin.biology.as_ref()?;
         let p = [t.x_m + self.plate.origin[0], t.y_m + self.plate.origin[1]];
         b.cells
@@ -233,7 +243,11 @@ impl Recorder<'_> {
 impl Observer for Recorder<'_> {
     fn transition(&mut self, t: &Transition) {
         if std::env::var_os("CELLINJECT_DEBUG").is_some() {
-            let tip = self.twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
+            let Some(twin) = &self.twin else {
+                eprintln!("{:?} -> {:?}: {}", t.from, t.to, t.reason);
+                return;
+            };
+            let tip = twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
             eprintln!(
                 "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um]",
                 t.from,
@@ -282,7 +296,12 @@ impl Observer for Recorder<'_> {
     }
     fn tip_error(&mut self, t: &Target) -> Option<f64> {
         let c = self.nearest(t)?;
-        let tip = self.twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
+        let tip = self
+            .twin
+            .as_ref()?
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .tip();
         if std::env::var_os("CELLINJECT_DEBUG").is_some() {
             eprintln!(
                 "tip - cell: ({:.2}, {:.2}) um; target ({:.2}, {:.2}) um vs true ({:.2}, {:.2})",
@@ -328,6 +347,26 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     options
         .check(&d.rig)
         .map_err(|e| InputError(e.to_string()))?;
+    if !args.backend.is_twin() {
+        if !faults.is_empty() {
+            return Err(InputError(
+                "--fault injects faults into the twin: with a GCS backend give them to the emulator (`cellinject emulate gcs --fault`)".into(),
+            )
+            .into());
+        }
+        if args.plate.is_none() && !args.resume {
+            return Err(InputError(
+                "with a GCS backend give --plate: the plate file under the microscope (`cellinject emulate gcs --plate` for the emulator)".into(),
+            )
+            .into());
+        }
+        if args.seed.is_some() {
+            return Err(InputError(
+                "--seed seeds the twin: with a GCS backend seed the emulator (`cellinject emulate gcs --seed`)".into(),
+            )
+            .into());
+        }
+    }
     let hysteresis = match &args.calibration {
         None => None,
         Some(p) => crate::experiment::read_hysteresis(p, d.rig.approach.number())?,
@@ -365,6 +404,13 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
                 "--seed {s} is not run {}'s seed {} (resume takes it from the database: leave --seed out)",
                 r.id,
                 r.seed.map_or("(none)".to_string(), |s| s.to_string())
+            ))
+            .into());
+        }
+        if r.backend != args.backend.backend {
+            return Err(InputError(format!(
+                "--backend {} is not run {}'s backend {} (resume on the same hardware)",
+                args.backend.backend, r.id, r.backend
             ))
             .into());
         }
@@ -406,7 +452,13 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             .map(|d| d.as_secs() as i64)
             .unwrap_or(0);
         let id = db
-            .create_run(&text, Some(seed), "twin", &settings, created)
+            .create_run(
+                &text,
+                args.backend.is_twin().then_some(seed),
+                &args.backend.backend,
+                &settings,
+                created,
+            )
             .map_err(records_error)?;
         (id, text, seed, Vec::new(), (0.0, 0.0))
     };
@@ -424,18 +476,25 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     plate
         .check()
         .map_err(|e| InputError(format!("plate: {e}")))?;
-    let targs = crate::sim::TwinArgs::with_seed(seed);
-    let (twin, mut rig) = crate::sim::build(d, &targs)?;
-    {
-        let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
-        t.load_plate(&plate);
-        t.set_faults(&faults)
-            .map_err(|e| InputError(format!("--fault: {e}")))?;
-        // The macro stage starts with the pipette lifted above the plate.
-        t.world.stage.place(1, options.focus + options.lift);
-    }
+    let (twin, mut rig) = if args.backend.is_twin() {
+        let o = crate::backend::open(d, &crate::sim::TwinArgs::with_seed(seed), &args.backend)?;
+        let twin = o.twin.expect("the twin backend has a twin");
+        {
+            let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
+            t.load_plate(&plate);
+            t.set_faults(&faults)
+                .map_err(|e| InputError(format!("--fault: {e}")))?;
+            // The macro stage starts with the pipette lifted above the plate.
+            t.world.stage.place(1, options.focus + options.lift);
+        }
+        (Some(twin), o.rig)
+    } else {
+        // The emulator (or the real bench) holds the plate and the stage's start.
+        let o = crate::backend::open(d, &crate::sim::TwinArgs::new(None, None), &args.backend)?;
+        (None, o.rig)
+    };
     let mut rec = Recorder {
-        twin: twin.clone(),
+        twin,
         plate: plate.clone(),
         db: &mut db,
         run: run_id,
@@ -502,12 +561,19 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
 }
 
 fn print_text(s: &Summary) {
-    let real = |a: &&AttemptRow| a.tip_error_m.is_some();
+    // The twin's truth, else what the camera measured.
+    let twin = s.backend == "twin";
     let errs: Vec<f64> = s
         .attempts
         .iter()
-        .filter(real)
-        .filter_map(|a| a.tip_error_m)
+        .filter(|a| a.outcome == "injected")
+        .filter_map(|a| {
+            if twin {
+                a.tip_error_m
+            } else {
+                a.measured_tip_error_m
+            }
+        })
         .collect();
     let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
     outln!(
@@ -523,11 +589,24 @@ fn print_text(s: &Summary) {
     let tip = if errs.is_empty() {
         "no injection".to_string()
     } else {
-        format!("mean tip error at injection {:.2} µm", mean * 1e6)
+        format!(
+            "mean tip error at injection {:.2} µm{}",
+            mean * 1e6,
+            if twin {
+                ""
+            } else {
+                " (as the camera measured it)"
+            }
+        )
     };
     outln!(
-        "{:.1} s simulated ({:.1} s on cells): {:.1} cells per minute; {tip}",
+        "{:.1} s {} ({:.1} s on cells): {:.1} cells per minute; {tip}",
         s.sim_time_s,
+        if twin {
+            "simulated"
+        } else {
+            "on the bench's clock"
+        },
         s.cell_time_s,
         s.cells_per_min
     );

@@ -43,6 +43,25 @@ impl TwinArgs {
         }
     }
 
+    /// This approach and seed (each `None`: the description's), text output.
+    pub(crate) fn new(approach: Option<u8>, seed: Option<u64>) -> Self {
+        TwinArgs {
+            approach,
+            seed,
+            format: Format::Text,
+        }
+    }
+
+    /// Whether `--seed` was given.
+    pub(crate) fn seed_given(&self) -> bool {
+        self.seed.is_some()
+    }
+
+    /// The approach `--approach` asked for.
+    pub(crate) fn approach_given(&self) -> Option<Approach> {
+        self.approach.and_then(Approach::from_number)
+    }
+
     /// The output format asked for.
     pub(crate) fn format(&self) -> Format {
         self.format

@@ -147,9 +147,11 @@ impl Bench {
     /// Connects to `address` (`host:port`); every reply must come within `timeout`
     /// (frames and pulses add their own duration).
     pub fn connect(address: &str, timeout: Duration) -> Result<Self, HwError> {
-        let s = TcpStream::connect(address).map_err(|e| device(address, format!("cannot connect: {e}")))?;
+        let s = TcpStream::connect(address)
+            .map_err(|e| device(address, format!("cannot connect: {e}")))?;
         s.set_nodelay(true).map_err(|e| device(address, e))?;
-        s.set_read_timeout(Some(timeout)).map_err(|e| device(address, e))?;
+        s.set_read_timeout(Some(timeout))
+            .map_err(|e| device(address, e))?;
         let writer = s.try_clone().map_err(|e| device(address, e))?;
         Ok(Bench {
             conn: Arc::new(Mutex::new(Conn {
@@ -181,7 +183,12 @@ impl Bench {
         match c.reader.read_line(&mut answer) {
             Ok(0) => return Err(device(&c.address, "the emulator closed the connection")),
             Ok(_) => {}
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
                 return Err(HwError::Timeout {
                     device: format!("bench {}", c.address),
                     seconds: c.timeout.as_secs_f64(),
@@ -201,16 +208,20 @@ impl Bench {
 
     fn number(&self, req: &Request) -> Result<f64, HwError> {
         let v = self.request(req)?;
-        v.as_f64().ok_or_else(|| device("", format!("{req:?}: expected a number, got {v}")))
+        v.as_f64()
+            .ok_or_else(|| device("", format!("{req:?}: expected a number, got {v}")))
     }
 
     fn grab(&self, view: ViewName, frame: &mut Frame) -> Result<(), HwError> {
         let mut c = self.lock();
         let v = Self::exchange(&mut c, &Request::Grab { view })?;
-        let h: FrameHeader =
-            serde_json::from_value(v).map_err(|e| device(&c.address, format!("frame header: {e}")))?;
+        let h: FrameHeader = serde_json::from_value(v)
+            .map_err(|e| device(&c.address, format!("frame header: {e}")))?;
         if h.bytes != 2 * (h.width as usize) * (h.height as usize) {
-            return Err(device(&c.address, format!("frame of {}x{} with {} bytes", h.width, h.height, h.bytes)));
+            return Err(device(
+                &c.address,
+                format!("frame of {}x{} with {} bytes", h.width, h.height, h.bytes),
+            ));
         }
         let mut bytes = vec![0u8; h.bytes];
         c.reader
@@ -224,9 +235,11 @@ impl Bench {
         frame.pixel_size = h.pixel_size;
         frame.index = h.index;
         frame.pixels.clear();
-        frame
-            .pixels
-            .extend(bytes.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])));
+        frame.pixels.extend(
+            bytes
+                .chunks_exact(2)
+                .map(|b| u16::from_le_bytes([b[0], b[1]])),
+        );
         Ok(())
     }
 
@@ -237,7 +250,12 @@ impl Bench {
             view,
             sensor: (0, 0),
             settings: CameraSettings {
-                roi: Roi { x: 0, y: 0, width: 0, height: 0 },
+                roi: Roi {
+                    x: 0,
+                    y: 0,
+                    width: 0,
+                    height: 0,
+                },
                 binning: 1,
                 exposure: 0.0,
                 bit_depth: 8,
@@ -259,7 +277,10 @@ impl Bench {
                     .map_err(|e| device("stage", e))
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(BenchStage { bench: self.clone(), travel })
+        Ok(BenchStage {
+            bench: self.clone(),
+            travel,
+        })
     }
 
     /// The injector.
@@ -284,7 +305,10 @@ impl Bench {
     /// A wall clock reading the emulator's time.
     pub fn clock(&self) -> Result<WallClock, HwError> {
         let t = self.number(&Request::Time)?;
-        Ok(WallClock { origin: t, start: Instant::now() })
+        Ok(WallClock {
+            origin: t,
+            start: Instant::now(),
+        })
     }
 }
 
@@ -299,14 +323,21 @@ pub struct BenchCamera {
 
 impl BenchCamera {
     fn refresh(&mut self) -> Result<(), HwError> {
-        let v = self.bench.request(&Request::CameraInfo { view: self.view })?;
+        let v = self
+            .bench
+            .request(&Request::CameraInfo { view: self.view })?;
         let get = |k: &str| v.get(k).cloned().unwrap_or(Value::Null);
         let bad = |e| device("camera", e);
         let sensor: [u32; 2] = serde_json::from_value(get("sensor")).map_err(bad)?;
         let roi: [u32; 4] = serde_json::from_value(get("roi")).map_err(bad)?;
         self.sensor = (sensor[0], sensor[1]);
         self.settings = CameraSettings {
-            roi: Roi { x: roi[0], y: roi[1], width: roi[2], height: roi[3] },
+            roi: Roi {
+                x: roi[0],
+                y: roi[1],
+                width: roi[2],
+                height: roi[3],
+            },
             binning: serde_json::from_value(get("binning")).map_err(bad)?,
             exposure: serde_json::from_value(get("exposure")).map_err(bad)?,
             bit_depth: serde_json::from_value(get("bit_depth")).map_err(bad)?,
@@ -357,14 +388,17 @@ impl Stage for BenchStage {
     fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
         let (lo, hi) = self.travel(axis);
         check_range("stage position", position, lo, hi)?;
-        self.bench.request(&Request::StageMove { axis, position }).map(|_| ())
+        self.bench
+            .request(&Request::StageMove { axis, position })
+            .map(|_| ())
     }
     fn position(&mut self, axis: usize) -> Result<f64, HwError> {
         self.bench.number(&Request::StagePosition { axis })
     }
     fn is_busy(&mut self) -> Result<bool, HwError> {
         let v = self.bench.request(&Request::StageBusy)?;
-        v.as_bool().ok_or_else(|| device("stage", format!("busy: expected a boolean, got {v}")))
+        v.as_bool()
+            .ok_or_else(|| device("stage", format!("busy: expected a boolean, got {v}")))
     }
 }
 
@@ -381,7 +415,9 @@ impl Injector for BenchInjector {
     fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
         check_range("pressure", pressure, 0.0, self.max)?;
         check_range("pulse duration", duration, 0.0, 10.0)?;
-        self.bench.request(&Request::Pulse { pressure, duration }).map(|_| ())
+        self.bench
+            .request(&Request::Pulse { pressure, duration })
+            .map(|_| ())
     }
 }
 
@@ -416,7 +452,10 @@ pub struct WallClock {
 impl WallClock {
     /// A wall clock starting at 0 now (for real benches).
     pub fn new() -> Self {
-        WallClock { origin: 0.0, start: Instant::now() }
+        WallClock {
+            origin: 0.0,
+            start: Instant::now(),
+        }
     }
 }
 

@@ -235,7 +235,12 @@ impl Controller {
                 return None;
             };
             match p[1].parse::<f64>() {
-                Ok(v) if v.is_finite() && p[1].bytes().all(|b| b.is_ascii_digit() || b"+-.eE".contains(&b)) => {
+                Ok(v)
+                    if v.is_finite()
+                        && p[1]
+                            .bytes()
+                            .all(|b| b.is_ascii_digit() || b"+-.eE".contains(&b)) =>
+                {
                     out.push((k, v))
                 }
                 _ => {
@@ -247,7 +252,11 @@ impl Controller {
         Some(out)
     }
 
-    fn per_axis(&mut self, args: &[&str], value: impl Fn(&mut Self, usize) -> String) -> Option<String> {
+    fn per_axis(
+        &mut self,
+        args: &[&str],
+        value: impl Fn(&mut Self, usize) -> String,
+    ) -> Option<String> {
         let axes = self.query_axes(args)?;
         let lines: Vec<String> = axes
             .iter()
@@ -258,7 +267,9 @@ impl Controller {
 
     /// `#5`: bit k set while axis k+1 moves (hexadecimal, no prefix).
     pub fn moving_mask(&self) -> u32 {
-        (0..3).filter(|&k| self.moving(k)).fold(0, |m, k| m | 1 << k)
+        (0..3)
+            .filter(|&k| self.moving(k))
+            .fold(0, |m, k| m | 1 << k)
     }
 
     /// Stops every axis where its sensor is (`#24`, `STP`, `HLT`): error 10.
@@ -327,7 +338,11 @@ impl Controller {
                         self.raise(code::SERVO_OFF);
                         return None;
                     }
-                    let t = if cmd == "MVR" { self.axes[k].target + v } else { v };
+                    let t = if cmd == "MVR" {
+                        self.axes[k].target + v
+                    } else {
+                        v
+                    };
                     if !(0.0..=self.travel[k]).contains(&t) {
                         self.raise(code::OUT_OF_LIMITS);
                         return None;
@@ -366,8 +381,11 @@ impl Controller {
                     }
                 }
                 for (k, v) in pairs {
-                    if let Err(HwError::Refused(_) | HwError::OutOfRange { .. } | HwError::NotFinite { .. }) =
-                        self.rig.piezo[k].set_voltage(v)
+                    if let Err(
+                        HwError::Refused(_)
+                        | HwError::OutOfRange { .. }
+                        | HwError::NotFinite { .. },
+                    ) = self.rig.piezo[k].set_voltage(v)
                     {
                         self.raise(code::RANGE);
                         return None;

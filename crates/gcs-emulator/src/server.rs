@@ -133,7 +133,10 @@ fn accept(s: &Arc<Shared>, l: &TcpListener, mut handle: impl FnMut(&Shared, TcpS
         match l.accept() {
             Ok((stream, peer)) => {
                 if s.log {
-                    eprintln!("emulator: {peer} connected to {}", l.local_addr().map(|a| a.to_string()).unwrap_or_default());
+                    eprintln!(
+                        "emulator: {peer} connected to {}",
+                        l.local_addr().map(|a| a.to_string()).unwrap_or_default()
+                    );
                 }
                 let _ = stream.set_nonblocking(false);
                 let _ = stream.set_nodelay(true);
@@ -157,7 +160,16 @@ fn serve_gcs(s: &Shared, mut stream: TcpStream) {
         let n = match stream.read(&mut chunk) {
             Ok(0) => return,
             Ok(n) => n,
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted) => continue,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::TimedOut
+                        | std::io::ErrorKind::Interrupted
+                ) =>
+            {
+                continue;
+            }
             Err(_) => return,
         };
         out.clear();
@@ -206,7 +218,9 @@ fn view_of(v: ViewName) -> usize {
 }
 
 fn serve_bench(s: &Shared, stream: TcpStream, d: &mut cellinject_rig::Devices<TwinBackend>) {
-    let Ok(mut writer) = stream.try_clone() else { return };
+    let Ok(mut writer) = stream.try_clone() else {
+        return;
+    };
     let mut reader = BufReader::new(stream);
     let mut line = String::new();
     let mut frame = Frame::default();
@@ -215,7 +229,16 @@ fn serve_bench(s: &Shared, stream: TcpStream, d: &mut cellinject_rig::Devices<Tw
         match reader.read_line(&mut line) {
             Ok(0) => return,
             Ok(_) => {}
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted) => continue,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::TimedOut
+                        | std::io::ErrorKind::Interrupted
+                ) =>
+            {
+                continue;
+            }
             Err(_) => return,
         }
         if line.len() > 64 * 1024 {
@@ -225,7 +248,10 @@ fn serve_bench(s: &Shared, stream: TcpStream, d: &mut cellinject_rig::Devices<Tw
         let req: Request = match serde_json::from_str(line.trim_end()) {
             Ok(r) => r,
             Err(e) => {
-                if writer.write_all(bench::error(format!("bad request: {e}")).as_bytes()).is_err() {
+                if writer
+                    .write_all(bench::error(format!("bad request: {e}")).as_bytes())
+                    .is_err()
+                {
                     return;
                 }
                 continue;
@@ -245,7 +271,11 @@ fn serve_bench(s: &Shared, stream: TcpStream, d: &mut cellinject_rig::Devices<Tw
 }
 
 fn camera(d: &mut cellinject_rig::Devices<TwinBackend>, v: ViewName) -> &mut TwinCamera {
-    if view_of(v) == 0 { &mut d.camera } else { &mut d.side_camera }
+    if view_of(v) == 0 {
+        &mut d.camera
+    } else {
+        &mut d.side_camera
+    }
 }
 
 fn handle_bench(
@@ -273,11 +303,22 @@ fn handle_bench(
                 "frame_rate": cam.frame_rate(),
             }))
         }
-        Request::CameraConfigure { view, roi, binning, exposure, bit_depth } => {
+        Request::CameraConfigure {
+            view,
+            roi,
+            binning,
+            exposure,
+            bit_depth,
+        } => {
             let _c = s.sync();
             r(camera(d, view)
                 .configure(CameraSettings {
-                    roi: Roi { x: roi[0], y: roi[1], width: roi[2], height: roi[3] },
+                    roi: Roi {
+                        x: roi[0],
+                        y: roi[1],
+                        width: roi[2],
+                        height: roi[3],
+                    },
                     binning,
                     exposure,
                     bit_depth,
@@ -324,7 +365,10 @@ fn handle_bench(
         Request::StageMove { axis, position } => {
             let _c = s.sync();
             if axis >= d.stage.axes() {
-                return bench::error(format!("stage axis {axis} does not exist (0..{})", d.stage.axes()));
+                return bench::error(format!(
+                    "stage axis {axis} does not exist (0..{})",
+                    d.stage.axes()
+                ));
             }
             r(d.stage.move_to(axis, position).map(|()| json!(null)))
         }

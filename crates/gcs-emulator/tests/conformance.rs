@@ -27,7 +27,9 @@ fn connect(e: &Running) -> Gcs {
 }
 
 fn code(r: Result<(), GcsError>) -> Option<i32> {
-    r.err().and_then(|e| e.controller_error()).map(ControllerError::code)
+    r.err()
+        .and_then(|e| e.controller_error())
+        .map(ControllerError::code)
 }
 
 #[test]
@@ -35,7 +37,11 @@ fn identification_axes_and_limits() {
     let e = emulator();
     let mut g = connect(&e);
     assert_eq!(g.identify().unwrap(), IDN);
-    assert_eq!(IDN.split(", ").count(), 4, "vendor, model, serial, firmware");
+    assert_eq!(
+        IDN.split(", ").count(),
+        4,
+        "vendor, model, serial, firmware"
+    );
     assert_eq!(g.syntax_version().unwrap(), "2.0");
     assert_eq!(g.axes().unwrap(), vec!["1", "2", "3"]);
     assert_eq!(g.raw("SAI? ALL").unwrap(), vec!["1", "2", "3"]);
@@ -151,7 +157,11 @@ fn every_error_code_is_raised_and_read_back() {
     assert_eq!(code(g.raw("FLY 2 1").map(|_| ())), Some(2));
     assert_eq!(code(g.raw("SVO 7 1").map(|_| ())), Some(15));
     let q = g.raw("POS? 9").unwrap_err();
-    assert_eq!(q.controller_error(), Some(ControllerError::InvalidAxis), "{q}");
+    assert_eq!(
+        q.controller_error(),
+        Some(ControllerError::InvalidAxis),
+        "{q}"
+    );
     // 10: stopped, by HLT, STP and #24 (the driver reads and accepts it).
     g.move_to(&[("2", 5.0)]).unwrap();
     g.halt(&["2"]).unwrap();
@@ -163,8 +173,14 @@ fn every_error_code_is_raised_and_read_back() {
     g.raw("HLT 2").unwrap_err();
     assert_eq!(g.error().unwrap(), None);
     // The driver refuses what it knows to be wrong before sending.
-    assert!(matches!(g.move_to(&[("9", 1.0)]), Err(GcsError::Invalid { .. })));
-    assert!(matches!(g.set_voltage(&[("1", f64::NAN)]), Err(GcsError::Invalid { .. })));
+    assert!(matches!(
+        g.move_to(&[("9", 1.0)]),
+        Err(GcsError::Invalid { .. })
+    ));
+    assert!(matches!(
+        g.set_voltage(&[("1", f64::NAN)]),
+        Err(GcsError::Invalid { .. })
+    ));
     e.shutdown();
 }
 

@@ -129,11 +129,10 @@ impl Gcs {
     /// Opens a serial line.
     #[cfg(feature = "serial")]
     pub fn serial(path: &str, baud: u32, timeout: Duration) -> R<Self> {
-        let link =
-            crate::link::Serial::open(path, baud, timeout).map_err(|e| GcsError::Link {
-                link: format!("gcs-serial://{path}"),
-                message: format!("cannot open: {e}"),
-            })?;
+        let link = crate::link::Serial::open(path, baud, timeout).map_err(|e| GcsError::Link {
+            link: format!("gcs-serial://{path}"),
+            message: format!("cannot open: {e}"),
+        })?;
         Self::new(Box::new(link), timeout)
     }
 
@@ -250,7 +249,10 @@ impl Gcs {
 
     fn code_of(&mut self, command: &str, reply: &str) -> R<Option<ControllerError>> {
         let lines = protocol::reply_lines(reply);
-        match (lines.as_slice(), lines.first().map(|l| l.trim().parse::<i32>())) {
+        match (
+            lines.as_slice(),
+            lines.first().map(|l| l.trim().parse::<i32>()),
+        ) {
             ([_], Some(Ok(code))) => Ok(ControllerError::from_code(code)),
             _ => Err(self.lose(GcsError::Reply {
                 link: self.link.describe(),
@@ -365,7 +367,10 @@ impl Gcs {
             axes.iter().map(|a| a.to_string()).collect()
         };
         if pairs.len() != want.len() || pairs.iter().zip(&want).any(|((a, _), w)| a != w) {
-            return Err(self.lose(bad(lines.join(" | "), "the axes of the reply are not those asked for")));
+            return Err(self.lose(bad(
+                lines.join(" | "),
+                "the axes of the reply are not those asked for",
+            )));
         }
         let mut out = Vec::with_capacity(pairs.len());
         for (_, v) in pairs {
@@ -421,7 +426,10 @@ impl Gcs {
 
     /// `SVO`: servo on or off per axis.
     pub fn set_servo(&mut self, axes: &[(&str, bool)]) -> R<()> {
-        let pairs: Vec<(&str, f64)> = axes.iter().map(|(a, on)| (*a, f64::from(u8::from(*on)))).collect();
+        let pairs: Vec<(&str, f64)> = axes
+            .iter()
+            .map(|(a, on)| (*a, f64::from(u8::from(*on))))
+            .collect();
         self.check_pairs(&pairs)?;
         self.set(&protocol::command_line("SVO", &pairs), &[])
     }

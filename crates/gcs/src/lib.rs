@@ -44,9 +44,9 @@ impl Endpoint {
             if rest.is_empty() {
                 return Err(format!("`{s}`: gcs://HOST:PORT needs a host"));
             }
-            let has_port = rest
-                .rsplit_once(':')
-                .is_some_and(|(h, p)| !h.ends_with(':') && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()));
+            let has_port = rest.rsplit_once(':').is_some_and(|(h, p)| {
+                !h.ends_with(':') && !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit())
+            });
             if has_port {
                 let port = rest.rsplit_once(':').map(|(_, p)| p).unwrap_or("");
                 if port.parse::<u16>().is_err() {
@@ -54,7 +54,9 @@ impl Endpoint {
                 }
                 Ok(Endpoint::Tcp(rest.to_string()))
             } else if rest.contains(':') && !rest.starts_with('[') {
-                Err(format!("`{s}`: the port must be a number (gcs://HOST:PORT)"))
+                Err(format!(
+                    "`{s}`: the port must be a number (gcs://HOST:PORT)"
+                ))
             } else {
                 Ok(Endpoint::Tcp(format!("{rest}:50000")))
             }
@@ -106,13 +108,29 @@ mod tests {
 
     #[test]
     fn endpoints_parse_and_bad_ones_say_why() {
-        assert_eq!(Endpoint::parse("gcs://127.0.0.1:5000"), Ok(Endpoint::Tcp("127.0.0.1:5000".into())));
-        assert_eq!(Endpoint::parse("gcs://lab-e727"), Ok(Endpoint::Tcp("lab-e727:50000".into())));
+        assert_eq!(
+            Endpoint::parse("gcs://127.0.0.1:5000"),
+            Ok(Endpoint::Tcp("127.0.0.1:5000".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("gcs://lab-e727"),
+            Ok(Endpoint::Tcp("lab-e727:50000".into()))
+        );
         assert_eq!(
             Endpoint::parse("gcs-serial:///dev/ttyUSB0?baud=57600"),
-            Ok(Endpoint::Serial { path: "/dev/ttyUSB0".into(), baud: 57600 })
+            Ok(Endpoint::Serial {
+                path: "/dev/ttyUSB0".into(),
+                baud: 57600
+            })
         );
-        for bad in ["gcs://", "gcs://h:99999", "gcs://h:x", "tcp://h:1", "gcs-serial://", "gcs-serial:///dev/x?baud=0"] {
+        for bad in [
+            "gcs://",
+            "gcs://h:99999",
+            "gcs://h:x",
+            "tcp://h:1",
+            "gcs-serial://",
+            "gcs-serial:///dev/x?baud=0",
+        ] {
             assert!(Endpoint::parse(bad).is_err(), "{bad}");
         }
     }

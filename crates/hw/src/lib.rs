@@ -333,3 +333,102 @@ pub fn vga_settings(sensor: (u32, u32), current: &CameraSettings, binned: bool) 
         ..*current
     }
 }
+
+// Boxed devices are devices: a front end picks its backend at run time
+// (`cellinject_rig::DynBackend`).
+
+impl<T: Clock + ?Sized> Clock for Box<T> {
+    fn now(&self) -> f64 {
+        (**self).now()
+    }
+    fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
+        (**self).sleep(seconds)
+    }
+}
+
+impl<T: PiezoChannel + ?Sized> PiezoChannel for Box<T> {
+    fn name(&self) -> &str {
+        (**self).name()
+    }
+    fn voltage_range(&self) -> (f64, f64) {
+        (**self).voltage_range()
+    }
+    fn set_voltage(&mut self, volts: f64) -> Result<(), HwError> {
+        (**self).set_voltage(volts)
+    }
+    fn commanded_voltage(&self) -> f64 {
+        (**self).commanded_voltage()
+    }
+    fn read_voltage(&mut self) -> Result<f64, HwError> {
+        (**self).read_voltage()
+    }
+}
+
+impl<T: Camera + ?Sized> Camera for Box<T> {
+    fn sensor_size(&self) -> (u32, u32) {
+        (**self).sensor_size()
+    }
+    fn settings(&self) -> CameraSettings {
+        (**self).settings()
+    }
+    fn configure(&mut self, settings: CameraSettings) -> Result<(), HwError> {
+        (**self).configure(settings)
+    }
+    fn frame_rate(&self) -> f64 {
+        (**self).frame_rate()
+    }
+    fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
+        (**self).grab_into(frame)
+    }
+}
+
+impl<T: Stage + ?Sized> Stage for Box<T> {
+    fn axes(&self) -> usize {
+        (**self).axes()
+    }
+    fn travel(&self, axis: usize) -> (f64, f64) {
+        (**self).travel(axis)
+    }
+    fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
+        (**self).move_to(axis, position)
+    }
+    fn position(&mut self, axis: usize) -> Result<f64, HwError> {
+        (**self).position(axis)
+    }
+    fn is_busy(&mut self) -> Result<bool, HwError> {
+        (**self).is_busy()
+    }
+}
+
+impl<T: Injector + ?Sized> Injector for Box<T> {
+    fn max_pressure(&self) -> f64 {
+        (**self).max_pressure()
+    }
+    fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
+        (**self).pulse(pressure, duration)
+    }
+}
+
+impl<T: PositionSensor + ?Sized> PositionSensor for Box<T> {
+    fn name(&self) -> &str {
+        (**self).name()
+    }
+    fn read(&mut self) -> Result<f64, HwError> {
+        (**self).read()
+    }
+    fn noise(&self) -> f64 {
+        (**self).noise()
+    }
+}
+
+impl<T: Optics + ?Sized> Optics for Box<T> {
+    fn zoom(&self) -> f64 {
+        (**self).zoom()
+    }
+    fn zoom_range(&self) -> (f64, f64) {
+        (**self).zoom_range()
+    }
+    fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
+        (**self).set_zoom(zoom)
+    }
+}

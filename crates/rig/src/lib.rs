@@ -23,4 +23,4 @@ mod rig;
 pub use guard::{PiezoEnvelope, SharedGuard};
 pub use params::RigParams;
 pub use pipette::PipetteParams;
-pub use rig::{Backend, Devices, Rig, RigError, envelope};
+pub use rig::{Backend, Devices, DynBackend, Rig, RigError, envelope};

@@ -51,6 +51,45 @@ pub struct Devices<B: Backend> {
     pub clock: B::Clock,
 }
 
+/// A backend chosen at run time: every device boxed behind its trait.
+#[derive(Debug, Clone, Copy)]
+pub struct DynBackend;
+
+impl Backend for DynBackend {
+    type Piezo = Box<dyn PiezoChannel>;
+    type Sensor = Box<dyn PositionSensor>;
+    type Camera = Box<dyn Camera>;
+    type Stage = Box<dyn Stage>;
+    type Injector = Box<dyn Injector>;
+    type Optics = Box<dyn Optics>;
+    type Clock = Box<dyn Clock>;
+}
+
+impl<B: Backend> Devices<B>
+where
+    B::Piezo: 'static,
+    B::Sensor: 'static,
+    B::Camera: 'static,
+    B::Stage: 'static,
+    B::Injector: 'static,
+    B::Optics: 'static,
+    B::Clock: 'static,
+{
+    /// The same devices, boxed.
+    pub fn boxed(self) -> Devices<DynBackend> {
+        Devices {
+            piezo: self.piezo.map(|p| Box::new(p) as Box<dyn PiezoChannel>),
+            sensors: self.sensors.map(|s| Box::new(s) as Box<dyn PositionSensor>),
+            camera: Box::new(self.camera),
+            side_camera: Box::new(self.side_camera),
+            stage: Box::new(self.stage),
+            injector: Box::new(self.injector),
+            optics: Box::new(self.optics),
+            clock: Box::new(self.clock),
+        }
+    }
+}
+
 /// Why a bench could not be set up.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum RigError {

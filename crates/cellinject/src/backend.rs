@@ -1,0 +1,140 @@
+//! `--backend`: the twin (default) or a GCS 2.0 controller, with the rest of the bench
+//! (cameras, stage, injector, zoom) from an emulator's bench endpoint.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use cellinject_config::Description;
+use cellinject_gcs::Endpoint;
+use cellinject_gcs::devices::{SharedGcs, stacks};
+use cellinject_gcs_emulator::bench::{Bench, ViewName};
+use cellinject_hw::{Camera, Clock, Injector, Optics, PiezoChannel, PositionSensor, Stage};
+use cellinject_model::{ACTUATOR_NAMES, Approach};
+use cellinject_rig::{Devices, DynBackend, Rig};
+use cellinject_twin::SharedTwin;
+use clap::Args;
+
+use crate::InputError;
+use crate::sim::TwinArgs;
+
+/// Where the commands go.
+#[derive(Debug, Clone, Args)]
+pub struct BackendArgs {
+    /// The hardware: `twin` (the digital twin, default), `gcs://HOST:PORT` (a PI GCS 2.0
+    /// controller over TCP, e.g. `cellinject emulate gcs`) or
+    /// `gcs-serial:///dev/ttyX[?baud=N]`.
+    #[arg(
+        long,
+        default_value = "twin",
+        value_name = "twin|gcs://HOST:PORT|gcs-serial://PATH"
+    )]
+    pub backend: String,
+    /// With a GCS backend: the bench endpoint serving the cameras, stage, injector and
+    /// zoom (default for gcs://HOST:PORT: HOST:PORT+1, where `cellinject emulate gcs`
+    /// serves them).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub bench: Option<String>,
+}
+
+impl Default for BackendArgs {
+    fn default() -> Self {
+        BackendArgs {
+            backend: "twin".into(),
+            bench: None,
+        }
+    }
+}
+
+impl BackendArgs {
+    /// Whether this is the twin.
+    pub fn is_twin(&self) -> bool {
+        self.backend == "twin"
+    }
+}
+
+/// An opened bench.
+pub struct Opened {
+    /// The twin, when the backend is the twin (its truth, its plate, its faults).
+    pub twin: Option<SharedTwin>,
+    /// The guarded devices.
+    pub rig: Rig<DynBackend>,
+    /// `twin` or the controller's address.
+    pub name: String,
+    /// The approach the rig was assembled with.
+    pub approach: Approach,
+}
+
+/// Opens the backend of `b` for description `d` (with the twin's options of `t`).
+pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
+    if b.is_twin() {
+        if let Some(bench) = &b.bench {
+            return Err(InputError(format!(
+                "--bench {bench}: the twin has its own bench (give --backend gcs://...)"
+            ))
+            .into());
+        }
+        let (twin, _) = crate::sim::build(d, t)?;
+        let (design, params) = {
+            let tw = twin.lock().unwrap_or_else(|e| e.into_inner());
+            (*tw.world.mechanism().design(), tw.world.params().rig)
+        };
+        let rig = Rig::new(cellinject_twin::devices(&twin).boxed(), &design, &params)
+            .map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
+        return Ok(Opened {
+            twin: Some(twin),
+            rig,
+            name: "twin".into(),
+            approach: params.approach,
+        });
+    }
+    let endpoint = Endpoint::parse(&b.backend).map_err(|e| InputError(format!("--backend {e}")))?;
+    if t.seed_given() {
+        return Err(InputError("--seed sets the twin's random processes: a GCS backend has none (seed the emulator: `cellinject emulate gcs --seed N`)".into()).into());
+    }
+    let bench_addr = match (&b.bench, &endpoint) {
+        (Some(a), _) => a.clone(),
+        (None, Endpoint::Tcp(a)) => {
+            let (host, port) = a.rsplit_once(':').unwrap_or((a, "50000"));
+            let port: u16 = port.parse().unwrap_or(50000);
+            format!("{host}:{}", port.wrapping_add(1))
+        }
+        (None, Endpoint::Serial { .. }) => {
+            return Err(InputError("--backend gcs-serial://...: the controller carries only the stacks; give --bench HOST:PORT for the cameras, stage, injector and zoom".into()).into());
+        }
+    };
+    let timeout = Duration::from_secs(2);
+    let gcs = endpoint
+        .open(timeout)
+        .map_err(|e| anyhow::anyhow!("--backend {}: {e}", b.backend))?;
+    let gcs: SharedGcs = std::sync::Arc::new(std::sync::Mutex::new(gcs));
+    let ranges = [0, 1, 2].map(|k| (0.0, d.rig.amplifiers[k].v_max));
+    let noise = [d.sim.sensors.noise; 3];
+    let (piezo, sensors) = stacks(&gcs, ["1", "2", "3"], ACTUATOR_NAMES, ranges, noise)
+        .map_err(|e| anyhow::anyhow!("--backend {}: {e}", b.backend))?;
+    let bench = Bench::connect(&bench_addr, Duration::from_secs(5))
+        .map_err(|e| anyhow::anyhow!("--bench {bench_addr}: {e}"))?;
+    let bench_err = |e| anyhow::anyhow!("--bench {bench_addr}: {e}");
+    let devices: Devices<DynBackend> = Devices {
+        piezo: piezo.map(|p| Box::new(p) as Box<dyn PiezoChannel>),
+        sensors: sensors.map(|s| Box::new(s) as Box<dyn PositionSensor>),
+        camera: Box::new(bench.camera(ViewName::Top).map_err(bench_err)?) as Box<dyn Camera>,
+        side_camera: Box::new(bench.camera(ViewName::Side).map_err(bench_err)?),
+        stage: Box::new(bench.stage().map_err(bench_err)?) as Box<dyn Stage>,
+        injector: Box::new(bench.injector().map_err(bench_err)?) as Box<dyn Injector>,
+        optics: Box::new(bench.optics().map_err(bench_err)?) as Box<dyn Optics>,
+        clock: Box::new(bench.clock().map_err(bench_err)?) as Box<dyn Clock>,
+    };
+    let mut p = d.rig;
+    if let Some(a) = t.approach_given() {
+        p.approach = a;
+    }
+    p.j3_yield = Some(crate::fea::j3_yield_check(d, p.approach)?);
+    let rig = Rig::new(devices, &d.design, &p)
+        .map_err(|e| InputError(format!("--backend {}: {e}", b.backend)))?;
+    Ok(Opened {
+        twin: None,
+        rig,
+        name: b.backend.clone(),
+        approach: p.approach,
+    })
+}

@@ -1,0 +1,117 @@
+//! `cellinject emulate gcs`: the twin behind an emulated PI GCS 2.0 controller.
+
+use std::net::TcpListener;
+use std::path::PathBuf;
+
+use anyhow::Result;
+use cellinject_config::Description;
+use clap::{Args, Subcommand};
+
+use crate::InputError;
+
+/// Emulated devices.
+#[derive(Debug, Subcommand)]
+pub enum EmulateCommand {
+    /// A PI GCS 2.0 piezo controller (E-727-like, axes 1, 2, 3 = the twin's A1, A2, A3)
+    /// on TCP, and the rest of the bench (cameras, stage, injector, zoom) on the bench
+    /// endpoint; in wall-clock time, until killed.
+    #[command(
+        after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml --seed 2\n  cellinject experiment repeatability --backend gcs://127.0.0.1:50000\n\nPositions are µm of stack extension (the stack's sensor), voltages V. Errors: 1 syntax, 2 unknown command, 5 MOV with servo off, 7 target beyond TMN?/TMX? or a closed-loop move the safety envelope stopped, 10 stopped (#24, HLT, STP), 15 unknown axis, 17 value out of range (SVA outside 0..Vmax, refused by the safety envelope, or with the servo on)."
+    )]
+    Gcs(GcsArgs),
+}
+
+/// Options of `emulate gcs`.
+#[derive(Debug, Args)]
+pub struct GcsArgs {
+    /// Address of the GCS port (loopback unless told otherwise; port 0 picks a free one).
+    #[arg(long, default_value = "127.0.0.1:50000", value_name = "HOST:PORT")]
+    bind: String,
+    /// Address of the bench endpoint (default: the GCS port + 1 on the same host;
+    /// `none` serves no bench).
+    #[arg(long, value_name = "HOST:PORT|none")]
+    bench: Option<String>,
+    /// A plate for the twin's microscope (as `cellinject run --plate`); the stage then
+    /// starts with the pipette lifted 30 µm above the focal plane, as `run` expects.
+    #[arg(long, value_name = "FILE.toml")]
+    plate: Option<PathBuf>,
+    /// Faults on the plate's cells (as `cellinject run --fault`).
+    #[arg(long, value_name = "KIND@CELL")]
+    fault: Vec<String>,
+    /// Pre-tensioning approach of the twin (default: the description's).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+    approach: Option<u8>,
+    /// Seed of the twin's random processes (default: the description's).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Log connections and every command line on standard error.
+    #[arg(long)]
+    verbose: bool,
+}
+
+fn bind(arg: &str, addr: &str) -> Result<TcpListener> {
+    TcpListener::bind(addr)
+        .map_err(|e| InputError(format!("{arg} {addr}: cannot listen: {e}")).into())
+}
+
+/// `cellinject emulate ...`.
+pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
+    let EmulateCommand::Gcs(a) = cmd;
+    let faults = a
+        .fault
+        .iter()
+        .map(|f| crate::run::parse_fault(f))
+        .collect::<Result<Vec<_>>>()?;
+    if !faults.is_empty() && a.plate.is_none() {
+        return Err(InputError("--fault acts on a plate's cells: give --plate".into()).into());
+    }
+    let plate = match &a.plate {
+        None => None,
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())))?;
+            let plate = cellinject_config::plate::parse(&text)
+                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
+            plate
+                .check()
+                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
+            Some(plate)
+        }
+    };
+    let gcs = bind("--bind", &a.bind)?;
+    let gcs_addr = gcs.local_addr()?;
+    let bench_addr = match a.bench.as_deref() {
+        Some("none") => None,
+        Some(b) => Some(b.to_string()),
+        None => Some(format!(
+            "{}:{}",
+            gcs_addr.ip(),
+            gcs_addr.port().wrapping_add(1)
+        )),
+    };
+    let bench = match &bench_addr {
+        Some(b) => Some(bind("--bench", b)?),
+        None => None,
+    };
+    let (twin, _) = crate::sim::build(d, &crate::sim::TwinArgs::new(a.approach, a.seed))?;
+    if let Some(plate) = &plate {
+        let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
+        t.load_plate(plate);
+        t.set_faults(&faults)
+            .map_err(|e| InputError(format!("--fault: {e}")))?;
+        let o = cellinject_core::inject::Options::default();
+        t.world.stage.place(1, o.focus + o.lift);
+    }
+    let running = cellinject_gcs_emulator::start(&twin, gcs, bench, a.verbose)
+        .map_err(|e| anyhow::anyhow!("cannot start the emulator: {e}"))?;
+    outln!(
+        "GCS 2.0 controller on {} (axes 1, 2, 3 = A1, A2, A3; µm, V){}",
+        running.gcs,
+        running
+            .bench
+            .map(|b| format!("; bench endpoint on {b}"))
+            .unwrap_or_default()
+    );
+    running.wait();
+    Ok(())
+}
