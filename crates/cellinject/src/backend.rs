@@ -34,6 +34,14 @@ pub struct BackendArgs {
     /// serves them).
     #[arg(long, value_name = "HOST:PORT")]
     pub bench: Option<String>,
+    /// With a GCS backend: the microscope's frames from image files another acquisition
+    /// program writes into DIR (PNG or TIFF, 8- or 16-bit grey, taken in name order;
+    /// write each whole, then rename it), instead of the bench endpoint's top camera.
+    #[arg(long, value_name = "DIR")]
+    pub camera: Option<std::path::PathBuf>,
+    /// Frames per second of that acquisition.
+    #[arg(long, default_value_t = 30.0, value_name = "FPS")]
+    pub camera_fps: f64,
 }
 
 impl Default for BackendArgs {
@@ -41,6 +49,8 @@ impl Default for BackendArgs {
         BackendArgs {
             backend: "twin".into(),
             bench: None,
+            camera: None,
+            camera_fps: 30.0,
         }
     }
 }
@@ -49,6 +59,36 @@ impl BackendArgs {
     /// Whether this is the twin.
     pub fn is_twin(&self) -> bool {
         self.backend == "twin"
+    }
+
+    /// Refuses a backend that is not one (before anything is opened or written).
+    pub fn check(&self) -> Result<Option<Endpoint>> {
+        if self.is_twin() {
+            if let Some(bench) = &self.bench {
+                return Err(InputError(format!(
+                    "--bench {bench}: the twin has its own bench (give --backend gcs://...)"
+                ))
+                .into());
+            }
+            if let Some(c) = &self.camera {
+                return Err(InputError(format!(
+                    "--camera {}: the twin has its own cameras (give --backend gcs://...)",
+                    c.display()
+                ))
+                .into());
+            }
+            return Ok(None);
+        }
+        if !(self.camera_fps.is_finite() && self.camera_fps > 0.0) {
+            return Err(InputError(format!(
+                "--camera-fps must be positive, got {}",
+                self.camera_fps
+            ))
+            .into());
+        }
+        Endpoint::parse(&self.backend)
+            .map(Some)
+            .map_err(|e| InputError(format!("--backend {e}")).into())
     }
 }
 
@@ -66,13 +106,7 @@ pub struct Opened {
 
 /// Opens the backend of `b` for description `d` (with the twin's options of `t`).
 pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
-    if b.is_twin() {
-        if let Some(bench) = &b.bench {
-            return Err(InputError(format!(
-                "--bench {bench}: the twin has its own bench (give --backend gcs://...)"
-            ))
-            .into());
-        }
+    let Some(endpoint) = b.check()? else {
         let (twin, _) = crate::sim::build(d, t)?;
         let (design, params) = {
             let tw = twin.lock().unwrap_or_else(|e| e.into_inner());
@@ -86,15 +120,14 @@ pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
             name: "twin".into(),
             approach: params.approach,
         });
-    }
-    let endpoint = Endpoint::parse(&b.backend).map_err(|e| InputError(format!("--backend {e}")))?;
+    };
     if t.seed_given() {
         return Err(InputError("--seed sets the twin's random processes: a GCS backend has none (seed the emulator: `cellinject emulate gcs --seed N`)".into()).into());
     }
     let bench_addr = match (&b.bench, &endpoint) {
         (Some(a), _) => a.clone(),
         (None, Endpoint::Tcp(a)) => {
-            let (host, port) = a.rsplit_once(':').unwrap_or((a, "50000"));
+            let (host, port) = a.rsplit_once(':').unwrap_or((a.as_str(), "50000"));
             let port: u16 = port.parse().unwrap_or(50000);
             format!("{host}:{}", port.wrapping_add(1))
         }
@@ -117,7 +150,20 @@ pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
     let devices: Devices<DynBackend> = Devices {
         piezo: piezo.map(|p| Box::new(p) as Box<dyn PiezoChannel>),
         sensors: sensors.map(|s| Box::new(s) as Box<dyn PositionSensor>),
-        camera: Box::new(bench.camera(ViewName::Top).map_err(bench_err)?) as Box<dyn Camera>,
+        camera: match &b.camera {
+            None => Box::new(bench.camera(ViewName::Top).map_err(bench_err)?) as Box<dyn Camera>,
+            Some(dir) => {
+                let (lens, pitch) = (bench.clone(), d.sim.camera.pixel_size);
+                let cam = cellinject_cameras::FolderCamera::new(
+                    dir,
+                    Box::new(move || lens.zoom().map_or(f64::NAN, |z| pitch / z)),
+                    b.camera_fps,
+                    Duration::from_secs(5),
+                )
+                .map_err(|e| InputError(format!("--camera: {e}")))?;
+                Box::new(cam) as Box<dyn Camera>
+            }
+        },
         side_camera: Box::new(bench.camera(ViewName::Side).map_err(bench_err)?),
         stage: Box::new(bench.stage().map_err(bench_err)?) as Box<dyn Stage>,
         injector: Box::new(bench.injector().map_err(bench_err)?) as Box<dyn Injector>,

@@ -32,7 +32,8 @@ pub struct GcsArgs {
     #[arg(long, value_name = "HOST:PORT|none")]
     bench: Option<String>,
     /// A plate for the twin's microscope (as `cellinject run --plate`); the stage then
-    /// starts with the pipette lifted 30 µm above the focal plane, as `run` expects.
+    /// starts with the pipette lifted 30 µm above the focal plane, as `run` expects
+    /// (calibrations and experiments want the emulator without a plate).
     #[arg(long, value_name = "FILE.toml")]
     plate: Option<PathBuf>,
     /// Faults on the plate's cells (as `cellinject run --fault`).

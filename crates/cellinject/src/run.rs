@@ -347,7 +347,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     options
         .check(&d.rig)
         .map_err(|e| InputError(e.to_string()))?;
-    if !args.backend.is_twin() {
+    if args.backend.check()?.is_some() {
         if !faults.is_empty() {
             return Err(InputError(
                 "--fault injects faults into the twin: with a GCS backend give them to the emulator (`cellinject emulate gcs --fault`)".into(),

@@ -206,6 +206,11 @@ impl Bench {
             .ok_or_else(|| device(&c.address, format!("reply without `ok`: {answer:?}")))
     }
 
+    /// The lens's magnification now.
+    pub fn zoom(&self) -> Result<f64, HwError> {
+        self.number(&Request::Zoom)
+    }
+
     fn number(&self, req: &Request) -> Result<f64, HwError> {
         let v = self.request(req)?;
         v.as_f64()

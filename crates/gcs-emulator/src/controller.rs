@@ -9,7 +9,15 @@ use cellinject_rig::Rig;
 use cellinject_twin::{SharedTwin, Twin, TwinBackend};
 
 /// The emulator's identification (`*IDN?`): vendor, model, serial number, firmware.
-pub const IDN: &str = "cellinject, E-727 (emulated), 0000000001, 0.1.0";
+pub const IDN: &str = "Physik Instrumente (PI) GmbH & Co. KG (emulated by cellinject), E-727, 0000000001, cellinject 0.1.0";
+
+/// The closed-loop range, fraction of the stack's travel: the amplifier's 0..V_max has
+/// no headroom, and a stack's hysteresis and creep leave it up to a few per cent short
+/// of (or beyond) its nominal travel at the ends.
+pub const CLOSED_LOOP_RANGE: [f64; 2] = [0.02, 0.98];
+
+/// Highest velocity `VEL` accepts, travels per second.
+pub const MAX_VELOCITY: f64 = 1000.0;
 
 /// PI's error codes the emulator raises.
 pub mod code {
@@ -41,6 +49,34 @@ struct Axis {
     settled: u32,
     position: f64,
 }
+
+/// `HLP?`: the commands, one per line.
+const HELP: [&str; 24] = [
+    "*IDN? - identification",
+    "CSV? - GCS syntax version",
+    "SAI? [ALL] - axes",
+    "ERR? - last error (cleared)",
+    "SVO {axis 0|1} - servo",
+    "SVO? [axes]",
+    "MOV {axis um} - absolute move (servo on)",
+    "MOV? [axes] - targets",
+    "MVR {axis um} - relative move",
+    "POS? [axes] - sensor positions, um",
+    "ONT? [axes] - on target",
+    "VEL {axis um/s}",
+    "VEL? [axes]",
+    "TMN? [axes] - closed-loop minimum, um",
+    "TMX? [axes] - closed-loop maximum, um",
+    "SVA {axis V} - open-loop voltage (servo off)",
+    "SVA? [axes]",
+    "VOL? [axes] - output voltage",
+    "VMN? [axes]",
+    "VMX? [axes]",
+    "HLT [axes] - halt (error 10)",
+    "STP - stop all (error 10)",
+    "CST? [axes] - stack names; ONL? - online; VER? - versions",
+    "#5 moving mask (hex); #7 ready (0xB1); #24 stop all",
+];
 
 /// Servo step, s.
 const DT: f64 = 1e-3;
@@ -124,6 +160,13 @@ impl Controller {
         self.raise(code::SYNTAX);
     }
 
+    fn limits(&self, k: usize) -> (f64, f64) {
+        (
+            CLOSED_LOOP_RANGE[0] * self.travel[k],
+            CLOSED_LOOP_RANGE[1] * self.travel[k],
+        )
+    }
+
     fn gain(&self, k: usize) -> f64 {
         self.travel[k] / self.v_max[k]
     }
@@ -172,7 +215,8 @@ impl Controller {
         let di = KI * e * dt;
         let u = (a.setpoint + KP * e + a.integral + di) / gain;
         let clamped = u.clamp(0.0, self.v_max[k]);
-        if clamped == u {
+        // Anti-windup: integrate unless saturated and the error pushes further out.
+        if clamped == u || (u > clamped && e < 0.0) || (u < clamped && e > 0.0) {
             a.integral += di;
         }
         a.settled = if a.setpoint == a.target && e.abs() < TOLERANCE {
@@ -291,6 +335,11 @@ impl Controller {
         let mut words = line.split_ascii_whitespace();
         let cmd = words.next()?.to_ascii_uppercase();
         let args: Vec<&str> = words.collect();
+        let no_args = ["*IDN?", "CSV?", "ERR?", "ONL?", "HLP?", "VER?", "STP"];
+        if no_args.contains(&cmd.as_str()) && !args.is_empty() {
+            self.raise(code::SYNTAX);
+            return None;
+        }
         match cmd.as_str() {
             "*IDN?" => Some(reply(&[IDN.to_string()])),
             "CSV?" => Some(reply(&["2.0".to_string()])),
@@ -360,7 +409,10 @@ impl Controller {
             "ONT?" => self.per_axis(&args, |s, k| u8::from(!s.moving(k)).to_string()),
             "VEL" => {
                 let pairs = self.pairs(&args)?;
-                if pairs.iter().any(|&(_, v)| v <= 0.0) {
+                if pairs
+                    .iter()
+                    .any(|&(k, v)| v <= 0.0 || v > MAX_VELOCITY * self.travel[k])
+                {
                     self.raise(code::RANGE);
                     return None;
                 }
@@ -370,8 +422,19 @@ impl Controller {
                 None
             }
             "VEL?" => self.per_axis(&args, |s, k| s.axes[k].velocity.to_string()),
-            "TMN?" => self.per_axis(&args, |_, _| "0".to_string()),
-            "TMX?" => self.per_axis(&args, |s, k| s.travel[k].to_string()),
+            "TMN?" => self.per_axis(&args, |s, k| s.limits(k).0.to_string()),
+            "TMX?" => self.per_axis(&args, |s, k| s.limits(k).1.to_string()),
+            "VMN?" => self.per_axis(&args, |_, _| "0".to_string()),
+            "VMX?" => self.per_axis(&args, |s, k| s.v_max[k].to_string()),
+            "CST?" => self.per_axis(&args, |_, k| ACTUATOR_NAMES[k].to_string()),
+            "ONL?" => Some(reply(&["1".into()])),
+            "HLP?" => Some(reply(
+                &HELP.iter().map(|h| h.to_string()).collect::<Vec<_>>(),
+            )),
+            "VER?" => Some(reply(&[format!(
+                "cellinject GCS emulator {}",
+                env!("CARGO_PKG_VERSION")
+            )])),
             "SVA" => {
                 let pairs = self.pairs(&args)?;
                 for &(k, v) in &pairs {
@@ -403,10 +466,6 @@ impl Controller {
                 None
             }
             "STP" => {
-                if !args.is_empty() {
-                    self.raise(code::SYNTAX);
-                    return None;
-                }
                 self.stop(&[0, 1, 2]);
                 None
             }

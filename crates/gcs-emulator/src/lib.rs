@@ -8,10 +8,12 @@
 //! every millisecond and before every command.
 //!
 //! Commands: `*IDN?`, `CSV?` (2.0), `SAI?` and `SAI? ALL`, `ERR?`, `SVO`/`SVO?`,
-//! `MOV`/`MOV?`, `MVR`, `POS?`, `ONT?`, `VEL`/`VEL?`, `TMN?`/`TMX?`, `SVA`/`SVA?`,
-//! `VOL?`, `HLT`, `STP`, and the single bytes `#5` (moving mask, hexadecimal), `#7`
-//! (0xB1 + LF: always ready) and `#24` (stop all). Mnemonics are accepted in either
-//! case. Errors are sticky until `ERR?` reads them (the last one raised is kept): 1
+//! `MOV`/`MOV?`, `MVR`, `POS?`, `ONT?`, `VEL`/`VEL?`, `TMN?`/`TMX?` (the closed-loop
+//! range: 2 % to 98 % of the stack's travel), `SVA`/`SVA?`, `VOL?`, `VMN?`/`VMX?`,
+//! `HLT`, `STP`, `HLP?`, `VER?`, `CST?`, `ONL?`, and the single bytes `#5` (moving
+//! mask, hexadecimal), `#7` (0xB1 + LF: always ready) and `#24` (stop all). Mnemonics
+//! are accepted in either case. One client at a time: a second connection waits until
+//! the first closes. Errors are sticky until `ERR?` reads them (the last one raised is kept): 1
 //! syntax (odd argument count, a value that is not a number, a line over 4096 bytes),
 //! 2 unknown command, 5 `MOV`/`MVR` with the servo off, 7 a target outside
 //! `TMN?`..`TMX?` (or a closed-loop move the twin's safety envelope stopped), 10

@@ -45,12 +45,21 @@ fn identification_axes_and_limits() {
     assert_eq!(g.syntax_version().unwrap(), "2.0");
     assert_eq!(g.axes().unwrap(), vec!["1", "2", "3"]);
     assert_eq!(g.raw("SAI? ALL").unwrap(), vec!["1", "2", "3"]);
-    assert_eq!(g.min_travel(&[]).unwrap(), vec![0.0; 3]);
-    // The prototype's stacks: 30, 30 and 60 um.
-    let tmx = g.max_travel(&["1", "2", "3"]).unwrap();
-    for (t, want) in tmx.iter().zip([30.0, 30.0, 60.0]) {
-        assert!((t - want).abs() < 1e-9, "{tmx:?}");
+    // The prototype's stacks: 30, 30 and 60 um; the closed-loop range is 2 % to 98 %
+    // of it (no voltage headroom beyond 0..V_max).
+    let (tmn, tmx) = (
+        g.min_travel(&[]).unwrap(),
+        g.max_travel(&["1", "2", "3"]).unwrap(),
+    );
+    for k in 0..3 {
+        let travel = [30.0, 30.0, 60.0][k];
+        assert!((tmn[k] - 0.02 * travel).abs() < 1e-9, "{tmn:?}");
+        assert!((tmx[k] - 0.98 * travel).abs() < 1e-9, "{tmx:?}");
     }
+    assert_eq!(g.raw("VMX? 1 3").unwrap(), vec!["1=100", "3=100"]);
+    assert_eq!(g.raw("CST? 2").unwrap(), vec!["2=A2"]);
+    assert!(g.raw("HLP?").unwrap().len() > 10);
+    assert!(g.identify().unwrap().contains("E-727"));
     assert_eq!(g.error().unwrap(), None);
     e.shutdown();
 }
@@ -135,6 +144,52 @@ fn closed_loop_moves_settle_on_target() {
 }
 
 #[test]
+fn the_ends_of_the_closed_loop_range_are_reached_and_held() {
+    let e = emulator();
+    let mut g = connect(&e);
+    g.set_servo(&[("3", true)]).unwrap();
+    let (lo, hi) = (
+        g.min_travel(&["3"]).unwrap()[0],
+        g.max_travel(&["3"]).unwrap()[0],
+    );
+    for target in [hi, lo, hi] {
+        g.move_to(&[("3", target)]).unwrap();
+        let t0 = Instant::now();
+        while !g.on_target(&["3"]).unwrap()[0] {
+            assert!(
+                t0.elapsed() < Duration::from_secs(3),
+                "{target} never reached: POS? {:?}, VOL? {:?}",
+                g.position(&["3"]),
+                g.output_voltage(&["3"])
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        let p = g.position(&["3"]).unwrap()[0];
+        assert!((p - target).abs() < 0.05, "{target}: held at {p}");
+        assert_eq!(g.moving_mask().unwrap(), 0);
+    }
+    assert_eq!(g.error().unwrap(), None);
+    // A tilt stack's end is beyond the safety envelope (its torque on the other tilt
+    // stack's flexure): the move stops where the envelope allows, with error 7.
+    g.set_servo(&[("1", true)]).unwrap();
+    let hi = g.max_travel(&["1"]).unwrap()[0];
+    g.move_to(&[("1", hi)]).unwrap();
+    let t0 = Instant::now();
+    while !g.on_target(&["1"]).unwrap()[0] {
+        assert!(t0.elapsed() < Duration::from_secs(3));
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(g.error().unwrap().map(|c| c.code()), Some(7));
+    let (p, t) = (g.position(&["1"]).unwrap()[0], g.target(&["1"]).unwrap()[0]);
+    assert!(
+        p < hi - 1.0 && (p - t).abs() < 0.1,
+        "stopped at {p}, target now {t}"
+    );
+    e.shutdown();
+}
+
+#[test]
 fn every_error_code_is_raised_and_read_back() {
     let e = emulator();
     let mut g = connect(&e);
@@ -150,6 +205,8 @@ fn every_error_code_is_raised_and_read_back() {
     g.set_servo(&[("2", true)]).unwrap();
     assert_eq!(code(g.set_voltage(&[("2", 10.0)])), Some(17));
     assert_eq!(code(g.set_velocity(&[("2", -1.0)])), Some(17));
+    assert_eq!(code(g.set_velocity(&[("2", 1e9)])), Some(17));
+    assert_eq!(code(g.raw("ERR? 1").map(|_| ())), Some(1));
     // 1: syntax; 2: unknown command; 15: unknown axis (raw lines: the driver refuses
     // to send them itself).
     assert_eq!(code(g.raw("MOV 2").map(|_| ())), Some(1));

@@ -252,10 +252,18 @@ impl Twin {
             Some(e) => e,
             None => {
                 let mut k = (now / period - 1e-9).ceil().max(0.0) as u64;
+                // The next frame starts after the last exposure (of either camera), at
+                // the next boundary of this frame period; the frame counter only goes
+                // up. (A frame rate changed since then does not move the clock: the
+                // counter of a faster rate may be ahead of this rate's boundaries.)
+                if let Some(last) = self.exposure {
+                    let after = ((last.start / period + 1e-9).floor() + 1.0).max(0.0) as u64;
+                    k = k.max(after);
+                }
+                let start = k as f64 * period;
                 if let Some(last) = self.last_frame.iter().flatten().max() {
                     k = k.max(last + 1);
                 }
-                let start = k as f64 * period;
                 self.advance_to(start);
                 let from = self.tip();
                 self.advance(exposure);

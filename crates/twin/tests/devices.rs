@@ -156,9 +156,23 @@ fn camera_timing_follows_the_simulated_clock() {
         ..dev.camera.settings()
     };
     dev.camera.configure(full).unwrap();
-    let a = dev.camera.grab().unwrap().timestamp;
+    // Switching to the slower rate waits for its next frame boundary, no more: the
+    // 30 fps frame counter (ahead of 3 fps boundaries) does not move the clock.
+    let before = dev.clock.now();
+    let first = dev.camera.grab().unwrap();
+    assert!(first.index > f.index, "the counter goes up");
+    assert!(first.timestamp >= before - 1e-9 && first.timestamp < before + 1.0 / 3.0 + 1e-9);
+    let a = first.timestamp;
     let b = dev.camera.grab().unwrap().timestamp;
     assert!((b - a - 1.0 / 3.0).abs() < 1e-9);
+    // And back to 30 fps after many slow frames: the next 30 fps boundary.
+    for _ in 0..20 {
+        dev.camera.grab().unwrap();
+    }
+    dev.camera.configure(vga).unwrap();
+    let before = dev.clock.now();
+    let g = dev.camera.grab().unwrap();
+    assert!(g.timestamp >= before - 1e-9 && g.timestamp < before + 1.0 / 30.0 + 1e-9);
 }
 
 #[test]

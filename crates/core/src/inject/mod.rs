@@ -737,10 +737,53 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 s.wait(self.rig, 0.05, None)
             });
             self.servo = Some(s);
-            r?;
+            if let Err(e) = r {
+                // The loops lost a device (a link that broke, a reply that never
+                // came): straight commands, retried while the link comes back, A3
+                // first.
+                self.park_direct().map_err(|_| e)?;
+            }
+        } else {
+            // No loops running (calibrating, or they were never started).
+            self.park_direct()?;
         }
         let lift = self.home[1].max(self.options.focus + self.options.lift);
         self.rig.stage.move_to(1, lift).map_err(dev("stage lift"))?;
+        Ok(())
+    }
+
+    /// A3 to 0 V, then A1/A2 to 0 V, each retried for up to a second.
+    fn park_direct(&mut self) -> Result<(), WorkflowError> {
+        let mut last = None;
+        for step in 0..2 {
+            for _ in 0..10 {
+                let r = if step == 0 {
+                    self.rig.piezo[2].set_voltage(0.0)
+                } else {
+                    self.rig.command_tilt([0.0, 0.0]).map(|_| ())
+                };
+                match r {
+                    Ok(()) => {
+                        last = None;
+                        break;
+                    }
+                    Err(e) => {
+                        last = Some(e);
+                        let _ = self.rig.clock.sleep(0.1);
+                    }
+                }
+            }
+            if let Some(e) = last.take() {
+                return Err(WorkflowError::Device {
+                    what: if step == 0 {
+                        "A3 (safe state)"
+                    } else {
+                        "A1/A2 (safe state)"
+                    },
+                    source: e,
+                });
+            }
+        }
         Ok(())
     }
 

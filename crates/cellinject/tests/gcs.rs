@@ -1,0 +1,451 @@
+//! The whole bench over the wire: `cellinject emulate gcs` in one process, the
+//! commands with `--backend gcs://...` in another, compared with the twin backend on
+//! the same seed; a link cut in the middle of a run (through a proxy) ends in the safe
+//! state with the reason recorded; bad backend arguments exit 2.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::fs;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use serde_json::Value;
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("cellinject-gcs-{name}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(dir: &Path, args: &[&str]) -> Output {
+    let t = std::time::Instant::now();
+    let o = Command::new(env!("CARGO_BIN_EXE_cellinject"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .unwrap();
+    eprintln!("{:.1} s: {}", t.elapsed().as_secs_f64(), args.join(" "));
+    o
+}
+
+fn err(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn ok(o: &Output) -> Value {
+    assert_eq!(o.status.code(), Some(0), "{}", err(o));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+/// `cellinject emulate gcs` on a free port, killed when dropped.
+struct Emulator {
+    child: Child,
+    gcs: String,
+}
+
+impl Emulator {
+    fn start(dir: &Path, extra: &[&str]) -> Self {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_cellinject"))
+            .current_dir(dir)
+            .args(["emulate", "gcs", "--bind", "127.0.0.1:0"])
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let gcs = line
+            .split_whitespace()
+            .find(|w| w.starts_with("127.0.0.1:"))
+            .unwrap_or_else(|| panic!("no address in {line:?}"))
+            .to_string();
+        Emulator { child, gcs }
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn plate(d: &Path) {
+    let o = run(
+        d,
+        &[
+            "plate",
+            "generate",
+            "--rows",
+            "2",
+            "--cols",
+            "2",
+            "--origin=-75e-6,-45e-6",
+            "--seed",
+            "5",
+            "--out",
+            "p.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+}
+
+fn rms(v: &Value) -> f64 {
+    let r = &v["rms_error_m"];
+    r[0].as_f64().unwrap().hypot(r[1].as_f64().unwrap())
+}
+
+#[test]
+fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
+    let d = dir("match");
+    plate(&d);
+    // The twin's calibrations (made fast, on simulated time).
+    let o = run(&d, &["calibrate", "all", "--out", "cal"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    // The bench as the calibrations find it (no plate under the microscope).
+    let emu = Emulator::start(&d, &[]);
+    let backend = format!("gcs://{}", emu.gcs);
+    // The cameras' pixel calibration through the wire (stage moves on the bench
+    // endpoint, frames of the marker) agrees with the twin's to 0.1 %.
+    let o = run(
+        &d,
+        &[
+            "calibrate",
+            "pixels",
+            "--backend",
+            &backend,
+            "--out",
+            "px.json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let pg: Value = serde_json::from_slice(&fs::read(d.join("px.json")).unwrap()).unwrap();
+    let pt: Value = serde_json::from_slice(&fs::read(d.join("cal/pixels.json")).unwrap()).unwrap();
+    assert_eq!(pg["made"]["backend"], backend.as_str());
+    for cam in 0..2 {
+        for k in 0..2 {
+            let g = pg["calibration"]["maps"][cam]["metres_per_pixel"][k]
+                .as_f64()
+                .unwrap();
+            let t = pt["calibration"]["maps"][cam]["metres_per_pixel"][k]
+                .as_f64()
+                .unwrap();
+            assert!(
+                ((g - t) / t).abs() < 1e-3,
+                "camera {cam} axis {k}: gcs {g}, twin {t}"
+            );
+        }
+    }
+    // Repeatability: the same experiment, the same magnitude of scatter (tens of nm).
+    let rep = |extra: &[&str], out: &str| {
+        let mut a = vec![
+            "experiment",
+            "repeatability",
+            "--runs",
+            "6",
+            "--calibration",
+            "cal",
+            "--format",
+            "json",
+            "--out",
+            out,
+        ];
+        a.extend_from_slice(extra);
+        ok(&run(&d, &a))
+    };
+    let g = rep(&["--backend", &backend], "rg");
+    let t = rep(&[], "rt");
+    let (eg, et) = (rms(&g), rms(&t));
+    assert!(eg < 80e-9 && et < 80e-9, "RMS gcs {eg}, twin {et}");
+    assert!(
+        g["truth"].is_null(),
+        "no truth over the wire: {}",
+        g["truth"]
+    );
+    drop(emu);
+    // The injection workflow, on an emulator with the plate: the same cells injected (a blocked doublet may go
+    // either way with the survey's noise), every injected cell alive with its dose.
+    let emu = Emulator::start(&d, &["--plate", "p.toml"]);
+    let backend = format!("gcs://{}", emu.gcs);
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--plate",
+            "p.toml",
+            "--calibration",
+            "cal/hysteresis.json",
+            "--db",
+            "g.sqlite",
+            "--backend",
+            &backend,
+            "--format",
+            "json",
+        ],
+    );
+    let g = ok(&o);
+    let t = ok(&run(
+        &d,
+        &[
+            "run",
+            "--plate",
+            "p.toml",
+            "--calibration",
+            "cal/hysteresis.json",
+            "--db",
+            "t.sqlite",
+            "--format",
+            "json",
+        ],
+    ));
+    assert_eq!(g["backend"], backend.as_str());
+    assert_eq!(g["cells_found"], t["cells_found"]);
+    let inj = |v: &Value| v["injected"].as_i64().unwrap();
+    assert!((inj(&g) - inj(&t)).abs() <= 1, "gcs {g}, twin {t}");
+    assert!(inj(&g) >= 3, "{g}");
+    for a in g["attempts"].as_array().unwrap() {
+        assert!(a["tip_error_m"].is_null(), "no truth over the wire");
+        if a["outcome"] == "injected" {
+            let m = a["measured_tip_error_m"].as_f64().unwrap();
+            assert!(m < 1.5e-6, "measured tip error {m}");
+        }
+    }
+    drop(emu);
+}
+
+/// A TCP proxy that can cut every connection it carries (those opened later pass).
+struct Proxy {
+    addr: String,
+    open: Arc<std::sync::Mutex<Vec<Arc<AtomicBool>>>>,
+}
+
+impl Proxy {
+    fn cut(&self) {
+        for c in self.open.lock().unwrap().drain(..) {
+            c.store(true, Ordering::SeqCst);
+        }
+    }
+}
+
+fn proxy(to: &str) -> Proxy {
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let open: Arc<std::sync::Mutex<Vec<Arc<AtomicBool>>>> = Arc::default();
+    let (to, o) = (to.to_string(), open.clone());
+    std::thread::spawn(move || {
+        for client in l.incoming() {
+            let Ok(client) = client else { return };
+            let Ok(server) = TcpStream::connect(&to) else {
+                continue;
+            };
+            let c = Arc::new(AtomicBool::new(false));
+            o.lock().unwrap().push(c.clone());
+            for (mut a, mut b) in [
+                (client.try_clone().unwrap(), server.try_clone().unwrap()),
+                (server, client),
+            ] {
+                let c = c.clone();
+                std::thread::spawn(move || {
+                    a.set_read_timeout(Some(Duration::from_millis(20))).unwrap();
+                    let mut buf = [0u8; 4096];
+                    loop {
+                        if c.load(Ordering::SeqCst) {
+                            let _ = a.shutdown(std::net::Shutdown::Both);
+                            let _ = b.shutdown(std::net::Shutdown::Both);
+                            return;
+                        }
+                        match a.read(&mut buf) {
+                            Ok(0) => {
+                                let _ = b.shutdown(std::net::Shutdown::Both);
+                                return;
+                            }
+                            Ok(n) => {
+                                if c.load(Ordering::SeqCst) || b.write_all(&buf[..n]).is_err() {
+                                    let _ = b.shutdown(std::net::Shutdown::Both);
+                                    return;
+                                }
+                            }
+                            Err(e)
+                                if e.kind() == std::io::ErrorKind::WouldBlock
+                                    || e.kind() == std::io::ErrorKind::TimedOut => {}
+                            Err(_) => return,
+                        }
+                    }
+                });
+            }
+        }
+    });
+    Proxy { addr, open }
+}
+
+#[test]
+fn a_link_cut_mid_run_stops_in_the_safe_state_with_the_reason_recorded() {
+    let d = dir("cut");
+    plate(&d);
+    let o = run(&d, &["calibrate", "hysteresis", "--out", "hy.json"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let emu = Emulator::start(&d, &["--plate", "p.toml"]);
+    let p = proxy(&emu.gcs);
+    let bench = {
+        let (h, port) = emu.gcs.rsplit_once(':').unwrap();
+        format!("{h}:{}", port.parse::<u16>().unwrap() + 1)
+    };
+    let backend = format!("gcs://{}", p.addr);
+    let child = Command::new(env!("CARGO_BIN_EXE_cellinject"))
+        .current_dir(&d)
+        .args([
+            "run",
+            "--plate",
+            "p.toml",
+            "--calibration",
+            "hy.json",
+            "--db",
+            "r.sqlite",
+            "--backend",
+            &backend,
+            "--bench",
+            &bench,
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Into the first cells (the workflow's calibration takes about 15 s of wall clock).
+    std::thread::sleep(Duration::from_secs(22));
+    p.cut();
+    let out = child.wait_with_output().unwrap();
+    let stderr = err(&out);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("stopped"), "{stderr}");
+    // The record says why; the run is `stopped`.
+    let show = ok(&run(&d, &["runs", "show", "--db", "r.sqlite"]));
+    assert_eq!(show["run"]["status"], "stopped", "{show}");
+    let why = show["run"]["stopped"].as_str().unwrap();
+    assert!(why.contains(&p.addr), "the reason names the link: {why}");
+    // The link came back (the proxy carries new connections): the stacks were
+    // stopped and the pipette withdrawn.
+    let mut g = TcpStream::connect(&emu.gcs).unwrap();
+    g.set_read_timeout(Some(Duration::from_secs(3))).unwrap();
+    g.write_all(b"SVA? 1 2 3\n").unwrap();
+    let mut got = String::new();
+    let mut r = BufReader::new(g);
+    for _ in 0..3 {
+        r.read_line(&mut got).unwrap();
+    }
+    let v: Vec<f64> = got
+        .lines()
+        .map(|l| l.trim().split('=').nth(1).unwrap().parse().unwrap())
+        .collect();
+    // A3 at 0 V within 0.05 V (a nanometre of its 60 um stroke): the pipette is out.
+    assert!(
+        v[2].abs() < 0.05,
+        "A3 withdrawn: {got:?}; run: {why}; stderr: {stderr}"
+    );
+}
+
+#[test]
+fn bad_backend_arguments_exit_2_and_name_the_argument() {
+    let d = dir("bad");
+    plate(&d);
+    for (args, needle) in [
+        (vec!["run", "--backend", "tcp://x:1"], "--backend"),
+        (vec!["run", "--backend", "gcs://127.0.0.1:99999"], "port"),
+        (
+            vec![
+                "run",
+                "--backend",
+                "gcs://127.0.0.1:1",
+                "--fault",
+                "clog@1",
+                "--plate",
+                "p.toml",
+            ],
+            "--fault",
+        ),
+        (vec!["run", "--backend", "gcs://127.0.0.1:1"], "--plate"),
+        (
+            vec![
+                "run",
+                "--backend",
+                "gcs-serial:///dev/ttyNOPE",
+                "--plate",
+                "p.toml",
+            ],
+            "--bench",
+        ),
+        (
+            vec!["experiment", "repeatability", "--bench", "127.0.0.1:1"],
+            "--bench",
+        ),
+        (
+            vec![
+                "experiment",
+                "repeatability",
+                "--backend",
+                "gcs://127.0.0.1:1",
+                "--seed",
+                "3",
+            ],
+            "--seed",
+        ),
+        (
+            vec!["experiment", "repeatability", "--camera", "frames"],
+            "--camera",
+        ),
+        (
+            vec![
+                "calibrate",
+                "pixels",
+                "--backend",
+                "gcs://127.0.0.1:1",
+                "--camera-fps",
+                "0",
+            ],
+            "--camera-fps",
+        ),
+        (vec!["emulate", "gcs", "--bind", "nonsense"], "--bind"),
+        (
+            vec![
+                "emulate",
+                "gcs",
+                "--bind",
+                "127.0.0.1:0",
+                "--fault",
+                "clog@1",
+            ],
+            "--plate",
+        ),
+        (
+            vec![
+                "emulate",
+                "gcs",
+                "--bind",
+                "127.0.0.1:0",
+                "--plate",
+                "missing.toml",
+            ],
+            "missing.toml",
+        ),
+    ] {
+        let o = run(&d, &args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", err(&o));
+        assert!(err(&o).contains(needle), "{args:?}: {}", err(&o));
+    }
+    // Nobody listening: a clear error naming the address (exit 1: the bench, not the
+    // arguments).
+    let o = run(
+        &d,
+        &["calibrate", "pixels", "--backend", "gcs://127.0.0.1:1"],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert!(err(&o).contains("127.0.0.1:1"), "{}", err(&o));
+}
