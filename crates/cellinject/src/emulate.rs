@@ -48,6 +48,9 @@ pub struct GcsArgs {
     /// Log connections and every command line on standard error.
     #[arg(long)]
     verbose: bool,
+    /// Stop serving after this many seconds (default: until killed).
+    #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
+    serve_for: Option<f64>,
 }
 
 fn bind(arg: &str, addr: &str) -> Result<TcpListener> {
@@ -58,6 +61,11 @@ fn bind(arg: &str, addr: &str) -> Result<TcpListener> {
 /// `cellinject emulate ...`.
 pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
     let EmulateCommand::Gcs(a) = cmd;
+    if let Some(t) = a.serve_for
+        && !(t.is_finite() && t > 0.0 && t <= 1e7)
+    {
+        return Err(InputError(format!("--serve-for must lie in (0, 1e7] s, got {t}")).into());
+    }
     let faults = a
         .fault
         .iter()
@@ -113,6 +121,12 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
             .map(|b| format!("; bench endpoint on {b}"))
             .unwrap_or_default()
     );
-    running.wait();
+    match a.serve_for {
+        Some(t) => {
+            std::thread::sleep(std::time::Duration::from_secs_f64(t));
+            running.shutdown();
+        }
+        None => running.wait(),
+    }
     Ok(())
 }

@@ -152,7 +152,10 @@ enum Command {
     )]
     Runs(run::RunsCommand),
     /// Emulated hardware backed by the twin, for drivers and third-party clients.
-    #[command(subcommand)]
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml"
+    )]
     Emulate(emulate::EmulateCommand),
     /// A run's records as one self-contained HTML page: plate map, tip-error and dose histograms, throughput, settings and calibrations.
     #[command(

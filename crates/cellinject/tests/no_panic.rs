@@ -160,6 +160,17 @@ fn values(opt: &Opt) -> Vec<String> {
         "volts" => v(&["1,2,3", "-1,0,0", "nan,0,0", "1,2", "200,0,0"]),
         "forces" => v(&["0,0", "-100,-100", "5,-5", "-1e9,0", "nan,0", "x"]),
         "shift" => v(&["0,0", "-0.4,0.25", "1e9,0", "nan,0", "x"]),
+        "backend" => v(&[
+            "twin",
+            "gcs://127.0.0.1:1",
+            "gcs-serial:///dev/null",
+            "gcs://",
+            "x",
+        ]),
+        "bench" | "allowed-host" => v(&["127.0.0.1:1", "none", "x", ""]),
+        "bind" => v(&["127.0.0.1:0", "nonsense", "127.0.0.1:99999", ""]),
+        "serve-for" => v(&["0.2", "0", "-1", "nan", "inf", "x"]),
+        "camera" => v(&["", "missing", "frames", "r.png"]),
         _ => v(&["-1", "0", "1e-300", "1e300", "nan", "inf", "-inf", "abc"]),
     };
     out.extend(opt.possible.iter().cloned());
@@ -270,6 +281,7 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
             "nr.sqlite",
         ],
         ["runs", "show"] | ["runs", "list"] | ["runs", "export"] => vec!["--db", "nr.sqlite"],
+        ["emulate", "gcs"] => vec!["--bind", "127.0.0.1:0", "--serve-for", "0.3"],
         _ => vec![],
     }
 }
