@@ -655,6 +655,21 @@ impl<'r, B: Backend> Workflow<'r, B> {
         hysteresis: Option<HysteresisCalibration>,
         obs: &mut dyn Observer,
     ) -> Result<(RunReport, HysteresisCalibration), WorkflowError> {
+        let r = self.run_inner(hysteresis, obs);
+        if r.is_err() {
+            // Whatever ended the run (a device lost in calibration, between cells),
+            // the pipette leaves for the safe state; the cause is what the caller
+            // records.
+            let _ = self.park();
+        }
+        r
+    }
+
+    fn run_inner(
+        &mut self,
+        hysteresis: Option<HysteresisCalibration>,
+        obs: &mut dyn Observer,
+    ) -> Result<(RunReport, HysteresisCalibration), WorkflowError> {
         let t_start = self.now();
         self.fire(Event::Begin, "run started".into(), obs, None)?;
         let (cal, why) = self.calibrate(hysteresis)?;
@@ -721,7 +736,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 stopped,
                 map: self.map,
                 attempts,
-                transitions: self.log,
+                transitions: std::mem::take(&mut self.log),
             },
             cal,
         ))
