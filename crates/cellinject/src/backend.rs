@@ -20,9 +20,10 @@ use crate::sim::TwinArgs;
 /// Where the commands go.
 #[derive(Debug, Clone, Args)]
 pub struct BackendArgs {
-    /// The hardware: `twin` (the digital twin, default), `gcs://HOST:PORT` (a PI GCS 2.0
-    /// controller over TCP, e.g. `cellinject emulate gcs`) or
-    /// `gcs-serial:///dev/ttyX[?baud=N]`.
+    /// The hardware: `twin` (the digital twin, default), `gcs://HOST[:PORT]` (a PI GCS
+    /// 2.0 controller over TCP, port 50000 by default, e.g. `cellinject emulate gcs`) or
+    /// `gcs-serial:///dev/ttyX[?baud=N]` (115200 baud by default). On connecting, the
+    /// controller's servos are switched off and the stacks brought to 0 V, A3 first.
     #[arg(
         long,
         default_value = "twin",
@@ -39,9 +40,9 @@ pub struct BackendArgs {
     /// write each whole, then rename it), instead of the bench endpoint's top camera.
     #[arg(long, value_name = "DIR")]
     pub camera: Option<std::path::PathBuf>,
-    /// Frames per second of that acquisition.
-    #[arg(long, default_value_t = 30.0, value_name = "FPS")]
-    pub camera_fps: f64,
+    /// Frames per second of that acquisition (default 30).
+    #[arg(long, value_name = "FPS")]
+    pub camera_fps: Option<f64>,
 }
 
 impl Default for BackendArgs {
@@ -50,7 +51,7 @@ impl Default for BackendArgs {
             backend: "twin".into(),
             bench: None,
             camera: None,
-            camera_fps: 30.0,
+            camera_fps: None,
         }
     }
 }
@@ -77,14 +78,26 @@ impl BackendArgs {
                 ))
                 .into());
             }
+            if self.camera_fps.is_some() {
+                return Err(
+                    InputError("--camera-fps goes with --camera and a GCS backend".into()).into(),
+                );
+            }
             return Ok(None);
         }
-        if !(self.camera_fps.is_finite() && self.camera_fps > 0.0) {
-            return Err(InputError(format!(
-                "--camera-fps must be positive, got {}",
-                self.camera_fps
-            ))
-            .into());
+        if let Some(f) = self.camera_fps
+            && !(f.is_finite() && f > 0.0)
+        {
+            return Err(InputError(format!("--camera-fps must be positive, got {f}")).into());
+        }
+        if let Some(b) = &self.bench {
+            let port = b.rsplit_once(':').map(|(_, p)| p);
+            if !port.is_some_and(|p| p.parse::<u16>().is_ok_and(|p| p > 0)) {
+                return Err(InputError(format!(
+                    "--bench `{b}` is not HOST:PORT (a port in 1..65535)"
+                ))
+                .into());
+            }
         }
         Endpoint::parse(&self.backend)
             .map(Some)
@@ -139,6 +152,10 @@ pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
     let gcs = endpoint
         .open(timeout)
         .map_err(|e| anyhow::anyhow!("--backend {}: {e}", b.backend))?;
+    // Whatever the controller was left doing: closed loops off (SVA needs them off).
+    let mut gcs = gcs;
+    gcs.set_servo(&[("1", false), ("2", false), ("3", false)])
+        .map_err(|e| anyhow::anyhow!("--backend {}: {e}", b.backend))?;
     let gcs: SharedGcs = std::sync::Arc::new(std::sync::Mutex::new(gcs));
     let ranges = [0, 1, 2].map(|k| (0.0, d.rig.amplifiers[k].v_max));
     let noise = [d.sim.sensors.noise; 3];
@@ -157,7 +174,7 @@ pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
                 let cam = cellinject_cameras::FolderCamera::new(
                     dir,
                     Box::new(move || lens.zoom().map_or(f64::NAN, |z| pitch / z)),
-                    b.camera_fps,
+                    b.camera_fps.unwrap_or(30.0),
                     Duration::from_secs(5),
                 )
                 .map_err(|e| InputError(format!("--camera: {e}")))?;
@@ -175,8 +192,17 @@ pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
         p.approach = a;
     }
     p.j3_yield = Some(crate::fea::j3_yield_check(d, p.approach)?);
-    let rig = Rig::new(devices, &d.design, &p)
+    let mut rig = Rig::new(devices, &d.design, &p)
         .map_err(|e| InputError(format!("--backend {}: {e}", b.backend)))?;
+    // A known start: the stacks at 0 V, A3 first (the pipette out), then A1 and A2;
+    // a second for their creep if they were elsewhere.
+    let was = [0, 1, 2].map(|k| rig.piezo[k].commanded_voltage());
+    let rest = |e| anyhow::anyhow!("--backend {}: bringing the stacks to 0 V: {e}", b.backend);
+    rig.piezo[2].set_voltage(0.0).map_err(rest)?;
+    rig.command_tilt([0.0, 0.0]).map_err(rest)?;
+    if was.iter().any(|v| v.abs() > 0.5) {
+        rig.clock.sleep(1.0).map_err(rest)?;
+    }
     Ok(Opened {
         twin: None,
         rig,

@@ -14,7 +14,7 @@ use crate::InputError;
 pub enum EmulateCommand {
     /// A PI GCS 2.0 piezo controller (E-727-like, axes 1, 2, 3 = the twin's A1, A2, A3)
     /// on TCP, and the rest of the bench (cameras, stage, injector, zoom) on the bench
-    /// endpoint; in wall-clock time, until killed.
+    /// endpoint; in wall-clock time, until killed (or `--serve-for` ends).
     #[command(
         after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml --seed 2\n  cellinject experiment repeatability --backend gcs://127.0.0.1:50000\n\nPositions are µm of stack extension (the stack's sensor), voltages V. Errors: 1 syntax, 2 unknown command, 5 MOV with servo off, 7 target beyond TMN?/TMX? or a closed-loop move the safety envelope stopped, 10 stopped (#24, HLT, STP), 15 unknown axis, 17 value out of range (SVA outside 0..Vmax, refused by the safety envelope, or with the servo on)."
     )]
@@ -92,13 +92,22 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
     let bench_addr = match a.bench.as_deref() {
         Some("none") => None,
         Some(b) => Some(b.to_string()),
-        None => Some(format!(
-            "{}:{}",
-            gcs_addr.ip(),
-            gcs_addr.port().wrapping_add(1)
-        )),
+        None if gcs_addr.port() == u16::MAX => {
+            return Err(InputError(format!(
+                "--bind {}: the bench endpoint's default port would be {} + 1: give --bench HOST:PORT (or none)",
+                a.bind,
+                u16::MAX
+            ))
+            .into());
+        }
+        None => Some(format!("{}:{}", gcs_addr.ip(), gcs_addr.port() + 1)),
     };
     let bench = match &bench_addr {
+        Some(b) if a.bench.is_none() => Some(TcpListener::bind(b.as_str()).map_err(|e| {
+            InputError(format!(
+                "the bench endpoint's default address {b} (the GCS port + 1): cannot listen: {e} (give --bench HOST:PORT or --bench none)"
+            ))
+        })?),
         Some(b) => Some(bind("--bench", b)?),
         None => None,
     };

@@ -496,14 +496,30 @@ fn file_bytes<T: Serialize + Clone>(kind: &str, made: &Made, c: &T) -> Result<Ve
 }
 
 /// Creates `dir` (and its parents) or says why not.
-fn make_dir(arg: &str, dir: &Path) -> Result<()> {
-    if dir.exists() && !dir.is_dir() {
-        return Err(InputError(format!(
-            "{arg} `{}` is a file, not a directory",
-            dir.display()
-        ))
-        .into());
+/// Refuses an output directory that cannot be made (a file in the way, or no existing
+/// directory above it); nothing is created yet, so a command that fails leaves nothing.
+fn check_dir(arg: &str, dir: &Path) -> Result<()> {
+    let mut p = Some(dir);
+    while let Some(d) = p {
+        if d.as_os_str().is_empty() || d.is_dir() {
+            return Ok(());
+        }
+        if d.exists() {
+            return Err(InputError(format!(
+                "{arg} `{}`: `{}` is a file, not a directory",
+                dir.display(),
+                d.display()
+            ))
+            .into());
+        }
+        p = d.parent();
     }
+    Ok(())
+}
+
+/// Creates an output directory (when the outputs are ready to be written).
+fn make_dir(arg: &str, dir: &Path) -> Result<()> {
+    check_dir(arg, dir)?;
     std::fs::create_dir_all(dir).map_err(|e| {
         InputError(format!(
             "{arg}: cannot create the directory `{}`: {e}",
@@ -529,6 +545,9 @@ impl Outputs {
     }
 
     fn add(&mut self, path: PathBuf, bytes: &[u8]) -> Result<()> {
+        if let Some(dir) = path.parent() {
+            make_dir("--out", dir)?;
+        }
         self.staged.add(&path, bytes)?;
         self.written.push(path);
         Ok(())
@@ -581,7 +600,7 @@ fn check_out(bench: &BenchArgs) -> Result<()> {
         ))
         .into());
     }
-    make_dir("--out", &bench.out)
+    check_dir("--out", &bench.out)
 }
 
 fn um(x: f64) -> String {
@@ -1221,7 +1240,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             Ok(())
         }
         CalibrateCommand::All { out, twin, backend } => {
-            make_dir("--out", out)?;
+            check_dir("--out", out)?;
             let mut s = setup(d, twin, backend)?;
             let (_, _, made) = calibrations(&mut s, None)?;
             let mut o = Outputs::new();

@@ -384,6 +384,17 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             Some(text)
         }
     };
+    // A controller that cannot be reached leaves no run behind: it is opened before
+    // the database.
+    let mut wire = if args.backend.is_twin() {
+        None
+    } else {
+        Some(crate::backend::open(
+            d,
+            &crate::sim::TwinArgs::new(None, None),
+            &args.backend,
+        )?)
+    };
     let mut db = Records::open(&args.db).map_err(records_error)?;
     let (run_id, plate_text, seed, previous, base) = if args.resume {
         let r = db.run(None).map_err(records_error)?;
@@ -490,7 +501,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         (Some(twin), o.rig)
     } else {
         // The emulator (or the real bench) holds the plate and the stage's start.
-        let o = crate::backend::open(d, &crate::sim::TwinArgs::new(None, None), &args.backend)?;
+        let o = wire.take().expect("opened before the database");
         (None, o.rig)
     };
     let mut rec = Recorder {
@@ -638,13 +649,18 @@ pub fn runs(cmd: &RunsCommand) -> Result<()> {
                 let a = db.attempts(r.id).map_err(records_error)?;
                 let inj = a.iter().filter(|a| a.outcome == "injected").count();
                 outln!(
-                    "run {}: {}, {} cells found, {} attempts, {} injected, {:.1} s simulated{}",
+                    "run {}: {}, {} cells found, {} attempts, {} injected, {:.1} s {}{}",
                     r.id,
                     r.status,
                     r.cells_found,
                     a.len(),
                     inj,
                     r.sim_time_s,
+                    if r.backend == "twin" {
+                        "simulated".to_string()
+                    } else {
+                        format!("on {}", r.backend)
+                    },
                     r.stopped
                         .map(|s| format!(" (stopped: {s})"))
                         .unwrap_or_default()

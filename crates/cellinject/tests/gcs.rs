@@ -412,6 +412,25 @@ fn bad_backend_arguments_exit_2_and_name_the_argument() {
             ],
             "--camera-fps",
         ),
+        (
+            vec!["experiment", "repeatability", "--camera-fps", "5"],
+            "--camera-fps",
+        ),
+        (
+            vec![
+                "calibrate",
+                "pixels",
+                "--backend",
+                "gcs://127.0.0.1:1",
+                "--bench",
+                "notaport",
+            ],
+            "--bench",
+        ),
+        (
+            vec!["emulate", "gcs", "--bind", "127.0.0.1:65535"],
+            "--bench",
+        ),
         (vec!["emulate", "gcs", "--bind", "nonsense"], "--bind"),
         (
             vec![
@@ -448,4 +467,32 @@ fn bad_backend_arguments_exit_2_and_name_the_argument() {
     );
     assert_eq!(o.status.code(), Some(1), "{}", err(&o));
     assert!(err(&o).contains("127.0.0.1:1"), "{}", err(&o));
+    // ... and leaves nothing behind: no output directory, no run record.
+    let o = run(
+        &d,
+        &[
+            "calibrate",
+            "all",
+            "--backend",
+            "gcs://127.0.0.1:1",
+            "--out",
+            "cal2",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert!(!d.join("cal2").exists());
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--backend",
+            "gcs://127.0.0.1:1",
+            "--plate",
+            "p.toml",
+            "--db",
+            "q.sqlite",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert!(!d.join("q.sqlite").exists());
 }

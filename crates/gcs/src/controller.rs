@@ -112,7 +112,17 @@ impl Gcs {
             reconnections: 0,
         };
         g.link.set_timeout(timeout).map_err(|e| g.link_error(&e))?;
-        let _ = g.error()?;
+        if let Err(e) = g.error() {
+            return Err(match e {
+                GcsError::Timeout { link, seconds, .. } => GcsError::Link {
+                    link,
+                    message: format!(
+                        "connected, but no reply to `ERR?` within {seconds} s (another client may hold the controller: it serves one at a time)"
+                    ),
+                },
+                other => other,
+            });
+        }
         g.axes = g.axes_query()?;
         Ok(g)
     }
