@@ -120,18 +120,21 @@ pub struct Opened {
 /// Opens the backend of `b` for description `d` (with the twin's options of `t`).
 pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
     let Some(endpoint) = b.check()? else {
-        let (twin, _) = crate::sim::build(d, t)?;
-        let (design, params) = {
-            let tw = twin.lock().unwrap_or_else(|e| e.into_inner());
-            (*tw.world.mechanism().design(), tw.world.params().rig)
-        };
-        let rig = Rig::new(cellinject_twin::devices(&twin).boxed(), &design, &params)
+        let twin = crate::sim::twin(d, t)?;
+        let rig = cellinject_twin::dyn_rig(&twin)
             .map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
+        let approach = twin
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .world
+            .params()
+            .rig
+            .approach;
         return Ok(Opened {
             twin: Some(twin),
             rig,
             name: "twin".into(),
-            approach: params.approach,
+            approach,
         });
     };
     if t.seed_given() {

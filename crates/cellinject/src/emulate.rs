@@ -111,7 +111,7 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
         Some(b) => Some(bind("--bench", b)?),
         None => None,
     };
-    let (twin, _) = crate::sim::build(d, &crate::sim::TwinArgs::new(a.approach, a.seed))?;
+    let twin = crate::sim::twin(d, &crate::sim::TwinArgs::new(a.approach, a.seed))?;
     if let Some(plate) = &plate {
         let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
         t.load_plate(plate);

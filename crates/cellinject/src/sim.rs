@@ -175,6 +175,14 @@ fn channel(name: &str) -> Result<usize> {
 
 /// Builds the twin of the description and its guarded rig.
 pub(crate) fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig<TwinBackend>)> {
+    let twin = twin(d, args)?;
+    let rig = cellinject_twin::rig(&twin)
+        .map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
+    Ok((twin, rig))
+}
+
+/// Builds the twin of the description (its J3 yield check from the FEA cache).
+pub(crate) fn twin(d: &Description, args: &TwinArgs) -> Result<SharedTwin> {
     let mut p = TwinParams {
         rig: d.rig,
         sim: d.sim,
@@ -186,12 +194,9 @@ pub(crate) fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig
         p.sim.seed = s;
     }
     p.rig.j3_yield = Some(crate::fea::j3_yield_check(d, p.rig.approach)?);
-    let twin = Twin::new(&d.design, p)
+    Ok(Twin::new(&d.design, p)
         .map_err(|e| InputError(format!("cannot build the twin: {e}")))?
-        .into_shared();
-    let rig = cellinject_twin::rig(&twin)
-        .map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
-    Ok((twin, rig))
+        .into_shared())
 }
 
 /// Every refusal and every bad argument of a program is the user's to fix: exit code 2.

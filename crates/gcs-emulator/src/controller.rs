@@ -475,9 +475,4 @@ impl Controller {
             }
         }
     }
-
-    /// The names of the axes' stacks, in axis order.
-    pub fn stack_names() -> [&'static str; 3] {
-        ACTUATOR_NAMES
-    }
 }

@@ -15,6 +15,17 @@ use serde_json::json;
 use crate::bench::{self, FrameHeader, Request, ViewName};
 use crate::controller::Controller;
 
+/// Whether an IO error only means "nothing yet" (the 50 ms read timeout that lets a
+/// connection notice the shutdown).
+fn is_wait(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock
+            | std::io::ErrorKind::TimedOut
+            | std::io::ErrorKind::Interrupted
+    )
+}
+
 /// Longest command line accepted; a longer one is dropped with error 1.
 pub const MAX_LINE: usize = 4096;
 
@@ -160,14 +171,7 @@ fn serve_gcs(s: &Shared, mut stream: TcpStream) {
         let n = match stream.read(&mut chunk) {
             Ok(0) => return,
             Ok(n) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::Interrupted
-                ) =>
-            {
+            Err(e) if is_wait(&e) => {
                 continue;
             }
             Err(_) => return,
@@ -229,14 +233,7 @@ fn serve_bench(s: &Shared, stream: TcpStream, d: &mut cellinject_rig::Devices<Tw
         match reader.read_line(&mut line) {
             Ok(0) => return,
             Ok(_) => {}
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock
-                        | std::io::ErrorKind::TimedOut
-                        | std::io::ErrorKind::Interrupted
-                ) =>
-            {
+            Err(e) if is_wait(&e) => {
                 continue;
             }
             Err(_) => return,

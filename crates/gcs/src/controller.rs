@@ -206,19 +206,25 @@ impl Gcs {
 
     /// Reads one complete reply (all its lines).
     fn read_reply(&mut self, command: &str) -> R<String> {
+        let bytes = self.read_framed(command, protocol::reply_end)?;
+        match String::from_utf8(bytes) {
+            Ok(s) => Ok(s),
+            Err(e) => Err(self.lose(GcsError::Reply {
+                link: self.link.describe(),
+                command: command.to_string(),
+                reply: String::from_utf8_lossy(e.as_bytes()).into_owned(),
+                reason: "not text",
+            })),
+        }
+    }
+
+    /// Reads until `end` finds a complete answer in what arrived (the index past it),
+    /// within the timeout; returns the answer's bytes, keeping what follows.
+    fn read_framed(&mut self, command: &str, end: fn(&[u8]) -> Option<usize>) -> R<Vec<u8>> {
         let start = Instant::now();
         loop {
-            if let Some(end) = protocol::reply_end(&self.buf) {
-                let bytes: Vec<u8> = self.buf.drain(..end).collect();
-                return match String::from_utf8(bytes) {
-                    Ok(s) => Ok(s),
-                    Err(e) => Err(self.lose(GcsError::Reply {
-                        link: self.link.describe(),
-                        command: command.to_string(),
-                        reply: String::from_utf8_lossy(e.as_bytes()).into_owned(),
-                        reason: "not text",
-                    })),
-                };
+            if let Some(k) = end(&self.buf) {
+                return Ok(self.buf.drain(..k).collect());
             }
             if self.buf.len() > 1 << 16 {
                 let reply = String::from_utf8_lossy(&self.buf[..64]).into_owned();
@@ -245,13 +251,7 @@ impl Gcs {
                     }));
                 }
                 Ok(n) => self.buf.extend_from_slice(&chunk[..n]),
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock
-                            | std::io::ErrorKind::TimedOut
-                            | std::io::ErrorKind::Interrupted
-                    ) => {}
+                Err(e) if crate::link::is_wait(&e) => {}
                 Err(e) => return Err(self.lose(self.link_error(&e))),
             }
         }
@@ -552,44 +552,16 @@ impl Gcs {
         self.link
             .send(&[protocol::READY])
             .map_err(|e| self.lose(self.link_error(&e)))?;
-        let start = Instant::now();
-        loop {
-            if let Some(k) = self.buf.iter().position(|&b| b == b'\n') {
-                let line: Vec<u8> = self.buf.drain(..=k).collect();
-                return match line.as_slice() {
-                    [protocol::READY_BYTE, b'\n'] => Ok(true),
-                    [protocol::BUSY_BYTE, b'\n'] => Ok(false),
-                    _ => Err(self.lose(GcsError::Reply {
-                        link: self.link.describe(),
-                        command: "#7".into(),
-                        reply: format!("{line:02X?}"),
-                        reason: "`#7` answers the byte 0xB1 or 0xB0 and LF",
-                    })),
-                };
-            }
-            if start.elapsed() >= self.timeout {
-                return Err(self.lose(GcsError::Timeout {
-                    link: self.link.describe(),
-                    command: "#7".into(),
-                    seconds: self.timeout.as_secs_f64(),
-                }));
-            }
-            let mut chunk = [0u8; 64];
-            match self.link.receive(&mut chunk) {
-                Ok(0) => {
-                    return Err(self.lose(GcsError::Link {
-                        link: self.link.describe(),
-                        message: "the controller closed the connection".into(),
-                    }));
-                }
-                Ok(n) => self.buf.extend_from_slice(&chunk[..n]),
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) => {}
-                Err(e) => return Err(self.lose(self.link_error(&e))),
-            }
+        let line = self.read_framed("#7", |b| b.iter().position(|&c| c == b'\n').map(|k| k + 1))?;
+        match line.as_slice() {
+            [protocol::READY_BYTE, b'\n'] => Ok(true),
+            [protocol::BUSY_BYTE, b'\n'] => Ok(false),
+            _ => Err(self.lose(GcsError::Reply {
+                link: self.link.describe(),
+                command: "#7".into(),
+                reply: format!("{line:02X?}"),
+                reason: "`#7` answers the byte 0xB1 or 0xB0 and LF",
+            })),
         }
     }
 

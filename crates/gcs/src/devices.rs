@@ -34,6 +34,8 @@ pub struct GcsPiezo {
     gcs: SharedGcs,
     axis: String,
     name: &'static str,
+    /// The parameter's name in range errors (`A1 voltage`).
+    what: &'static str,
     range: (f64, f64),
     commanded: f64,
 }
@@ -62,6 +64,7 @@ pub fn stacks(
         gcs: gcs.clone(),
         axis: axes[k].to_string(),
         name: names[k],
+        what: ["A1 voltage", "A2 voltage", "A3 voltage"][k],
         range: ranges[k],
         commanded: commanded[k],
     });
@@ -74,8 +77,6 @@ pub fn stacks(
     Ok((piezo, sensors))
 }
 
-const WHAT: [&str; 3] = ["A1 voltage", "A2 voltage", "A3 voltage"];
-
 impl PiezoChannel for GcsPiezo {
     fn name(&self) -> &str {
         self.name
@@ -84,12 +85,7 @@ impl PiezoChannel for GcsPiezo {
         self.range
     }
     fn set_voltage(&mut self, volts: f64) -> Result<(), HwError> {
-        let what = match self.name {
-            "A1" => WHAT[0],
-            "A2" => WHAT[1],
-            _ => WHAT[2],
-        };
-        check_range(what, volts, self.range.0, self.range.1)?;
+        check_range(self.what, volts, self.range.0, self.range.1)?;
         let mut g = lock(&self.gcs);
         match g.set_voltage(&[(&self.axis, volts)]) {
             Ok(()) => {

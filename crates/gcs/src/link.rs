@@ -5,6 +5,14 @@ use std::io::{self, Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
 use std::time::Duration;
 
+/// Whether an IO error only means "nothing yet" (a read timeout, an interrupted call).
+pub fn is_wait(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
+    )
+}
+
 /// A byte link to a controller.
 pub trait Transport: Send {
     /// Sends all of `bytes` (one write: a command is never split by us).

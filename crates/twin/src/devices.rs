@@ -561,9 +561,19 @@ pub fn devices(twin: &SharedTwin) -> Devices<TwinBackend> {
 /// The twin's devices behind the safety guards of its own design and rig description,
 /// as a controller should see them.
 pub fn rig(twin: &SharedTwin) -> Result<Rig<TwinBackend>, RigError> {
+    guarded(twin, devices(twin))
+}
+
+/// The same as [`rig`], every device boxed (for front ends that pick their backend at
+/// run time).
+pub fn dyn_rig(twin: &SharedTwin) -> Result<Rig<cellinject_rig::DynBackend>, RigError> {
+    guarded(twin, devices(twin).boxed())
+}
+
+fn guarded<B: Backend>(twin: &SharedTwin, devices: Devices<B>) -> Result<Rig<B>, RigError> {
     let (design, params) = {
         let t = lock(twin);
         (*t.world.mechanism().design(), t.world.params().rig)
     };
-    Rig::new(devices(twin), &design, &params)
+    Rig::new(devices, &design, &params)
 }

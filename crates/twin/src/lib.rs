@@ -27,5 +27,7 @@ pub use cellinject_simparams as params;
 
 pub use biology::{Biology, CellState, Death, Fault};
 pub use camera::{CellLook, Microscope, TipPose};
-pub use devices::{SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, rig};
+pub use devices::{
+    SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, dyn_rig, rig,
+};
 pub use world::{Snapshot, TwinError, World};
