@@ -150,6 +150,15 @@ pub enum HwError {
         /// How long we waited.
         seconds: f64,
     },
+    /// The operator interrupted what was going on (an abort): nothing is wrong with
+    /// the device, but the program must stop and make the bench safe.
+    #[error("interrupted ({device}): {reason}")]
+    Interrupted {
+        /// Which device noticed.
+        device: String,
+        /// Why, in words.
+        reason: String,
+    },
     /// Any other device failure.
     #[error("{device}: {message}")]
     Device {

@@ -78,7 +78,7 @@ pub struct RunRow {
     pub id: i64,
     /// Seconds since the Unix epoch when it was created.
     pub created: i64,
-    /// `running`, `finished` or `stopped`.
+    /// `running`, `finished`, `stopped` (on a fault) or `aborted` (by the operator).
     pub status: String,
     /// The plate file's text.
     #[serde(skip)]

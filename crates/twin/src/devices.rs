@@ -16,7 +16,7 @@ use cellinject_numeric::Rng;
 use cellinject_rig::{Backend, Devices, Rig, RigError};
 
 use crate::biology::{Biology, Fault};
-use crate::camera::{Microscope, TipPose};
+use crate::camera::{Grid, Microscope, TipPose};
 use crate::scene::Scene;
 pub use crate::world::TwinParams;
 use crate::world::{TwinError, World};
@@ -62,6 +62,8 @@ pub struct Twin {
     /// The loaded plate's cells as living things (see [`Twin::load_plate`]).
     pub biology: Option<Biology>,
     pulse_rng: Rng,
+    /// Frames rendered by [`Twin::peek`].
+    peeks: u64,
 }
 
 /// A twin shared by its device handles.
@@ -199,6 +201,7 @@ impl Twin {
             exposure: None,
             biology: None,
             pulse_rng: Rng::new(sim.seed, crate::world::stream::PULSES),
+            peeks: 0,
         })
     }
 
@@ -302,6 +305,50 @@ impl Twin {
         };
         cam.render(&pose, e.start, e.index, seed, frame);
         self.last_frame[v] = Some(e.index);
+    }
+
+    /// A copy of the microscope for a live display: the whole field, binned 4 x 4,
+    /// 8 bits, drawing its own noise. Render with [`Twin::peek`]; make a new one when
+    /// another plate is loaded.
+    pub fn view_camera(&self) -> Microscope {
+        let mut cam = self
+            .camera
+            .clone()
+            .with_noise_stream(crate::world::stream::VIEW);
+        let (w, h) = (cam.params().width, cam.params().height);
+        let s = CameraSettings {
+            roi: cellinject_hw::Roi {
+                x: 0,
+                y: 0,
+                width: w - w % 4,
+                height: h - h % 4,
+            },
+            binning: 4,
+            bit_depth: 8,
+            ..cam.settings()
+        };
+        // Settings of the camera's own family: valid by construction.
+        let _ = cam.configure(s);
+        cam
+    }
+
+    /// Renders the scene as it is now through `cam` (from [`Twin::view_camera`]) into
+    /// `frame`, for a display: no frame is waited for, time does not move and the
+    /// microscope's own frames are untouched. Returns the output grid (where the
+    /// frame's pixels lie in the object plane).
+    pub fn peek(&mut self, cam: &mut Microscope, frame: &mut Frame) -> Grid {
+        if cam.zoom() != self.camera.zoom() {
+            let _ = cam.set_zoom(self.camera.zoom());
+        }
+        if let Some(b) = self.biology.as_ref() {
+            cam.set_cell_looks(&b.looks());
+        }
+        let pose = self.tip();
+        let now = self.world.time();
+        self.peeks += 1;
+        let seed = self.world.params().sim.seed;
+        cam.render(&pose, now, self.peeks, seed, frame);
+        cam.grid()
     }
 
     /// Puts the twin behind shared device handles.
@@ -570,7 +617,9 @@ pub fn dyn_rig(twin: &SharedTwin) -> Result<Rig<cellinject_rig::DynBackend>, Rig
     guarded(twin, devices(twin).boxed())
 }
 
-fn guarded<B: Backend>(twin: &SharedTwin, devices: Devices<B>) -> Result<Rig<B>, RigError> {
+/// Devices of `twin` (from [`devices`], possibly wrapped, e.g. by a dashboard that
+/// watches them) behind the guards of the twin's own design and rig description.
+pub fn guarded<B: Backend>(twin: &SharedTwin, devices: Devices<B>) -> Result<Rig<B>, RigError> {
     let (design, params) = {
         let t = lock(twin);
         (*t.world.mechanism().design(), t.world.params().rig)

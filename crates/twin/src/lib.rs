@@ -26,8 +26,8 @@ pub use cellinject_numeric::rng;
 pub use cellinject_simparams as params;
 
 pub use biology::{Biology, CellState, Death, Fault};
-pub use camera::{CellLook, Microscope, TipPose};
+pub use camera::{CellLook, Grid, Microscope, TipPose};
 pub use devices::{
-    SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, dyn_rig, rig,
+    SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, dyn_rig, guarded, rig,
 };
 pub use world::{Snapshot, TwinError, World};

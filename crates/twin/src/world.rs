@@ -31,6 +31,8 @@ pub(crate) mod stream {
     pub const BIOLOGY: u64 = 11;
     /// The injector's pulse-to-pulse scatter.
     pub const PULSES: u64 = 12;
+    /// A live display's copy of the microscope ([`crate::Twin::view_camera`]).
+    pub const VIEW: u64 = 13;
 }
 
 /// Why a twin could not be built.

@@ -329,6 +329,12 @@ pub trait Observer {
     fn finished(&mut self, _a: &Attempt) -> Result<(), String> {
         Ok(())
     }
+    /// Asked before each cell, the pipette out of every cell: block here to hold the
+    /// run (a pause), or answer `Err(why)` to end it (an abort: the pipette parks and
+    /// the run reports `why` as why it stopped).
+    fn proceed(&mut self) -> Result<(), String> {
+        Ok(())
+    }
     /// The tip's true distance to the cell (the twin), when the pulse starts.
     fn tip_error(&mut self, _target: &Target) -> Option<f64> {
         None
@@ -692,6 +698,11 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let mut attempts = Vec::new();
         let mut stopped = None;
         for target in &targets {
+            if let Err(why) = obs.proceed() {
+                self.fire(Event::Fatal, why.clone(), obs, None)?;
+                stopped = Some(why);
+                break;
+            }
             if obs.done(target) {
                 self.fire(
                     Event::CellSkipped,
@@ -747,10 +758,20 @@ impl<'r, B: Backend> Workflow<'r, B> {
         if let Some(mut s) = self.servo.take() {
             // A3 out first (straight back along its axis), then A1/A2 relaxed: never
             // sideways inside a cell.
-            let r = s.wait(self.rig, 0.15, Some((0.0, 500e-6))).and_then(|()| {
-                s.refs = [0.0; 2];
-                s.wait(self.rig, 0.05, None)
-            });
+            let r = s
+                .wait(self.rig, 0.15, Some((0.0, 500e-6)))
+                .and_then(|()| {
+                    s.refs = [0.0; 2];
+                    s.wait(self.rig, 0.05, None)
+                })
+                .and_then(|()| {
+                    // The tip is back at A3's rest: the loop's holding offset goes too,
+                    // so that the stack rests at 0 V (the pipette fully withdrawn, the
+                    // same whether the loops or straight commands parked it).
+                    s.a3_ref = 0.0;
+                    s.a3_int = 0.0;
+                    self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))
+                });
             self.servo = Some(s);
             if let Err(e) = r {
                 // The loops lost a device (a link that broke, a reply that never
@@ -930,9 +951,19 @@ impl<'r, B: Backend> Workflow<'r, B> {
                     ));
                 }
                 let c = crate::calibrate::hysteresis(self.rig, self.options.hysteresis_samples, 20)
-                    .map_err(|e| WorkflowError::Calibration {
-                        what: "hysteresis",
-                        reason: e.to_string(),
+                    .map_err(|e| match e {
+                        // Not the calibration's fault: the operator stopped it.
+                        crate::bench::BenchError::Device {
+                            source: source @ HwError::Interrupted { .. },
+                            ..
+                        } => WorkflowError::Device {
+                            what: "hysteresis calibration",
+                            source,
+                        },
+                        e => WorkflowError::Calibration {
+                            what: "hysteresis",
+                            reason: e.to_string(),
+                        },
                     })?;
                 if let Some(p) = c.problem() {
                     return Err(WorkflowError::Calibration {
