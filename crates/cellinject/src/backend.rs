@@ -119,9 +119,20 @@ pub struct Opened {
 
 /// Opens the backend of `b` for description `d` (with the twin's options of `t`).
 pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
+    open_with(d, t, b, |devices| devices)
+}
+
+/// [`open`], the devices wrapped by `wrap` before the guards go round them (a
+/// dashboard watching them).
+pub fn open_with(
+    d: &Description,
+    t: &TwinArgs,
+    b: &BackendArgs,
+    wrap: impl FnOnce(Devices<DynBackend>) -> Devices<DynBackend>,
+) -> Result<Opened> {
     let Some(endpoint) = b.check()? else {
         let twin = crate::sim::twin(d, t)?;
-        let rig = cellinject_twin::dyn_rig(&twin)
+        let rig = cellinject_twin::guarded(&twin, wrap(cellinject_twin::devices(&twin).boxed()))
             .map_err(|e| InputError(format!("cannot build the twin: {e}")))?;
         let approach = twin
             .lock()
@@ -195,7 +206,7 @@ pub fn open(d: &Description, t: &TwinArgs, b: &BackendArgs) -> Result<Opened> {
         p.approach = a;
     }
     p.j3_yield = Some(crate::fea::j3_yield_check(d, p.approach)?);
-    let mut rig = Rig::new(devices, &d.design, &p)
+    let mut rig = Rig::new(wrap(devices), &d.design, &p)
         .map_err(|e| InputError(format!("--backend {}: {e}", b.backend)))?;
     // A known start: the stacks at 0 V, A3 first (the pipette out), then A1 and A2;
     // a second for their creep if they were elsewhere.

@@ -76,16 +76,7 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
     }
     let plate = match &a.plate {
         None => None,
-        Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())))?;
-            let plate = cellinject_config::plate::parse(&text)
-                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
-            plate
-                .check()
-                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
-            Some(plate)
-        }
+        Some(p) => Some(crate::run::read_plate(p)?.0),
     };
     let gcs = bind("--bind", &a.bind)?;
     let gcs_addr = gcs.local_addr()?;

@@ -29,6 +29,7 @@ mod plate;
 mod progress;
 mod report;
 mod run;
+mod serve;
 mod sim;
 
 use std::path::PathBuf;
@@ -157,6 +158,11 @@ enum Command {
         after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml"
     )]
     Emulate(emulate::EmulateCommand),
+    /// The live web dashboard of the bench: camera view, plots, plate map, run controls (loopback unless --allow-remote).
+    #[command(
+        after_help = "Examples:\n  cellinject serve                       # http://127.0.0.1:8080/ on the twin, paced to wall time\n  cellinject serve --fast --plate plate.toml\n  cellinject serve --bind 0.0.0.0:8080 --allow-remote --allowed-host bench.lab\n  cellinject serve --backend gcs://192.168.0.20:50000 --plate plate.toml\n\nAPI (docs/dashboard.md): GET /api/status, /api/events (live stream), /api/runs, /runs/ID; POST /api/run, /api/pause, /api/resume, /api/abort, /api/calibrate, /api/safe, /api/jog {\"axis\": \"A1\", \"by\": 1.0}. With --allow-remote every request carries `Authorization: Bearer TOKEN` (or the session cookie from POST /api/session)."
+    )]
+    Serve(serve::ServeArgs),
     /// A run's records as one self-contained HTML page: plate map, tip-error and dose histograms, throughput, settings and calibrations.
     #[command(
         after_help = "Examples:\n  cellinject report --out report\n  cellinject report --db runs.sqlite --run 2 --out run2"
@@ -241,6 +247,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Some(Command::Run(args)) => run::run(&description()?, &args),
         Some(Command::Emulate(cmd)) => emulate::run(&description()?, &cmd),
+        Some(Command::Serve(args)) => serve::serve(&description()?, &args),
         Some(Command::Report { db, run, out }) => {
             unused_config();
             let f = report::report(&db, run, &out)?;

@@ -130,6 +130,13 @@ pub fn report(db: &Path, id: Option<i64>, out: &Path) -> Result<PathBuf> {
     plan.input("--db", db);
     plan.output("--out", &file, &[Kind::Html])?;
     plan.check()?;
+    let html = html(&run, &attempts)?;
+    write_one(&file, html.as_bytes())?;
+    Ok(file)
+}
+
+/// A run's report: one self-contained HTML page.
+pub fn html(run: &RunRow, attempts: &[AttemptRow]) -> Result<String> {
     let tips: Vec<f64> = attempts
         .iter()
         .filter_map(|a| a.tip_error_m.map(|e| e * 1e6))
@@ -142,7 +149,7 @@ pub fn report(db: &Path, id: Option<i64>, out: &Path) -> Result<PathBuf> {
     let t0 = attempts.first().map_or(0.0, |a| a.t_start);
     let mut done = 0.0;
     let mut through = vec![(0.0, 0.0)];
-    for a in &attempts {
+    for a in attempts {
         if a.outcome == "injected" {
             done += 1.0;
         }
@@ -211,10 +218,9 @@ pub fn report(db: &Path, id: Option<i64>, out: &Path) -> Result<PathBuf> {
         tip = mean(&tips),
         stopped = esc(run.stopped.as_deref().unwrap_or("no")),
         resumed = run.resumed,
-        map = plate_map(&run, &attempts),
+        map = plate_map(run, attempts),
         settings = esc(&settings),
         calibration = esc(&calibration),
     );
-    write_one(&file, html.as_bytes())?;
-    Ok(file)
+    Ok(html)
 }

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, anyhow};
 use cellinject_config::Description;
+use cellinject_core::calibrate::HysteresisCalibration;
 use cellinject_core::inject::{Attempt, Observer, Options, Target, Transition, Workflow};
 use cellinject_plate::{GenerateOptions, Plate, generate};
 use cellinject_records::{AttemptRow, Records, RecordsError, RunRow};
@@ -195,6 +196,8 @@ struct Recorder<'a> {
     current: Option<i64>,
     previous: Vec<AttemptRow>,
     bar: Option<crate::progress::Progress>,
+    /// Show a progress bar.
+    progress: bool,
 }
 
 impl Recorder<'_> {
@@ -259,8 +262,10 @@ impl Observer for Recorder<'_> {
         }
     }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
-        let left = targets.iter().filter(|t| !self.done(t)).count();
-        self.bar = Some(crate::progress::rate_bar(left as u64, "cells"));
+        if self.progress {
+            let left = targets.iter().filter(|t| !self.done(t)).count();
+            self.bar = Some(crate::progress::rate_bar(left as u64, "cells"));
+        }
         Ok(())
     }
     fn done(&self, t: &Target) -> bool {
@@ -332,6 +337,148 @@ impl Observer for Recorder<'_> {
     }
 }
 
+/// One run on an opened bench: what [`execute`] needs.
+pub(crate) struct Job<'a> {
+    pub d: &'a Description,
+    pub options: Options,
+    pub hysteresis: Option<HysteresisCalibration>,
+    /// The twin, when it is the backend (its truth goes into the records).
+    pub twin: Option<SharedTwin>,
+    pub plate: Plate,
+    /// The run's record.
+    pub run_id: i64,
+    /// Attempts already recorded (a resumed run).
+    pub previous: Vec<AttemptRow>,
+    /// Device time of earlier segments (a resumed run): whole run, cells.
+    pub base: (f64, f64),
+    /// A progress bar on standard error.
+    pub progress: bool,
+}
+
+/// The workflow's observer calls go to the records and, if given, to a second
+/// observer (the dashboard); the records answer the questions.
+struct Tee<'a, 'b> {
+    rec: Recorder<'a>,
+    extra: Option<&'b mut dyn Observer>,
+}
+
+impl Observer for Tee<'_, '_> {
+    fn transition(&mut self, t: &Transition) {
+        self.rec.transition(t);
+        if let Some(x) = self.extra.as_mut() {
+            x.transition(t);
+        }
+    }
+    fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
+        self.rec.surveyed(targets)?;
+        self.extra.as_mut().map_or(Ok(()), |x| x.surveyed(targets))
+    }
+    fn done(&self, t: &Target) -> bool {
+        self.rec.done(t)
+    }
+    fn started(&mut self, a: &Attempt) -> Result<(), String> {
+        self.rec.started(a)?;
+        self.extra.as_mut().map_or(Ok(()), |x| x.started(a))
+    }
+    fn contact(&mut self, a: &Attempt) -> Result<(), String> {
+        self.rec.contact(a)?;
+        self.extra.as_mut().map_or(Ok(()), |x| x.contact(a))
+    }
+    fn finished(&mut self, a: &Attempt) -> Result<(), String> {
+        self.rec.finished(a)?;
+        self.extra.as_mut().map_or(Ok(()), |x| x.finished(a))
+    }
+    fn proceed(&mut self) -> Result<(), String> {
+        self.extra.as_mut().map_or(Ok(()), |x| x.proceed())
+    }
+    fn tip_error(&mut self, t: &Target) -> Option<f64> {
+        self.rec.tip_error(t)
+    }
+    fn cell_truth(&mut self, t: &Target) -> Option<(f64, bool)> {
+        self.rec.cell_truth(t)
+    }
+}
+
+/// What a run's workflow returned.
+pub(crate) type Outcome = Result<
+    (cellinject_core::inject::RunReport, HysteresisCalibration),
+    cellinject_core::inject::WorkflowError,
+>;
+
+/// Runs `job` on `rig`, recording every attempt in `db` and the run's end: `finished`,
+/// `stopped`, or `aborted` when `aborted()` says the operator stopped it. Returns the
+/// workflow's result and why the run stopped, if it did.
+pub(crate) fn execute(
+    job: Job<'_>,
+    db: &mut Records,
+    rig: &mut cellinject_rig::Rig<cellinject_rig::DynBackend>,
+    extra: Option<&mut dyn Observer>,
+    aborted: &dyn Fn() -> bool,
+) -> Result<(Outcome, Option<String>)> {
+    let Job {
+        d,
+        options,
+        hysteresis,
+        twin,
+        plate,
+        run_id,
+        previous,
+        base,
+        progress,
+    } = job;
+    let mut tee = Tee {
+        rec: Recorder {
+            twin,
+            plate: plate.clone(),
+            db,
+            run: run_id,
+            current: None,
+            previous,
+            bar: None,
+            progress,
+        },
+        extra,
+    };
+    let wf = Workflow::new(rig, &d.design, &d.rig, &plate, options)
+        .map_err(|e| InputError(e.to_string()))?;
+    let result = wf.run(hysteresis, &mut tee);
+    let rec = tee.rec;
+    let (status, stopped, sim, cell, found) = match &result {
+        Ok((r, cal)) => {
+            rec.db
+                .set_calibration(
+                    run_id,
+                    &serde_json::json!({ "hysteresis": cal, "map": r.map }),
+                )
+                .map_err(records_error)?;
+            (
+                if r.stopped.is_some() {
+                    "stopped"
+                } else {
+                    "finished"
+                },
+                r.stopped.clone(),
+                r.sim_time_s,
+                r.cell_time_s,
+                r.cells_found as i64,
+            )
+        }
+        Err(e) => ("stopped", Some(e.to_string()), 0.0, 0.0, 0),
+    };
+    let status = if aborted() { "aborted" } else { status };
+    rec.db
+        .update_run(
+            run_id,
+            status,
+            base.0 + sim,
+            base.1 + cell,
+            found,
+            stopped.as_deref(),
+        )
+        .map_err(records_error)?;
+    Ok((result, stopped))
+}
+
 /// `cellinject run`.
 pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     let faults = args
@@ -354,18 +501,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             )
             .into());
         }
-        if args.plate.is_none() && !args.resume {
-            return Err(InputError(
-                "with a GCS backend give --plate: the plate file under the microscope (`cellinject emulate gcs --plate` for the emulator)".into(),
-            )
-            .into());
-        }
-        if args.seed.is_some() {
-            return Err(InputError(
-                "--seed seeds the twin: with a GCS backend seed the emulator (`cellinject emulate gcs --seed`)".into(),
-            )
-            .into());
-        }
+        gcs_run_checks(args.plate.is_some() || args.resume, args.seed.is_some())?;
     }
     let hysteresis = match &args.calibration {
         None => None,
@@ -374,15 +510,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     // The plate is read and checked before the database is touched.
     let given_plate = match &args.plate {
         None => None,
-        Some(p) => {
-            let text = read_text(p)?;
-            let plate = cellinject_config::plate::parse(&text)
-                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
-            plate
-                .check()
-                .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
-            Some(text)
-        }
+        Some(p) => Some(read_plate(p)?.1),
     };
     // A controller that cannot be reached leaves no run behind: it is opened before
     // the database.
@@ -504,50 +632,18 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         let o = wire.take().expect("opened before the database");
         (None, o.rig)
     };
-    let mut rec = Recorder {
+    let job = Job {
+        d,
+        options,
+        hysteresis,
         twin,
         plate: plate.clone(),
-        db: &mut db,
-        run: run_id,
-        current: None,
-        previous: previous.clone(),
-        bar: None,
-    };
-    let wf = Workflow::new(&mut rig, &d.design, &d.rig, &plate, options)
-        .map_err(|e| InputError(e.to_string()))?;
-    let result = wf.run(hysteresis, &mut rec);
-    rec.bar = None;
-    let (status, stopped, sim, cell, found) = match &result {
-        Ok((r, cal)) => {
-            rec.db
-                .set_calibration(
-                    run_id,
-                    &serde_json::json!({ "hysteresis": cal, "map": r.map }),
-                )
-                .map_err(records_error)?;
-            (
-                if r.stopped.is_some() {
-                    "stopped"
-                } else {
-                    "finished"
-                },
-                r.stopped.clone(),
-                r.sim_time_s,
-                r.cell_time_s,
-                r.cells_found as i64,
-            )
-        }
-        Err(e) => ("stopped", Some(e.to_string()), 0.0, 0.0, 0),
-    };
-    db.update_run(
         run_id,
-        status,
-        base.0 + sim,
-        base.1 + cell,
-        found,
-        stopped.as_deref(),
-    )
-    .map_err(records_error)?;
+        previous,
+        base,
+        progress: true,
+    };
+    let (result, stopped) = execute(job, &mut db, &mut rig, None, &|| false)?;
     let r = db.run(Some(run_id)).map_err(records_error)?;
     let s = summary(&r, db.attempts(run_id).map_err(records_error)?);
     if let Err(e) = &result
@@ -725,6 +821,35 @@ fn json_out<T: Serialize>(v: &T) -> Result<()> {
 fn read_text(p: &Path) -> Result<String> {
     std::fs::read_to_string(p)
         .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())).into())
+}
+
+/// The plate file `p` (`--plate`), parsed and checked, and its text.
+pub(crate) fn read_plate(p: &Path) -> Result<(Plate, String)> {
+    let text = read_text(p)?;
+    let plate = cellinject_config::plate::parse(&text)
+        .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
+    plate
+        .check()
+        .map_err(|e| InputError(format!("--plate `{}`: {e}", p.display())))?;
+    Ok((plate, text))
+}
+
+/// A run on a GCS backend: the plate is the bench's (give `--plate`), and there is no
+/// twin to seed.
+pub(crate) fn gcs_run_checks(plate_given: bool, seed_given: bool) -> Result<()> {
+    if !plate_given {
+        return Err(InputError(
+            "with a GCS backend give --plate: the plate file under the microscope (`cellinject emulate gcs --plate` for the emulator)".into(),
+        )
+        .into());
+    }
+    if seed_given {
+        return Err(InputError(
+            "--seed seeds the twin: with a GCS backend seed the emulator (`cellinject emulate gcs --seed`)".into(),
+        )
+        .into());
+    }
+    Ok(())
 }
 
 pub(crate) fn open_existing(p: &Path) -> Result<Records> {

@@ -110,6 +110,8 @@ fn the_twin_is_its_own_crate_and_only_simulators_depend_on_it() {
         "cellinject-control",
         // The GCS driver is tested against the emulator, which does use the twin.
         "cellinject-gcs",
+        // The dashboard runs any backend the front end hands it.
+        "cellinject-dashboard",
     ] {
         assert!(all.contains_key(name), "{name} is missing");
         assert!(
@@ -162,6 +164,17 @@ fn heavy_dependencies_stay_in_their_one_crate() {
     only_in(&all, "serialport", "gcs");
     only_in(&all, "axum", "dashboard");
     only_in(&all, "tokio", "dashboard");
+    // The dashboard knows no driver and no database: the front end hands it a
+    // station, a viewer and an archive.
+    let c = closure(&all, "cellinject-dashboard");
+    for bad in [
+        "cellinject-gcs",
+        "cellinject-records",
+        "rusqlite",
+        "serialport",
+    ] {
+        assert!(!c.contains(bad), "cellinject-dashboard depends on {bad}");
+    }
 }
 
 #[test]

@@ -282,6 +282,14 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ],
         ["runs", "show"] | ["runs", "list"] | ["runs", "export"] => vec!["--db", "nr.sqlite"],
         ["emulate", "gcs"] => vec!["--bind", "127.0.0.1:0", "--serve-for", "0.3"],
+        ["serve"] => vec![
+            "--bind",
+            "127.0.0.1:0",
+            "--serve-for",
+            "0.3",
+            "--db",
+            "nr.sqlite",
+        ],
         _ => vec![],
     }
 }

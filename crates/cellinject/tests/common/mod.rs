@@ -1,0 +1,30 @@
+//! Helpers shared by the CLI tests that use them: a scratch directory, the binary run
+//! in it, its standard error.
+
+#![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A fresh scratch directory for test `name` of suite `suite`.
+pub fn dir(suite: &str, name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("cellinject-{suite}-{name}-{}", std::process::id()));
+    let _ = fs::remove_dir_all(&d);
+    fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `cellinject ARGS` run in `dir`.
+pub fn run(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cellinject"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// Its standard error.
+pub fn err(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}

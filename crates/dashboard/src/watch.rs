@@ -1,0 +1,435 @@
+//! What the web side sees of the bench without asking the control thread: the run's
+//! switches ([`Control`]) and the devices' last readings ([`Telemetry`]), filled in by
+//! thin wrappers around any backend's devices ([`instrument`]). The wrappers add no
+//! behaviour of their own but two, both in the clock: the twin paced to wall time for
+//! viewing (unless fast), and an abort delivered as an interruption at the next tick.
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use cellinject_hw::{
+    Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, PositionSensor,
+    Stage,
+};
+use cellinject_rig::{Devices, DynBackend};
+
+/// Locks a mutex, taking over a poisoned one (a panicking holder leaves data that is
+/// still a valid reading).
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The switches of whatever the control thread is doing: set from any thread, read by
+/// the control thread between steps.
+#[derive(Debug, Default)]
+pub struct Control {
+    abort: AtomicBool,
+    interrupt: AtomicBool,
+    pause: AtomicBool,
+    fast: AtomicBool,
+}
+
+impl Control {
+    /// A control, paced to wall time unless `fast`.
+    pub fn new(fast: bool) -> Self {
+        let c = Control::default();
+        c.fast.store(fast, Ordering::SeqCst);
+        c
+    }
+    /// Asks the current task to end: the next clock tick is interrupted and the run
+    /// stops before its next cell; a pause is lifted.
+    pub fn abort(&self) {
+        self.abort.store(true, Ordering::SeqCst);
+        self.interrupt.store(true, Ordering::SeqCst);
+        self.pause.store(false, Ordering::SeqCst);
+    }
+    /// An abort was asked since the task began.
+    pub fn aborted(&self) -> bool {
+        self.abort.load(Ordering::SeqCst)
+    }
+    /// Holds the run before its next cell.
+    pub fn pause(&self, on: bool) {
+        if !(on && self.aborted()) {
+            self.pause.store(on, Ordering::SeqCst);
+        }
+    }
+    /// The run is asked to hold.
+    pub fn paused(&self) -> bool {
+        self.pause.load(Ordering::SeqCst)
+    }
+    /// Flat out (true) or paced to wall time.
+    pub fn fast(&self) -> bool {
+        self.fast.load(Ordering::SeqCst)
+    }
+    /// A new task starts: no abort, no pause.
+    pub fn reset(&self) {
+        self.abort.store(false, Ordering::SeqCst);
+        self.interrupt.store(false, Ordering::SeqCst);
+        self.pause.store(false, Ordering::SeqCst);
+    }
+    /// Takes a pending interruption (one per abort).
+    fn take_interrupt(&self) -> bool {
+        self.interrupt.swap(false, Ordering::SeqCst)
+    }
+}
+
+/// Points of the hysteresis loop kept for the plot.
+pub const LOOP_POINTS: usize = 600;
+
+/// The devices' last readings.
+#[derive(Debug, Clone, Default)]
+pub struct Readings {
+    /// V, the commanded voltages of A1, A2, A3.
+    pub volts: [f64; 3],
+    /// m, the stack sensors' last readings.
+    pub sensors: [f64; 3],
+    /// m, the stage's last known position (x, y, z).
+    pub stage: [f64; 3],
+    /// The zoom.
+    pub zoom: f64,
+    /// s, the device clock.
+    pub time: f64,
+    /// (V, m) of A1 as its sensor is read: the loop being traced, oldest first.
+    pub loop_a1: VecDeque<[f64; 2]>,
+    /// Sensor reads since the last loop point.
+    loop_skip: u32,
+}
+
+/// Readings shared between the devices' wrappers and the web side.
+#[derive(Debug, Default)]
+pub struct Telemetry {
+    readings: Mutex<Readings>,
+    /// Frames the workflow grabbed (the microscope), for a backend without a renderer.
+    last_frame: Mutex<Option<Frame>>,
+    frames: AtomicU64,
+}
+
+impl Telemetry {
+    /// A copy of the readings.
+    pub fn readings(&self) -> Readings {
+        lock(&self.readings).clone()
+    }
+    fn with<R>(&self, f: impl FnOnce(&mut Readings) -> R) -> R {
+        f(&mut lock(&self.readings))
+    }
+    /// The microscope frame the program grabbed last, if it is newer than `seen`
+    /// (a count), and the count.
+    pub fn grabbed_since(&self, seen: u64) -> Option<(Frame, u64)> {
+        let n = self.frames.load(Ordering::SeqCst);
+        if n == seen {
+            return None;
+        }
+        lock(&self.last_frame).clone().map(|f| (f, n))
+    }
+}
+
+struct TapPiezo {
+    inner: Box<dyn PiezoChannel>,
+    ch: usize,
+    t: Arc<Telemetry>,
+}
+
+impl PiezoChannel for TapPiezo {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn voltage_range(&self) -> (f64, f64) {
+        self.inner.voltage_range()
+    }
+    fn set_voltage(&mut self, volts: f64) -> Result<(), HwError> {
+        self.inner.set_voltage(volts)?;
+        self.t.with(|r| r.volts[self.ch] = volts);
+        Ok(())
+    }
+    fn commanded_voltage(&self) -> f64 {
+        self.inner.commanded_voltage()
+    }
+    fn read_voltage(&mut self) -> Result<f64, HwError> {
+        self.inner.read_voltage()
+    }
+}
+
+struct TapSensor {
+    inner: Box<dyn PositionSensor>,
+    ch: usize,
+    t: Arc<Telemetry>,
+}
+
+impl PositionSensor for TapSensor {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn read(&mut self) -> Result<f64, HwError> {
+        let v = self.inner.read()?;
+        let ch = self.ch;
+        self.t.with(|r| {
+            r.sensors[ch] = v;
+            if ch == 0 {
+                r.loop_skip += 1;
+                // One point in 8 reads: the loops' 1 kHz reads and the
+                // identification's both trace the loop densely enough.
+                if r.loop_skip >= 8 {
+                    r.loop_skip = 0;
+                    if r.loop_a1.len() == LOOP_POINTS {
+                        r.loop_a1.pop_front();
+                    }
+                    r.loop_a1.push_back([r.volts[0], v]);
+                }
+            }
+        });
+        Ok(v)
+    }
+    fn noise(&self) -> f64 {
+        self.inner.noise()
+    }
+}
+
+struct TapStage {
+    inner: Box<dyn Stage>,
+    t: Arc<Telemetry>,
+}
+
+impl Stage for TapStage {
+    fn axes(&self) -> usize {
+        self.inner.axes()
+    }
+    fn travel(&self, axis: usize) -> (f64, f64) {
+        self.inner.travel(axis)
+    }
+    fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
+        self.inner.move_to(axis, position)
+    }
+    fn position(&mut self, axis: usize) -> Result<f64, HwError> {
+        let p = self.inner.position(axis)?;
+        if axis < 3 {
+            self.t.with(|r| r.stage[axis] = p);
+        }
+        Ok(p)
+    }
+    fn is_busy(&mut self) -> Result<bool, HwError> {
+        self.inner.is_busy()
+    }
+}
+
+struct TapCamera {
+    inner: Box<dyn Camera>,
+    t: Option<Arc<Telemetry>>,
+}
+
+impl Camera for TapCamera {
+    fn sensor_size(&self) -> (u32, u32) {
+        self.inner.sensor_size()
+    }
+    fn settings(&self) -> CameraSettings {
+        self.inner.settings()
+    }
+    fn configure(&mut self, settings: CameraSettings) -> Result<(), HwError> {
+        self.inner.configure(settings)
+    }
+    fn frame_rate(&self) -> f64 {
+        self.inner.frame_rate()
+    }
+    fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
+        self.inner.grab_into(frame)?;
+        if let Some(t) = &self.t {
+            *lock(&t.last_frame) = Some(frame.clone());
+            t.frames.fetch_add(1, Ordering::SeqCst);
+        }
+        Ok(())
+    }
+}
+
+struct TapOptics {
+    inner: Box<dyn Optics>,
+    t: Arc<Telemetry>,
+}
+
+impl Optics for TapOptics {
+    fn zoom(&self) -> f64 {
+        self.inner.zoom()
+    }
+    fn zoom_range(&self) -> (f64, f64) {
+        self.inner.zoom_range()
+    }
+    fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
+        self.inner.set_zoom(zoom)?;
+        self.t.with(|r| r.zoom = zoom);
+        Ok(())
+    }
+}
+
+/// The clock of a bench under the dashboard: paced so that device time does not run
+/// ahead of wall time (a twin is watchable; a real bench's clock is wall time already
+/// and is never held back), flat out when [`Control::fast`]; and an abort comes back
+/// from the next sleep as [`HwError::Interrupted`], once, so that whatever program
+/// runs stops there and its way to the safe state, which sleeps too, is not held up.
+pub struct PacedClock {
+    inner: Box<dyn Clock>,
+    control: Arc<Control>,
+    t: Arc<Telemetry>,
+    /// (device time, wall time) the pace counts from.
+    origin: Option<(f64, Instant)>,
+}
+
+impl PacedClock {
+    fn pace(&mut self) {
+        let paced = !self.control.fast() && !self.control.aborted();
+        let now = self.inner.now();
+        if !paced {
+            self.origin = None;
+            return;
+        }
+        let (t0, w0) = *self.origin.get_or_insert((now, Instant::now()));
+        let ahead = (now - t0) - w0.elapsed().as_secs_f64();
+        if ahead > 0.002 {
+            std::thread::sleep(Duration::from_secs_f64(ahead.min(1.0)));
+        } else if ahead < -0.25 {
+            // Fell behind (a slow render, a pause): count from here, never catch up
+            // in a burst.
+            self.origin = Some((now, Instant::now()));
+        }
+    }
+}
+
+impl Clock for PacedClock {
+    fn now(&self) -> f64 {
+        self.inner.now()
+    }
+    fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
+        if self.control.take_interrupt() {
+            return Err(HwError::Interrupted {
+                device: "clock".into(),
+                reason: "aborted by the operator".into(),
+            });
+        }
+        self.inner.sleep(seconds)?;
+        let now = self.inner.now();
+        self.t.with(|r| r.time = now);
+        self.pace();
+        Ok(())
+    }
+}
+
+/// Wraps every device of `devices` so that their readings reach `t`, the clock paced
+/// and interruptible by `control`. `tap_camera`: copy the microscope's frames into
+/// `t` (for a live view on a backend that cannot render one of its own).
+pub fn instrument(
+    devices: Devices<DynBackend>,
+    t: &Arc<Telemetry>,
+    control: &Arc<Control>,
+    tap_camera: bool,
+) -> Devices<DynBackend> {
+    let Devices {
+        piezo,
+        sensors,
+        camera,
+        side_camera,
+        stage,
+        injector,
+        optics,
+        clock,
+    } = devices;
+    let mut ch = 0;
+    let piezo = piezo.map(|inner| {
+        ch += 1;
+        Box::new(TapPiezo {
+            inner,
+            ch: ch - 1,
+            t: t.clone(),
+        }) as Box<dyn PiezoChannel>
+    });
+    let mut ch = 0;
+    let sensors = sensors.map(|inner| {
+        ch += 1;
+        Box::new(TapSensor {
+            inner,
+            ch: ch - 1,
+            t: t.clone(),
+        }) as Box<dyn PositionSensor>
+    });
+    {
+        let mut r = lock(&t.readings);
+        r.zoom = optics.zoom();
+        r.time = clock.now();
+        r.volts = [0, 1, 2].map(|k| piezo[k].commanded_voltage());
+    }
+    Devices {
+        piezo,
+        sensors,
+        camera: Box::new(TapCamera {
+            inner: camera,
+            t: tap_camera.then(|| t.clone()),
+        }),
+        side_camera,
+        stage: Box::new(TapStage {
+            inner: stage,
+            t: t.clone(),
+        }),
+        injector: injector as Box<dyn Injector>,
+        optics: Box::new(TapOptics {
+            inner: optics,
+            t: t.clone(),
+        }),
+        clock: Box::new(PacedClock {
+            inner: clock,
+            control: control.clone(),
+            t: t.clone(),
+            origin: None,
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Default)]
+    struct SimClock(f64);
+    impl Clock for SimClock {
+        fn now(&self) -> f64 {
+            self.0
+        }
+        fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
+            self.0 += seconds;
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn an_abort_interrupts_the_next_sleep_once() {
+        let control = Arc::new(Control::new(true));
+        let t = Arc::new(Telemetry::default());
+        let mut c = PacedClock {
+            inner: Box::new(SimClock::default()),
+            control: control.clone(),
+            t,
+            origin: None,
+        };
+        c.sleep(0.5).expect("runs");
+        control.abort();
+        assert!(matches!(c.sleep(0.1), Err(HwError::Interrupted { .. })));
+        // The way to the safe state sleeps too.
+        c.sleep(0.1).expect("after the interruption");
+        assert!((c.now() - 0.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn paced_time_does_not_run_ahead_of_the_wall() {
+        let control = Arc::new(Control::new(false));
+        let t = Arc::new(Telemetry::default());
+        let mut c = PacedClock {
+            inner: Box::new(SimClock::default()),
+            control,
+            t,
+            origin: None,
+        };
+        let w = Instant::now();
+        for _ in 0..100 {
+            c.sleep(0.001).expect("runs");
+        }
+        // 0.1 s of device time took at least ~0.1 s of wall time.
+        assert!(w.elapsed().as_secs_f64() >= 0.095, "{:?}", w.elapsed());
+    }
+}
