@@ -321,8 +321,30 @@ fn the_dashboard_in_headless_chromium_shows_frames_and_aborts_a_run() {
     assert!(v["a3_volts_before_abort"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["aborted_after_s"].as_f64().unwrap() <= 1.0, "{v}");
     assert_eq!(v["recorded"], "aborted");
-    // The records say the same.
+    // The records say the same; the cell the pipette was in is recorded interrupted
+    // (touched) or skipped (not yet), with the operator's abort as its reason.
     let o = run(&d, &["runs", "list", "--format", "json"]);
     let runs: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(runs[0]["status"], "aborted", "{runs}");
+    let o = run(&d, &["runs", "show"]);
+    let show: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let attempts = show["attempts"].as_array().unwrap();
+    let last = attempts.last().unwrap();
+    assert!(
+        last["outcome"] == "interrupted" || last["outcome"] == "skipped",
+        "{last}"
+    );
+    assert!(
+        last["reason"]
+            .as_str()
+            .unwrap()
+            .contains("aborted by the operator"),
+        "{last}"
+    );
+    assert!(
+        attempts[..attempts.len() - 1]
+            .iter()
+            .all(|a| a["outcome"] != "interrupted"),
+        "only the cell in progress is interrupted"
+    );
 }

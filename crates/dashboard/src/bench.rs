@@ -219,6 +219,8 @@ pub struct RunView {
     pub failed: usize,
     /// Skipped.
     pub skipped: usize,
+    /// Touched, then stopped by an abort.
+    pub interrupted: usize,
     /// The cells.
     pub cells: Vec<CellView>,
     /// The cell being worked on.
@@ -434,6 +436,7 @@ impl Observer for Watch<'_> {
             match a.outcome.name() {
                 "injected" => r.injected += 1,
                 "failed" => r.failed += 1,
+                "interrupted" => r.interrupted += 1,
                 _ => r.skipped += 1,
             }
             if a.contact {

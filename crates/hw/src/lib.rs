@@ -152,7 +152,7 @@ pub enum HwError {
     },
     /// The operator interrupted what was going on (an abort): nothing is wrong with
     /// the device, but the program must stop and make the bench safe.
-    #[error("interrupted ({device}): {reason}")]
+    #[error("interrupted: {reason}")]
     Interrupted {
         /// Which device noticed.
         device: String,

@@ -96,8 +96,14 @@ try {
   out.recorded = runs[0].status;
   out.run_id = runs[0].id;
   // The page shows it too.
-  await page.waitForFunction(() => document.getElementById('state').textContent.startsWith('aborted'), null, { timeout: 2000 });
-  if (shots) await page.screenshot({ path: `${shots}/dashboard-aborted.png` });
+  await page.waitForFunction(() => {
+    const s = window.cellinject.status;
+    return document.getElementById('state').textContent === 'aborted' && s.task === null && s.safe;
+  }, null, { timeout: 3000 });
+  if (shots) {
+    await sleep(700); // a few more frames and statuses: the view after the lift
+    await page.screenshot({ path: `${shots}/dashboard-aborted.png` });
+  }
   // The run's report opens from the records table.
   const report = await fetch(new URL(`/runs/${out.run_id}`, url));
   if (report.status !== 200 || !(await report.text()).includes('aborted')) fail('the run report');

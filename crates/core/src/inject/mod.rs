@@ -564,6 +564,9 @@ enum Fail {
     Cell(String),
     /// A fault the run stops on.
     Fatal(String),
+    /// The operator stopped the run (an abort): the run stops; a touched cell is
+    /// recorded interrupted, not failed.
+    Interrupted(String),
     /// The records failed.
     Error(WorkflowError),
 }
@@ -576,6 +579,10 @@ impl From<WorkflowError> for Fail {
                 what,
             } => Fail::Cell(format!("{what}: refused by the safety envelope: {r}")),
             WorkflowError::Record(_) | WorkflowError::Illegal { .. } => Fail::Error(e),
+            WorkflowError::Device {
+                source: HwError::Interrupted { .. },
+                ..
+            } => Fail::Interrupted(e.to_string()),
             other => Fail::Fatal(other.to_string()),
         }
     }
@@ -666,7 +673,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             // Whatever ended the run (a device lost in calibration, between cells),
             // the pipette leaves for the safe state; the cause is what the caller
             // records.
-            let _ = self.park();
+            let _ = self.rest();
         }
         r
     }
@@ -727,7 +734,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
         if stopped.is_none() {
             self.fire(Event::NoMoreCells, "every cell done".into(), obs, None)?;
         }
-        self.park()?;
+        self.rest()?;
         let end = self.now();
         let count = |o: Outcome| attempts.iter().filter(|a| a.outcome == o).count();
         let cell_time = end - t_cells;
@@ -758,20 +765,10 @@ impl<'r, B: Backend> Workflow<'r, B> {
         if let Some(mut s) = self.servo.take() {
             // A3 out first (straight back along its axis), then A1/A2 relaxed: never
             // sideways inside a cell.
-            let r = s
-                .wait(self.rig, 0.15, Some((0.0, 500e-6)))
-                .and_then(|()| {
-                    s.refs = [0.0; 2];
-                    s.wait(self.rig, 0.05, None)
-                })
-                .and_then(|()| {
-                    // The tip is back at A3's rest: the loop's holding offset goes too,
-                    // so that the stack rests at 0 V (the pipette fully withdrawn, the
-                    // same whether the loops or straight commands parked it).
-                    s.a3_ref = 0.0;
-                    s.a3_int = 0.0;
-                    self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))
-                });
+            let r = s.wait(self.rig, 0.15, Some((0.0, 500e-6))).and_then(|()| {
+                s.refs = [0.0; 2];
+                s.wait(self.rig, 0.05, None)
+            });
             self.servo = Some(s);
             if let Err(e) = r {
                 // The loops lost a device (a link that broke, a reply that never
@@ -786,6 +783,18 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let lift = self.home[1].max(self.options.focus + self.options.lift);
         self.rig.stage.move_to(1, lift).map_err(dev("stage lift"))?;
         Ok(())
+    }
+
+    /// The end of a run, however it ends: parked, and A3 at 0 V (the loop held the
+    /// withdrawn tip with a small offset; the stack rests at 0 V, the same whether the
+    /// loops or straight commands parked it).
+    fn rest(&mut self) -> Result<(), WorkflowError> {
+        self.park()?;
+        if let Some(s) = self.servo.as_mut() {
+            s.a3_ref = 0.0;
+            s.a3_int = 0.0;
+        }
+        self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))
     }
 
     /// A3 to 0 V, then A1/A2 to 0 V, each retried for up to a second.
@@ -1511,19 +1520,10 @@ impl<B: Backend> Workflow<'_, B> {
                 }
             }
             Err(Fail::Fatal(reason)) => {
-                let parked = self.park();
-                let r = match parked {
-                    Ok(()) => format!("{reason} (pipette retracted, stacks at rest)"),
-                    Err(e) => format!("{reason}; the safe state could not be reached either: {e}"),
-                };
-                if a.outcome == Outcome::Skipped && a.contact {
-                    a.outcome = Outcome::Failed;
-                }
-                if a.reason.is_empty() {
-                    a.reason = reason;
-                }
-                self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
-                fatal = Some(r);
+                fatal = Some(self.stop_in_cell(&mut a, reason, false, obs)?)
+            }
+            Err(Fail::Interrupted(reason)) => {
+                fatal = Some(self.stop_in_cell(&mut a, reason, true, obs)?)
             }
         }
         if a.contact
@@ -1535,6 +1535,35 @@ impl<B: Backend> Workflow<'_, B> {
         a.t[1] = self.now();
         obs.finished(&a).map_err(WorkflowError::Record)?;
         Ok((a, fatal))
+    }
+
+    /// A cell's procedure ended in a fault the run stops on (`by_operator`: an
+    /// abort): the safe state, the attempt's outcome (a touched cell is failed, or
+    /// interrupted by the operator), the transition. Returns why the run stops.
+    fn stop_in_cell(
+        &mut self,
+        a: &mut Attempt,
+        reason: String,
+        by_operator: bool,
+        obs: &mut dyn Observer,
+    ) -> Result<String, WorkflowError> {
+        let parked = self.park();
+        let r = match parked {
+            Ok(()) => format!("{reason} (pipette retracted, stacks at rest)"),
+            Err(e) => format!("{reason}; the safe state could not be reached either: {e}"),
+        };
+        if a.outcome == Outcome::Skipped && a.contact {
+            a.outcome = if by_operator {
+                Outcome::Interrupted
+            } else {
+                Outcome::Failed
+            };
+        }
+        if a.reason.is_empty() {
+            a.reason = reason;
+        }
+        self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
+        Ok(r)
     }
 
     fn procedure(&mut self, a: &mut Attempt, obs: &mut dyn Observer) -> Result<(), Fail> {
