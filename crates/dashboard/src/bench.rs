@@ -73,7 +73,7 @@ pub struct ViewFrame {
     pub height: u32,
     /// 8-bit grey, row-major.
     pub pixels: Vec<u8>,
-    /// m, object-plane (stage) x and z of pixel (0, 0)'s centre, when known.
+    /// m, object-plane (stage) x and z of pixel (0, 0)'s outer corner, when known.
     pub origin_m: Option<[f64; 2]>,
     /// m per pixel.
     pub pitch_m: f64,
@@ -504,10 +504,13 @@ pub fn spawn(
                     Err(_) => break,
                 };
                 execute(&mut *station, &shared, cmd, &mut calibration);
-                shared.busy.store(false, Ordering::SeqCst);
+                // Free, all at once under the board's lock (a claim, a pause or an
+                // abort sees either the task or nothing going).
                 shared.update(|b| {
                     b.task = None;
                     b.stopping = false;
+                    shared.control.pause(false);
+                    shared.busy.store(false, Ordering::SeqCst);
                 });
             }
         })
@@ -525,7 +528,10 @@ fn execute(
     match cmd {
         Command::Run => {
             shared.update(|b| {
-                b.state = BenchState::Running;
+                // An abort taken since the request stays what the status says.
+                if !control.aborted() {
+                    b.state = BenchState::Running;
+                }
                 b.task = Some("run");
                 b.message = None;
                 b.run = Some(RunView {
@@ -585,7 +591,9 @@ fn execute(
         Command::Calibrate => {
             let before = shared.board().state;
             shared.update(|b| {
-                b.state = BenchState::Running;
+                if !control.aborted() {
+                    b.state = BenchState::Running;
+                }
                 b.task = Some("calibrate");
                 b.message = None;
             });
@@ -623,7 +631,16 @@ fn execute(
         }
         Command::Jog(j, reply) => {
             shared.update(|b| b.task = Some("jog"));
-            let r = jog(station.rig(), j).map_err(|e| format!("jog {:?} by {}: {e}", j.axis, j.by));
+            let mut r =
+                jog(station.rig(), j).map_err(|e| format!("jog {:?} by {}: {e}", j.axis, j.by));
+            if control.aborted() {
+                // Aborted meanwhile: the safe state, whatever the jog did.
+                let safe = safe_state(station.rig());
+                r = Err(match safe {
+                    Ok(()) => "aborted: the stacks are at 0 V (A3 first)".to_string(),
+                    Err(e) => format!("aborted, and the safe state could not be reached: {e}"),
+                });
+            }
             shared.update(|b| b.message = r.clone().err());
             if let Some(reply) = reply {
                 let _ = reply.send(r);

@@ -38,6 +38,9 @@ pub use bench::{
 pub use server::{Access, App, DashboardError, router};
 pub use watch::{Control, Telemetry, instrument};
 
+/// Longest the server waits, when it stops, for the bench to reach its safe state.
+pub const SHUTDOWN_WAIT: Duration = Duration::from_secs(20);
+
 /// Frames per second of the live view.
 pub const VIEW_FPS: f64 = 15.0;
 
@@ -196,7 +199,21 @@ pub fn serve(
     shared.quit.store(true, Ordering::SeqCst);
     drop(app);
     let _ = view_thread.join();
-    let _ = control_thread.join();
+    // The control thread brings the bench to its safe state and records the run; a
+    // device stuck in a blocking call must not hold the process forever.
+    let t0 = Instant::now();
+    while !control_thread.is_finished() && t0.elapsed() < SHUTDOWN_WAIT {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let finished = control_thread.is_finished();
+    if finished {
+        let _ = control_thread.join();
+    }
     rt.shutdown_timeout(Duration::from_secs(1));
-    served.map_err(|source| DashboardError::Bind { addr, source })
+    served.map_err(|source| DashboardError::Bind { addr, source })?;
+    if finished {
+        Ok(())
+    } else {
+        Err(DashboardError::Stuck(SHUTDOWN_WAIT.as_secs_f64()))
+    }
 }

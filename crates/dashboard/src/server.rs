@@ -68,6 +68,11 @@ pub enum DashboardError {
     /// The system's random source failed.
     #[error("no random access token: {0}")]
     Random(String),
+    /// The bench did not reach its safe state when the server stopped.
+    #[error(
+        "the bench did not reach its safe state within {0} s of the stop (a device is not answering): check it before using it"
+    )]
+    Stuck(f64),
     /// The runtime could not start.
     #[error("the web runtime: {0}")]
     Runtime(std::io::Error),
@@ -126,11 +131,13 @@ impl Access {
         let Ok(ip) = name.parse::<IpAddr>() else {
             return false;
         };
+        let ip = ip.to_canonical();
         if self.bind.ip().is_unspecified() {
-            // One of the machine's own addresses: the one this connection came to.
-            local.is_some_and(|l| l.ip() == ip)
+            // One of the machine's own addresses: the one this connection came to
+            // (an IPv4 client of a dual-stack socket arrives as ::ffff:a.b.c.d).
+            local.is_some_and(|l| l.ip().to_canonical() == ip)
         } else {
-            ip == self.bind.ip()
+            ip == self.bind.ip().to_canonical()
         }
     }
 }
@@ -258,7 +265,8 @@ impl App {
         if let Some(a) = headers
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            && let Some(t) = a.strip_prefix("Bearer ")
+            && let Some((scheme, t)) = a.split_once(' ')
+            && scheme.eq_ignore_ascii_case("bearer")
             && same(t.trim(), token)
         {
             return true;
@@ -380,14 +388,13 @@ async fn guard(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
         );
     }
     if let Some(origin) = headers.get(header::ORIGIN) {
+        // The page's own origin only: the scheme this server speaks and the very host
+        // and port the request is addressed to (another port on the same host is
+        // another site: a dev server, a notebook).
         let o = origin.to_str().unwrap_or("");
         let ok = o
             .strip_prefix("http://")
-            .or_else(|| o.strip_prefix("https://"))
-            .is_some_and(|rest| {
-                app.access
-                    .host_allowed(rest.split('/').next().unwrap_or(""), local)
-            });
+            .is_some_and(|rest| rest.trim_end_matches('/').eq_ignore_ascii_case(host.trim()));
         if !ok {
             return error(
                 StatusCode::FORBIDDEN,
@@ -408,7 +415,9 @@ async fn guard(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
         }
         _ => {}
     }
-    if n == (Need::Control { limited: true }) && !app.take_control_token() {
+    let limited = n == (Need::Control { limited: true })
+        || (req.method() == Method::POST && req.uri().path() == "/api/session");
+    if limited && !app.take_control_token() {
         return error(
             StatusCode::TOO_MANY_REQUESTS,
             format!(
@@ -417,7 +426,24 @@ async fn guard(State(app): State<Arc<App>>, req: Request, next: Next) -> Respons
             ),
         );
     }
-    next.run(req).await
+    let mut r = next.run(req).await;
+    // Never in a frame of another site (clickjacking), never sniffed, and no token
+    // link in a Referer.
+    let h = r.headers_mut();
+    h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
+    h.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static("frame-ancestors 'none'"),
+    );
+    h.insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        HeaderValue::from_static("nosniff"),
+    );
+    h.insert(
+        header::REFERRER_POLICY,
+        HeaderValue::from_static("no-referrer"),
+    );
+    r
 }
 
 /// The router: every route behind [`guard`].
@@ -586,36 +612,40 @@ fn accepted(app: &App) -> Response {
     (StatusCode::ACCEPTED, axum::Json(app.status())).into_response()
 }
 
-/// Takes the control thread for a task, or says why not.
-fn claim(app: &App) -> Result<(), String> {
-    if app
-        .shared
-        .busy
-        .compare_exchange(false, true, Ordering::SeqCst, Ordering::SeqCst)
-        .is_err()
-    {
-        let task = app.shared.board().task.unwrap_or("a task");
-        return Err(format!(
-            "the bench is busy ({task}): wait for it, or abort it"
-        ));
-    }
-    app.shared.control.reset();
-    Ok(())
-}
-
-fn dispatch(app: &App, c: Command, state: Option<BenchState>, task: &'static str) -> Response {
-    if let Err(why) = claim(app) {
-        return error(StatusCode::CONFLICT, why);
-    }
+/// Takes the control thread for `task`, or says why not. Under the board's lock, as
+/// abort's check is: an abort cannot fall between the claim and the switches' reset.
+fn claim(app: &App, task: &'static str, state: Option<BenchState>) -> Result<(), String> {
     app.shared.update(|b| {
+        if app
+            .shared
+            .busy
+            .compare_exchange(false, true, Ordering::SeqCst, Ordering::SeqCst)
+            .is_err()
+        {
+            let now = b.task.unwrap_or("a task");
+            return Err(format!(
+                "the bench is busy ({now}): wait for it, or abort it"
+            ));
+        }
+        app.shared.control.reset();
         if let Some(s) = state {
             b.state = s;
         }
         b.task = Some(task);
         b.stopping = false;
-    });
+        Ok(())
+    })
+}
+
+fn dispatch(app: &App, c: Command, state: Option<BenchState>, task: &'static str) -> Response {
+    if let Err(why) = claim(app, task, state) {
+        return error(StatusCode::CONFLICT, why);
+    }
     if !app.send(c) {
-        app.shared.busy.store(false, Ordering::SeqCst);
+        app.shared.update(|b| {
+            b.task = None;
+            app.shared.busy.store(false, Ordering::SeqCst);
+        });
         return error(
             StatusCode::INTERNAL_SERVER_ERROR,
             "the control thread has ended",
@@ -709,21 +739,24 @@ async fn resume(State(app): State<Arc<App>>) -> Response {
 /// to its safe state and the run is recorded aborted); with nothing going, the safe
 /// state is commanded.
 async fn abort(State(app): State<Arc<App>>) -> Response {
-    if app.shared.busy.load(Ordering::SeqCst) {
+    let going = app.shared.update(|b| {
+        if !app.shared.busy.load(Ordering::SeqCst) {
+            return false;
+        }
         app.shared.control.abort();
-        app.shared.update(|b| {
-            if b.task == Some("run") || b.task == Some("calibrate") {
-                b.state = BenchState::Aborted;
-            }
-            b.stopping = true;
-        });
-    } else if claim(&app).is_ok() {
-        app.shared.update(|b| {
-            b.task = Some("safe");
-            b.stopping = true;
-        });
+        if b.task == Some("run") || b.task == Some("calibrate") {
+            b.state = BenchState::Aborted;
+        }
+        b.stopping = true;
+        true
+    });
+    if !going && claim(&app, "safe", None).is_ok() {
+        app.shared.update(|b| b.stopping = true);
         if !app.send(Command::Safe) {
-            app.shared.busy.store(false, Ordering::SeqCst);
+            app.shared.update(|b| {
+                b.task = None;
+                app.shared.busy.store(false, Ordering::SeqCst);
+            });
         }
     }
     (StatusCode::OK, axum::Json(app.status())).into_response()

@@ -41,8 +41,11 @@ impl Control {
     /// Asks the current task to end: the next clock tick is interrupted and the run
     /// stops before its next cell; a pause is lifted.
     pub fn abort(&self) {
-        self.abort.store(true, Ordering::SeqCst);
-        self.interrupt.store(true, Ordering::SeqCst);
+        // One interruption per task: a second click must not interrupt the way to
+        // the safe state the first one started.
+        if !self.abort.swap(true, Ordering::SeqCst) {
+            self.interrupt.store(true, Ordering::SeqCst);
+        }
         self.pause.store(false, Ordering::SeqCst);
     }
     /// An abort was asked since the task began.

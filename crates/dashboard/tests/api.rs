@@ -486,7 +486,7 @@ async fn remote_access_needs_the_token_for_every_control_endpoint() {
         .expect("request");
     assert_eq!(send(r, with).await.0, StatusCode::OK);
     let with = req("POST", "/api/abort")
-        .header(header::AUTHORIZATION, format!("Bearer {token}"))
+        .header(header::AUTHORIZATION, format!("bearer {token}"))
         .body(Body::empty())
         .expect("request");
     assert_eq!(send(r, with).await.0, StatusCode::OK);
@@ -583,7 +583,12 @@ async fn forged_hosts_and_foreign_origins_are_refused() {
     }
     for (origin, ok) in [
         ("http://localhost:8080", true),
-        ("http://127.0.0.1:8080", true),
+        ("http://LOCALHOST:8080/", true),
+        // Another origin of the same machine: another site (a dev server, a notebook).
+        ("http://localhost:3000", false),
+        ("http://127.0.0.1:8080", false),
+        ("https://localhost:8080", false),
+        ("http://localhost", false),
         ("http://evil.example", false),
         ("http://localhost.evil.example:8080", false),
         ("null", false),
@@ -607,6 +612,21 @@ async fn forged_hosts_and_foreign_origins_are_refused() {
 async fn records_reports_and_unknown_paths() {
     let b = bench(loopback(), true, 0.05);
     let r = &b.router;
+    // Never framed by another site, never sniffed, no token in a Referer.
+    let (_, _, h) = send(r, req("GET", "/").body(Body::empty()).expect("request")).await;
+    assert_eq!(
+        h.get(header::X_FRAME_OPTIONS).and_then(|v| v.to_str().ok()),
+        Some("DENY")
+    );
+    assert_eq!(
+        h.get(header::CONTENT_SECURITY_POLICY)
+            .and_then(|v| v.to_str().ok()),
+        Some("frame-ancestors 'none'")
+    );
+    assert_eq!(
+        h.get(header::REFERRER_POLICY).and_then(|v| v.to_str().ok()),
+        Some("no-referrer")
+    );
     let (s, v) = call(r, "GET", "/api/runs").await;
     assert_eq!(s, StatusCode::OK);
     assert_eq!(v[0]["status"], "aborted");
