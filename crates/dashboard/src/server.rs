@@ -210,6 +210,18 @@ pub struct FrameMsg {
     pub tip_m: Option<[f64; 3]>,
     /// Count since the server started.
     pub n: u64,
+    /// Columns, rows and 8-bit grey pixels (for the MJPEG stream).
+    pub gray: (u32, u32, Vec<u8>),
+}
+
+/// The frame as a JPEG (quality 80), or None if it cannot be encoded.
+pub fn jpeg(f: &FrameMsg) -> Option<Vec<u8>> {
+    let (w, h, px) = &f.gray;
+    let mut out = Vec::with_capacity(px.len() / 4 + 1024);
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 80)
+        .encode(px, *w, *h, image::ExtendedColorType::L8)
+        .ok()?;
+    Some(out)
 }
 
 /// Encodes a view frame for the stream.
@@ -231,6 +243,7 @@ pub fn frame_msg(f: &ViewFrame, n: u64) -> FrameMsg {
         json,
         tip_m: f.tip_m,
         n,
+        gray: (f.width, f.height, f.pixels.clone()),
     }
 }
 
@@ -452,6 +465,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/", get(page))
         .route("/api/status", get(status))
         .route("/api/events", get(events))
+        .route("/api/stream.mjpeg", get(mjpeg))
         .route("/api/runs", get(runs))
         .route("/runs/{id}", get(report))
         .route("/api/session", post(session))
@@ -575,6 +589,40 @@ async fn events(State(app): State<Arc<App>>) -> Response {
     Sse::new(stream)
         .keep_alive(KeepAlive::default())
         .into_response()
+}
+
+/// The live view alone as MJPEG (`multipart/x-mixed-replace`, one JPEG per frame):
+/// for an `<img>`, a video player or another program. Frames are encoded for each
+/// client as they come; a slow client gets the newest frame, never a backlog.
+async fn mjpeg(State(app): State<Arc<App>>) -> Response {
+    let frames = app.frames.clone();
+    let stream = futures_util::stream::unfold(frames, |mut frames| async move {
+        loop {
+            frames.changed().await.ok()?;
+            let Some(f) = frames.borrow_and_update().clone() else {
+                continue;
+            };
+            let Ok(Some(jpg)) = tokio::task::spawn_blocking(move || jpeg(&f)).await else {
+                continue;
+            };
+            let mut part = format!(
+                "--frame\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n",
+                jpg.len()
+            )
+            .into_bytes();
+            part.extend_from_slice(&jpg);
+            part.extend_from_slice(b"\r\n");
+            return Some((Ok::<_, Infallible>(axum::body::Bytes::from(part)), frames));
+        }
+    });
+    let mut r = axum::body::Body::from_stream(stream).into_response();
+    let h = r.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("multipart/x-mixed-replace; boundary=frame"),
+    );
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    r
 }
 
 async fn runs(State(app): State<Arc<App>>) -> Response {

@@ -694,3 +694,44 @@ async fn the_live_stream_carries_frames_and_status() {
         "the first pixels 0, 64, 128 in base64"
     );
 }
+
+/// The MJPEG stream: one JPEG per frame, at the view's rate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_mjpeg_stream_carries_jpeg_frames() {
+    let b = bench(loopback(), true, 0.05);
+    let resp = b
+        .router
+        .clone()
+        .oneshot(
+            req("GET", "/api/stream.mjpeg")
+                .body(Body::empty())
+                .expect("request"),
+        )
+        .await
+        .expect("infallible");
+    assert_eq!(resp.status(), StatusCode::OK);
+    assert_eq!(
+        resp.headers()
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok()),
+        Some("multipart/x-mixed-replace; boundary=frame")
+    );
+    let mut body = resp.into_body().into_data_stream();
+    let mut bytes = Vec::new();
+    let t0 = Instant::now();
+    use futures_util::StreamExt;
+    while t0.elapsed() < Duration::from_millis(1100) {
+        match tokio::time::timeout(Duration::from_millis(200), body.next()).await {
+            Ok(Some(Ok(chunk))) => bytes.extend_from_slice(&chunk),
+            Ok(_) => break,
+            Err(_) => {}
+        }
+    }
+    let parts = bytes.windows(7).filter(|w| w == b"--frame").count();
+    assert!(parts >= 10, "{parts} frames in 1.1 s");
+    let text = String::from_utf8_lossy(&bytes);
+    assert!(text.contains("Content-Type: image/jpeg"));
+    // JPEG start and end of image markers.
+    assert!(bytes.windows(2).any(|w| w == [0xff, 0xd8]));
+    assert!(bytes.windows(2).any(|w| w == [0xff, 0xd9]));
+}
