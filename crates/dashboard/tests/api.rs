@@ -2,8 +2,8 @@
 //! the API's answers, abort (also under a flood of control requests and with the
 //! bench stuck), the access token, the session cookie, Host and Origin checks.
 
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use axum::Router;
@@ -648,42 +648,40 @@ async fn records_reports_and_unknown_paths() {
     assert_eq!(v["tip_m"][2], 2e-6);
 }
 
-/// Frames arrive on the live stream at the view's rate.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_live_stream_carries_frames_and_status() {
-    let b = bench(loopback(), true, 0.05);
-    let resp = b
-        .router
+/// `GET path` as a stream: its content type and what arrives within 1.1 s.
+async fn stream(r: &Router, path: &str) -> (Option<String>, Vec<u8>) {
+    use futures_util::StreamExt;
+    let resp = r
         .clone()
-        .oneshot(
-            req("GET", "/api/events")
-                .body(Body::empty())
-                .expect("request"),
-        )
+        .oneshot(req("GET", path).body(Body::empty()).expect("request"))
         .await
         .expect("infallible");
-    assert_eq!(resp.status(), StatusCode::OK);
-    assert_eq!(
-        resp.headers()
-            .get(header::CONTENT_TYPE)
-            .and_then(|v| v.to_str().ok()),
-        Some("text/event-stream")
-    );
+    assert_eq!(resp.status(), StatusCode::OK, "{path}");
+    let kind = resp
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string);
     let mut body = resp.into_body().into_data_stream();
-    let text = Arc::new(Mutex::new(String::new()));
+    let mut bytes = Vec::new();
     let t0 = Instant::now();
-    use futures_util::StreamExt;
     while t0.elapsed() < Duration::from_millis(1100) {
         match tokio::time::timeout(Duration::from_millis(200), body.next()).await {
-            Ok(Some(Ok(chunk))) => text
-                .lock()
-                .expect("lock")
-                .push_str(&String::from_utf8_lossy(&chunk)),
+            Ok(Some(Ok(chunk))) => bytes.extend_from_slice(&chunk),
             Ok(_) => break,
             Err(_) => {}
         }
     }
-    let text = text.lock().expect("lock").clone();
+    (kind, bytes)
+}
+
+/// Frames arrive on the live stream at the view's rate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_live_stream_carries_frames_and_status() {
+    let b = bench(loopback(), true, 0.05);
+    let (kind, bytes) = stream(&b.router, "/api/events").await;
+    assert_eq!(kind.as_deref(), Some("text/event-stream"));
+    let text = String::from_utf8_lossy(&bytes);
     let frames = text.matches("event: frame").count();
     let statuses = text.matches("event: status").count();
     // 15 frames a second, 5 statuses.
@@ -699,34 +697,11 @@ async fn the_live_stream_carries_frames_and_status() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_mjpeg_stream_carries_jpeg_frames() {
     let b = bench(loopback(), true, 0.05);
-    let resp = b
-        .router
-        .clone()
-        .oneshot(
-            req("GET", "/api/stream.mjpeg")
-                .body(Body::empty())
-                .expect("request"),
-        )
-        .await
-        .expect("infallible");
-    assert_eq!(resp.status(), StatusCode::OK);
+    let (kind, bytes) = stream(&b.router, "/api/stream.mjpeg").await;
     assert_eq!(
-        resp.headers()
-            .get(header::CONTENT_TYPE)
-            .and_then(|v| v.to_str().ok()),
+        kind.as_deref(),
         Some("multipart/x-mixed-replace; boundary=frame")
     );
-    let mut body = resp.into_body().into_data_stream();
-    let mut bytes = Vec::new();
-    let t0 = Instant::now();
-    use futures_util::StreamExt;
-    while t0.elapsed() < Duration::from_millis(1100) {
-        match tokio::time::timeout(Duration::from_millis(200), body.next()).await {
-            Ok(Some(Ok(chunk))) => bytes.extend_from_slice(&chunk),
-            Ok(_) => break,
-            Err(_) => {}
-        }
-    }
     let parts = bytes.windows(7).filter(|w| w == b"--frame").count();
     assert!(parts >= 10, "{parts} frames in 1.1 s");
     let text = String::from_utf8_lossy(&bytes);
