@@ -580,25 +580,16 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         let seed = args.seed.unwrap_or(d.sim.seed);
         let text = match &args.plate {
             Some(_) => given_plate.clone().unwrap_or_default(),
-            None => cellinject_config::plate::to_toml(
-                &default_plate(seed)?,
-                &format!("cellinject run's default plate: 8 x 12 wells, seed {seed}"),
-            ),
+            None => default_plate_text(seed)?.1,
         };
         let settings = serde_json::json!({ "options": options, "faults": args.fault });
-        let created = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs() as i64)
-            .unwrap_or(0);
-        let id = db
-            .create_run(
-                &text,
-                args.backend.is_twin().then_some(seed),
-                &args.backend.backend,
-                &settings,
-                created,
-            )
-            .map_err(records_error)?;
+        let id = new_run(
+            &mut db,
+            &text,
+            args.backend.is_twin().then_some(seed),
+            &args.backend.backend,
+            &settings,
+        )?;
         (id, text, seed, Vec::new(), (0.0, 0.0))
     };
     let plate = cellinject_config::plate::parse(&plate_text).map_err(|e| {
@@ -821,6 +812,32 @@ fn json_out<T: Serialize>(v: &T) -> Result<()> {
 fn read_text(p: &Path) -> Result<String> {
     std::fs::read_to_string(p)
         .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())).into())
+}
+
+/// `run`'s default plate for `seed` and its text as the run records keep it.
+pub(crate) fn default_plate_text(seed: u64) -> Result<(Plate, String)> {
+    let plate = default_plate(seed)?;
+    let text = cellinject_config::plate::to_toml(
+        &plate,
+        &format!("cellinject run's default plate: 8 x 12 wells, seed {seed}"),
+    );
+    Ok((plate, text))
+}
+
+/// A new run record for `plate_text`, created now.
+pub(crate) fn new_run(
+    db: &mut Records,
+    plate_text: &str,
+    seed: Option<u64>,
+    backend: &str,
+    settings: &serde_json::Value,
+) -> Result<i64> {
+    let created = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    db.create_run(plate_text, seed, backend, settings, created)
+        .map_err(records_error)
 }
 
 /// The plate file `p` (`--plate`), parsed and checked, and its text.

@@ -22,7 +22,7 @@ use cellinject_twin::{Microscope, SharedTwin};
 use clap::Args;
 
 use crate::InputError;
-use crate::run::{Job, default_plate, execute, records_error};
+use crate::run::{Job, default_plate_text, execute, new_run, records_error};
 
 /// `cellinject serve`.
 #[derive(Debug, Args)]
@@ -107,19 +107,14 @@ impl Station for BenchStation {
         let mut db = Records::open(&self.db).map_err(|e| records_error(e).to_string())?;
         let settings =
             serde_json::json!({ "options": self.options, "faults": [], "front_end": "dashboard" });
-        let created = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs() as i64)
-            .unwrap_or(0);
-        let id = db
-            .create_run(
-                &self.plate_text,
-                self.twin.is_some().then_some(self.seed),
-                &self.backend,
-                &settings,
-                created,
-            )
-            .map_err(|e| records_error(e).to_string())?;
+        let id = new_run(
+            &mut db,
+            &self.plate_text,
+            self.twin.is_some().then_some(self.seed),
+            &self.backend,
+            &settings,
+        )
+        .map_err(|e| e.to_string())?;
         if let Some(twin) = &self.twin {
             // A fresh plate under the microscope, the pipette lifted above it.
             let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
@@ -253,13 +248,9 @@ impl Archive for DbArchive {
         })
     }
     fn report(&self, id: i64) -> std::result::Result<Option<String>, String> {
-        let found = self.with(|db| {
-            if !db.runs()?.iter().any(|r| r.id == id) {
-                return Ok(None);
-            }
-            let r = db.run(Some(id))?;
-            let a = db.attempts(id)?;
-            Ok(Some((r, a)))
+        let found = self.with(|db| match db.run(Some(id)) {
+            Err(cellinject_records::RecordsError::NoRun(_)) => Ok(None),
+            r => Ok(Some((r?, db.attempts(id)?))),
         })?;
         match found {
             None => Ok(None),
@@ -322,14 +313,7 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
     let seed = a.seed.unwrap_or(d.sim.seed);
     let (plate, plate_text) = match &a.plate {
         Some(p) => crate::run::read_plate(p)?,
-        None => {
-            let plate = default_plate(seed)?;
-            let text = cellinject_config::plate::to_toml(
-                &plate,
-                &format!("cellinject run's default plate: 8 x 12 wells, seed {seed}"),
-            );
-            (plate, text)
-        }
+        None => default_plate_text(seed)?,
     };
     // The database is opened (and refused if foreign) before anything is listened on.
     drop(Records::open(&a.db).map_err(records_error)?);

@@ -2,7 +2,7 @@
 //! [`Archive`]), the one control thread that owns the devices and takes commands by
 //! message, and the board it writes what it does on, which the web side reads.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -278,8 +278,6 @@ pub struct Shared {
     pub telemetry: Arc<Telemetry>,
     /// The board.
     pub board: Mutex<Board>,
-    /// Bumped on every change of the board.
-    pub version: AtomicU64,
     /// A task is queued or going.
     pub busy: AtomicBool,
     /// The server is shutting down: the control thread ends after its task.
@@ -293,9 +291,7 @@ pub struct Shared {
 impl Shared {
     /// Changes the board.
     pub fn update<R>(&self, f: impl FnOnce(&mut Board) -> R) -> R {
-        let r = f(&mut lock(&self.board));
-        self.version.fetch_add(1, Ordering::SeqCst);
-        r
+        f(&mut lock(&self.board))
     }
     /// A copy of the board.
     pub fn board(&self) -> Board {

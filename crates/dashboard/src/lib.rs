@@ -27,7 +27,7 @@ pub mod server;
 pub mod watch;
 
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -62,7 +62,6 @@ pub fn shared(
             calibrated: false,
             log: Vec::new(),
         }),
-        version: AtomicU64::new(0),
         busy: AtomicBool::new(false),
         quit: AtomicBool::new(false),
         plate: station.plate(),
@@ -88,7 +87,7 @@ pub fn spawn_viewer(
                 let t0 = Instant::now();
                 if let Some(f) = viewer.frame() {
                     n += 1;
-                    let _ = tx.send(Some(Arc::new(server::frame_msg(&f, n))));
+                    let _ = tx.send(Some(Arc::new(server::frame_msg(f, n))));
                 }
                 if let Some(rest) = period.checked_sub(t0.elapsed()) {
                     std::thread::sleep(rest);

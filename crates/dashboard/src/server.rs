@@ -206,26 +206,24 @@ pub struct App {
 pub struct FrameMsg {
     /// The stream event's JSON.
     pub json: String,
-    /// m, the tip, when known.
-    pub tip_m: Option<[f64; 3]>,
     /// Count since the server started.
     pub n: u64,
-    /// Columns, rows and 8-bit grey pixels (for the MJPEG stream).
-    pub gray: (u32, u32, Vec<u8>),
+    /// The frame itself (the tip for the status, the pixels for the MJPEG stream).
+    pub frame: ViewFrame,
 }
 
 /// The frame as a JPEG (quality 80), or None if it cannot be encoded.
 pub fn jpeg(f: &FrameMsg) -> Option<Vec<u8>> {
-    let (w, h, px) = &f.gray;
-    let mut out = Vec::with_capacity(px.len() / 4 + 1024);
+    let v = &f.frame;
+    let mut out = Vec::with_capacity(v.pixels.len() / 4 + 1024);
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 80)
-        .encode(px, *w, *h, image::ExtendedColorType::L8)
+        .encode(&v.pixels, v.width, v.height, image::ExtendedColorType::L8)
         .ok()?;
     Some(out)
 }
 
-/// Encodes a view frame for the stream.
-pub fn frame_msg(f: &ViewFrame, n: u64) -> FrameMsg {
+/// Encodes a view frame for the stream (the frame moves into the message).
+pub fn frame_msg(f: ViewFrame, n: u64) -> FrameMsg {
     let data = base64::engine::general_purpose::STANDARD.encode(&f.pixels);
     let json = json!({
         "n": n,
@@ -239,12 +237,7 @@ pub fn frame_msg(f: &ViewFrame, n: u64) -> FrameMsg {
         "gray8": data,
     })
     .to_string();
-    FrameMsg {
-        json,
-        tip_m: f.tip_m,
-        n,
-        gray: (f.width, f.height, f.pixels.clone()),
-    }
+    FrameMsg { json, n, frame: f }
 }
 
 impl App {
@@ -319,7 +312,7 @@ impl App {
             "backend": self.shared.backend,
             "fast": self.shared.control.fast(),
             "run": b.run,
-            "tip_m": frame.as_ref().and_then(|f| f.tip_m),
+            "tip_m": frame.as_ref().and_then(|f| f.frame.tip_m),
             "actuators_v": r.volts,
             "sensors_m": r.sensors,
             "stage_m": r.stage,
