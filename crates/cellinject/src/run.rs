@@ -880,3 +880,116 @@ pub(crate) fn open_existing(p: &Path) -> Result<Records> {
     }
     Records::open(p).map_err(records_error)
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    use cellinject_core::inject::Event;
+    use cellinject_hw::{Clock, HwError, PiezoChannel};
+
+    use super::*;
+
+    /// The device clock, failing its next sleep once `stop` is set (what the
+    /// dashboard's clock does on an abort).
+    struct Stopping {
+        inner: Box<dyn Clock>,
+        stop: Arc<AtomicBool>,
+    }
+
+    impl Clock for Stopping {
+        fn now(&self) -> f64 {
+            self.inner.now()
+        }
+        fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
+            if self.stop.swap(false, Ordering::SeqCst) {
+                return Err(HwError::Interrupted {
+                    device: "clock".into(),
+                    reason: "aborted by the test".into(),
+                });
+            }
+            self.inner.sleep(seconds)
+        }
+    }
+
+    /// Sets `stop` when the first cell's dose has been judged.
+    struct AbortAfterDose(Arc<AtomicBool>);
+
+    impl Observer for AbortAfterDose {
+        fn transition(&mut self, t: &Transition) {
+            if t.event == Event::DoseOk {
+                self.0.store(true, Ordering::SeqCst);
+            }
+        }
+    }
+
+    /// An abort while the pipette withdraws from a cell it has injected: the cell keeps
+    /// its judged outcome, its reason says the operator stopped the run, it is the last
+    /// attempt, and the stacks end at rest with A3 at 0 V.
+    #[test]
+    fn an_abort_after_the_dose_keeps_the_cells_outcome_and_says_why() {
+        let d = cellinject_config::prototype();
+        let stop = Arc::new(AtomicBool::new(false));
+        let s = stop.clone();
+        let backend = crate::backend::BackendArgs {
+            backend: "twin".into(),
+            bench: None,
+            camera: None,
+            camera_fps: None,
+        };
+        let mut opened = crate::backend::open_with(
+            &d,
+            &crate::sim::TwinArgs::with_seed(1),
+            &backend,
+            move |mut devices| {
+                devices.clock = Box::new(Stopping {
+                    inner: devices.clock,
+                    stop: s,
+                });
+                devices
+            },
+        )
+        .unwrap();
+        let options = Options::default();
+        let (plate, text) = default_plate_text(1).unwrap();
+        let twin = opened.twin.clone().unwrap();
+        {
+            let mut t = twin.lock().unwrap();
+            t.load_plate(&plate);
+            t.world.stage.place(1, options.focus + options.lift);
+        }
+        let dir = std::env::temp_dir().join(format!("cellinject-abort-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let db_path = dir.join("runs.sqlite");
+        let mut db = Records::open(&db_path).unwrap();
+        let run_id = new_run(&mut db, &text, Some(1), "twin", &serde_json::json!({})).unwrap();
+        let job = Job {
+            d: &d,
+            options,
+            hysteresis: None,
+            twin: Some(twin),
+            plate,
+            run_id,
+            previous: Vec::new(),
+            base: (0.0, 0.0),
+            progress: false,
+        };
+        let mut obs = AbortAfterDose(stop.clone());
+        let (result, stopped) =
+            execute(job, &mut db, &mut opened.rig, Some(&mut obs), &|| true).unwrap();
+        let report = result.unwrap().0;
+        assert!(stopped.unwrap().contains("aborted by the test"));
+        let attempts = db.attempts(run_id).unwrap();
+        assert_eq!(attempts.len(), 1, "{attempts:?}");
+        let a = &attempts[0];
+        assert!(a.outcome == "injected" || a.outcome == "failed", "{a:?}");
+        assert!(a.measured_dose_fraction.is_some(), "{a:?}");
+        assert!(a.reason.contains("aborted by the test"), "{a:?}");
+        assert_eq!(db.run(Some(run_id)).unwrap().status, "aborted");
+        assert!(report.stopped.is_some());
+        assert_eq!(opened.rig.piezo[2].read_voltage().unwrap(), 0.0);
+        drop(db);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1561,6 +1561,9 @@ impl<B: Backend> Workflow<'_, B> {
         }
         if a.reason.is_empty() {
             a.reason = reason;
+        } else if by_operator {
+            // The cell's own verdict (a dose off) stays, and the abort is said too.
+            a.reason = format!("{}; then {reason}", a.reason);
         }
         self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
         Ok(r)
