@@ -137,9 +137,14 @@ pub fn default_plate(seed: u64) -> Result<Plate> {
     .map_err(|e| anyhow!("default plate: {e}"))
 }
 
+/// A records failure as the user's error: the file's own faults name `--db`, the only
+/// way a database reaches a command.
 pub(crate) fn records_error(e: RecordsError) -> anyhow::Error {
     match e {
         RecordsError::Sql(_) => anyhow!("{e}"),
+        RecordsError::Foreign { .. }
+        | RecordsError::Newer { .. }
+        | RecordsError::Unreadable { .. } => InputError(format!("--db {e}")).into(),
         other => InputError(other.to_string()).into(),
     }
 }

@@ -183,7 +183,7 @@ fn bad_arguments_exit_2_naming_the_argument() {
         ],
     );
     assert_eq!(o2.status.code(), Some(2), "{}", err(&o2));
-    assert!(err(&o2).contains("notes.txt"), "{}", err(&o2));
+    assert!(err(&o2).contains("--db notes.txt"), "{}", err(&o2));
     assert_eq!(std::fs::read(d.join("notes.txt")).unwrap(), b"my notes");
     // (runs.sqlite is empty: an empty file is a fresh database.)
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));

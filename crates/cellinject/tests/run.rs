@@ -137,7 +137,7 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
     let before = fs::read(d.join("notes.sqlite")).unwrap();
     let o = run(&d, &["run", "--db", "notes.sqlite"]);
     assert_eq!(o.status.code(), Some(2), "{}", err(&o));
-    assert!(err(&o).contains("notes.sqlite"), "{}", err(&o));
+    assert!(err(&o).contains("--db notes.sqlite"), "{}", err(&o));
     assert_eq!(fs::read(d.join("notes.sqlite")).unwrap(), before);
     for (args, needle) in [
         (vec!["run", "--fault", "melt@1"], "--fault"),

@@ -3,7 +3,7 @@
 //! access token when remote access is on, a rate limit on control requests that abort
 //! never meets).
 
-use std::collections::HashSet;
+use std::collections::HashMap;
 use std::convert::Infallible;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::atomic::Ordering;
@@ -44,6 +44,9 @@ pub struct Access {
     pub control_rate: f64,
     /// Control requests in a burst.
     pub control_burst: f64,
+    /// How long a session cookie bought with the token lasts (the browser forgets it
+    /// then too, and the token must be given again).
+    pub session_lifetime: Duration,
 }
 
 /// Why the server cannot start.
@@ -115,6 +118,7 @@ impl Access {
                 .collect(),
             control_rate: 10.0,
             control_burst: 20.0,
+            session_lifetime: Duration::from_secs(12 * 3600),
         })
     }
 
@@ -194,7 +198,8 @@ pub struct App {
     /// Commands to the control thread.
     cmd: Mutex<Sender<Command>>,
     access: Access,
-    sessions: Mutex<HashSet<String>>,
+    /// Session ids and when each expires.
+    sessions: Mutex<HashMap<String, Instant>>,
     bucket: Mutex<Bucket>,
     archive: Arc<dyn Archive>,
     /// The newest view frame, as the stream sends it.
@@ -254,7 +259,7 @@ impl App {
             shared,
             cmd: Mutex::new(cmd),
             access,
-            sessions: Mutex::new(HashSet::new()),
+            sessions: Mutex::new(HashMap::new()),
             bucket: Mutex::new(Bucket {
                 tokens: burst,
                 at: Instant::now(),
@@ -278,7 +283,9 @@ impl App {
             return true;
         }
         let sessions = lock(&self.sessions);
-        cookies(headers).any(|(k, v)| k == COOKIE && sessions.contains(v))
+        let now = Instant::now();
+        cookies(headers)
+            .any(|(k, v)| k == COOKIE && sessions.get(v).is_some_and(|expires| *expires > now))
     }
 
     fn take_control_token(&self) -> bool {
@@ -505,10 +512,17 @@ fn with_session(app: &App, mut r: Response) -> Response {
     let Ok(id) = random_hex(24) else {
         return error(StatusCode::INTERNAL_SERVER_ERROR, "no random session id");
     };
-    lock(&app.sessions).insert(id.clone());
-    if let Ok(v) =
-        HeaderValue::from_str(&format!("{COOKIE}={id}; HttpOnly; SameSite=Strict; Path=/"))
+    let life = app.access.session_lifetime;
     {
+        let mut sessions = lock(&app.sessions);
+        let now = Instant::now();
+        sessions.retain(|_, expires| *expires > now);
+        sessions.insert(id.clone(), now + life);
+    }
+    if let Ok(v) = HeaderValue::from_str(&format!(
+        "{COOKIE}={id}; HttpOnly; SameSite=Strict; Path=/; Max-Age={}",
+        life.as_secs().max(1)
+    )) {
         r.headers_mut().insert(header::SET_COOKIE, v);
     }
     r

@@ -534,6 +534,42 @@ async fn remote_access_needs_the_token_for_every_control_endpoint() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_session_ends_with_its_lifetime() {
+    let access = Access {
+        session_lifetime: Duration::from_millis(300),
+        ..remote(false)
+    };
+    let token = access.token.clone().expect("a token");
+    let b = bench(access, true, 0.05);
+    let r = &b.router;
+    let (s, _, h) = send(
+        r,
+        req("POST", "/api/session")
+            .body(Body::from(format!(r#"{{"token": "{token}"}}"#)))
+            .expect("request"),
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK);
+    let cookie = h
+        .get(header::SET_COOKIE)
+        .and_then(|v| v.to_str().ok())
+        .expect("a cookie")
+        .to_string();
+    assert!(cookie.contains("Max-Age=1"), "{cookie}");
+    let pair = cookie.split(';').next().expect("name=value").to_string();
+    let status = || {
+        req("GET", "/api/status")
+            .header(header::COOKIE, pair.clone())
+            .body(Body::empty())
+            .expect("request")
+    };
+    assert_eq!(send(r, status()).await.0, StatusCode::OK);
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let (s, v, _) = send(r, status()).await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED, "{v}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn public_view_opens_viewing_only() {
     let b = bench(remote(true), true, 0.05);
     let r = &b.router;
