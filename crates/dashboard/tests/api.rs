@@ -220,6 +220,22 @@ fn req(method: &str, path: &str) -> axum::http::request::Builder {
         .header(header::HOST, "localhost:8080")
 }
 
+fn login(token: &str) -> Request<Body> {
+    req("POST", "/api/session")
+        .body(Body::from(format!(r#"{{"token": "{token}"}}"#)))
+        .expect("request")
+}
+
+/// The Set-Cookie header `POST /api/session` answers the token with.
+async fn session_cookie(r: &Router, token: &str) -> String {
+    let (s, v, h) = send(r, login(token)).await;
+    assert_eq!(s, StatusCode::OK, "{v}");
+    h.get(header::SET_COOKIE)
+        .and_then(|v| v.to_str().ok())
+        .expect("a cookie")
+        .to_string()
+}
+
 async fn send(r: &Router, req: Request<Body>) -> (StatusCode, Value, axum::http::HeaderMap) {
     let resp = r.clone().oneshot(req).await.expect("infallible");
     let status = resp.status();
@@ -491,19 +507,9 @@ async fn remote_access_needs_the_token_for_every_control_endpoint() {
         .expect("request");
     assert_eq!(send(r, with).await.0, StatusCode::OK);
     // A wrong token buys no session; the right one buys an HttpOnly cookie.
-    let login = |t: &str| {
-        req("POST", "/api/session")
-            .body(Body::from(format!(r#"{{"token": "{t}"}}"#)))
-            .expect("request")
-    };
-    assert_eq!(send(r, login("nope")).await.0, StatusCode::UNAUTHORIZED);
-    let (s, _, h) = send(r, login(&token)).await;
-    assert_eq!(s, StatusCode::OK);
-    let cookie = h
-        .get(header::SET_COOKIE)
-        .and_then(|v| v.to_str().ok())
-        .expect("a cookie")
-        .to_string();
+    let (s, _, _) = send(r, login("nope")).await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED);
+    let cookie = session_cookie(r, &token).await;
     assert!(cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"));
     let pair = cookie.split(';').next().expect("name=value").to_string();
     let with = req("GET", "/api/status")
@@ -542,19 +548,7 @@ async fn a_session_ends_with_its_lifetime() {
     let token = access.token.clone().expect("a token");
     let b = bench(access, true, 0.05);
     let r = &b.router;
-    let (s, _, h) = send(
-        r,
-        req("POST", "/api/session")
-            .body(Body::from(format!(r#"{{"token": "{token}"}}"#)))
-            .expect("request"),
-    )
-    .await;
-    assert_eq!(s, StatusCode::OK);
-    let cookie = h
-        .get(header::SET_COOKIE)
-        .and_then(|v| v.to_str().ok())
-        .expect("a cookie")
-        .to_string();
+    let cookie = session_cookie(r, &token).await;
     assert!(cookie.contains("Max-Age=1"), "{cookie}");
     let pair = cookie.split(';').next().expect("name=value").to_string();
     let status = || {
