@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, anyhow};
 use cellinject_config::Description;
 use cellinject_core::calibrate::HysteresisCalibration;
-use cellinject_core::inject::{Attempt, Observer, Options, Target, Transition, Workflow};
+use cellinject_core::inject::{Attempt, ImageMap, Observer, Options, Target, Transition, Workflow};
 use cellinject_plate::{GenerateOptions, Plate, generate};
 use cellinject_records::{AttemptRow, Records, RecordsError, RunRow};
 use cellinject_twin::{Fault, SharedTwin};
@@ -395,6 +395,11 @@ impl Observer for Tee<'_, '_> {
     }
     fn proceed(&mut self) -> Result<(), String> {
         self.extra.as_mut().map_or(Ok(()), |x| x.proceed())
+    }
+    fn mapped(&mut self, map: &ImageMap) {
+        if let Some(x) = self.extra.as_mut() {
+            x.mapped(map);
+        }
     }
     fn tip_error(&mut self, t: &Target) -> Option<f64> {
         self.rec.tip_error(t)
@@ -888,13 +893,15 @@ pub(crate) fn open_existing(p: &Path) -> Result<Records> {
 
 #[cfg(test)]
 mod tests {
+    use std::path::PathBuf;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
 
     use cellinject_core::inject::Event;
-    use cellinject_hw::{Clock, HwError, PiezoChannel};
+    use cellinject_hw::{Camera, CameraSettings, Clock, HwError, PiezoChannel, Roi};
 
     use super::*;
+    use crate::backend::Opened;
 
     /// The device clock, failing its next sleep once `stop` is set (what the
     /// dashboard's clock does on an abort).
@@ -918,6 +925,80 @@ mod tests {
         }
     }
 
+    /// What a test run on the twin left behind.
+    struct Ran {
+        opened: Opened,
+        db: Records,
+        run_id: i64,
+        result: super::Outcome,
+        stopped: Option<String>,
+        dir: PathBuf,
+    }
+
+    impl Drop for Ran {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+
+    /// A run of the default plate (seed 1) on the twin whose clock fails once `stop`
+    /// is set (`obs` sets it), recorded in a fresh database.
+    fn run_on_twin(name: &str, stop: Arc<AtomicBool>, obs: &mut dyn Observer) -> Ran {
+        let d = cellinject_config::prototype();
+        let backend = crate::backend::BackendArgs {
+            backend: "twin".into(),
+            bench: None,
+            camera: None,
+            camera_fps: None,
+        };
+        let mut opened = crate::backend::open_with(
+            &d,
+            &crate::sim::TwinArgs::with_seed(1),
+            &backend,
+            move |mut devices| {
+                devices.clock = Box::new(Stopping {
+                    inner: devices.clock,
+                    stop,
+                });
+                devices
+            },
+        )
+        .unwrap();
+        let options = Options::default();
+        let (plate, text) = default_plate_text(1).unwrap();
+        let twin = opened.twin.clone().unwrap();
+        {
+            let mut t = twin.lock().unwrap();
+            t.load_plate(&plate);
+            t.world.stage.place(1, options.focus + options.lift);
+        }
+        let dir = std::env::temp_dir().join(format!("cellinject-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut db = Records::open(&dir.join("runs.sqlite")).unwrap();
+        let run_id = new_run(&mut db, &text, Some(1), "twin", &serde_json::json!({})).unwrap();
+        let job = Job {
+            d: &d,
+            options,
+            hysteresis: None,
+            twin: Some(twin),
+            plate,
+            run_id,
+            previous: Vec::new(),
+            base: (0.0, 0.0),
+            progress: false,
+        };
+        let (result, stopped) =
+            execute(job, &mut db, &mut opened.rig, Some(obs), &|| true).unwrap();
+        Ran {
+            opened,
+            db,
+            run_id,
+            result,
+            stopped,
+            dir,
+        }
+    }
+
     /// Sets `stop` when the first cell's dose has been judged.
     struct AbortAfterDose(Arc<AtomicBool>);
 
@@ -934,67 +1015,131 @@ mod tests {
     /// attempt, and the stacks end at rest with A3 at 0 V.
     #[test]
     fn an_abort_after_the_dose_keeps_the_cells_outcome_and_says_why() {
-        let d = cellinject_config::prototype();
         let stop = Arc::new(AtomicBool::new(false));
-        let s = stop.clone();
-        let backend = crate::backend::BackendArgs {
-            backend: "twin".into(),
-            bench: None,
-            camera: None,
-            camera_fps: None,
-        };
-        let mut opened = crate::backend::open_with(
-            &d,
-            &crate::sim::TwinArgs::with_seed(1),
-            &backend,
-            move |mut devices| {
-                devices.clock = Box::new(Stopping {
-                    inner: devices.clock,
-                    stop: s,
-                });
-                devices
-            },
-        )
-        .unwrap();
-        let options = Options::default();
-        let (plate, text) = default_plate_text(1).unwrap();
-        let twin = opened.twin.clone().unwrap();
-        {
-            let mut t = twin.lock().unwrap();
-            t.load_plate(&plate);
-            t.world.stage.place(1, options.focus + options.lift);
-        }
-        let dir = std::env::temp_dir().join(format!("cellinject-abort-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let db_path = dir.join("runs.sqlite");
-        let mut db = Records::open(&db_path).unwrap();
-        let run_id = new_run(&mut db, &text, Some(1), "twin", &serde_json::json!({})).unwrap();
-        let job = Job {
-            d: &d,
-            options,
-            hysteresis: None,
-            twin: Some(twin),
-            plate,
-            run_id,
-            previous: Vec::new(),
-            base: (0.0, 0.0),
-            progress: false,
-        };
         let mut obs = AbortAfterDose(stop.clone());
-        let (result, stopped) =
-            execute(job, &mut db, &mut opened.rig, Some(&mut obs), &|| true).unwrap();
-        let report = result.unwrap().0;
-        assert!(stopped.unwrap().contains("aborted by the test"));
-        let attempts = db.attempts(run_id).unwrap();
+        let mut ran = run_on_twin("abort", stop, &mut obs);
+        let report = ran.result.as_ref().unwrap().0.clone();
+        assert!(
+            ran.stopped
+                .as_ref()
+                .unwrap()
+                .contains("aborted by the test")
+        );
+        let attempts = ran.db.attempts(ran.run_id).unwrap();
         assert_eq!(attempts.len(), 1, "{attempts:?}");
         let a = &attempts[0];
         assert!(a.outcome == "injected" || a.outcome == "failed", "{a:?}");
         assert!(a.measured_dose_fraction.is_some(), "{a:?}");
         assert!(a.reason.contains("aborted by the test"), "{a:?}");
-        assert_eq!(db.run(Some(run_id)).unwrap().status, "aborted");
+        assert_eq!(ran.db.run(Some(ran.run_id)).unwrap().status, "aborted");
         assert!(report.stopped.is_some());
-        assert_eq!(opened.rig.piezo[2].read_voltage().unwrap(), 0.0);
-        drop(db);
-        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(ran.opened.rig.piezo[2].read_voltage().unwrap(), 0.0);
+    }
+
+    /// Keeps the image map and the survey's cells, and stops the run there.
+    struct StopAtSurvey(Arc<AtomicBool>, Option<ImageMap>, Vec<Target>);
+
+    impl Observer for StopAtSurvey {
+        fn mapped(&mut self, map: &ImageMap) {
+            self.1 = Some(*map);
+        }
+        fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
+            self.2 = targets.to_vec();
+            self.0.store(true, Ordering::SeqCst);
+            Ok(())
+        }
+    }
+
+    /// The live view of a bench without a renderer draws each cell the survey found
+    /// where the workflow's image-to-stage map puts its stage position
+    /// (`view_geometry`); on the twin, that is where the twin's camera truly images
+    /// the cell's centre (its grid and the cell's true centre), to within a pixel, in a
+    /// tracking window and in a binned full frame.
+    #[test]
+    fn the_view_geometry_from_the_image_map_puts_cells_on_the_twins_cells() {
+        let stop = Arc::new(AtomicBool::new(false));
+        let mut obs = StopAtSurvey(stop.clone(), None, Vec::new());
+        let mut ran = run_on_twin("geometry", stop, &mut obs);
+        let map = obs.1.expect("the workflow mapped the image");
+        assert!(obs.2.len() > 80, "{} cells found", obs.2.len());
+        let twin = ran.opened.twin.clone().unwrap();
+        let truth: Vec<[f64; 2]> = {
+            let t = twin.lock().unwrap();
+            let cells = &t.biology.as_ref().unwrap().cells;
+            obs.2
+                .iter()
+                .map(|c| {
+                    cells
+                        .iter()
+                        .map(|k| k.centre)
+                        .min_by(|a, b| {
+                            let d = |p: &[f64; 2]| (p[0] - c.stage_m[0]).hypot(p[1] - c.stage_m[1]);
+                            d(a).total_cmp(&d(b))
+                        })
+                        .unwrap()
+                })
+                .collect()
+        };
+        let cam = &mut ran.opened.rig.camera;
+        let (sw, sh) = cam.sensor_size();
+        let full = cam.settings();
+        for (settings, k) in [
+            (
+                CameraSettings {
+                    roi: Roi {
+                        x: 700,
+                        y: 500,
+                        width: 640,
+                        height: 480,
+                    },
+                    binning: 1,
+                    ..full
+                },
+                1,
+            ),
+            (
+                CameraSettings {
+                    roi: Roi {
+                        x: 0,
+                        y: 0,
+                        width: sw,
+                        height: sh,
+                    },
+                    binning: 2,
+                    ..full
+                },
+                3,
+            ),
+        ] {
+            cam.configure(settings).unwrap();
+            let pixel_size = cam.grab().unwrap().pixel_size;
+            let g = twin.lock().unwrap().camera.grid();
+            let a = cellinject_dashboard::view_geometry(&map, &settings, pixel_size, k).unwrap();
+            let view_pitch = g.pitch * k as f64;
+            let mut worst: f64 = 0.0;
+            for (c, w) in obs.2.iter().zip(&truth) {
+                let [x, z] = c.stage_m;
+                let got = [
+                    a[0][0] * x + a[0][1] * z + a[0][2],
+                    a[1][0] * x + a[1][1] * z + a[1][2],
+                ];
+                // The true centre in the view: output pixel (0, 0)'s centre is at
+                // (x0, z0), its outer edge half a pitch before.
+                let want = [
+                    (w[0] - g.x0 + 0.5 * g.pitch) / view_pitch,
+                    (w[1] - g.z0 + 0.5 * g.pitch) / view_pitch,
+                ];
+                worst = worst.max((got[0] - want[0]).hypot(got[1] - want[1]));
+            }
+            assert!(worst < 1.0, "{settings:?} / {k}: {worst:.2} view px off");
+        }
+        // Another zoom: not the map's scale, no geometry.
+        let settings = CameraSettings {
+            binning: 1,
+            ..cam.settings()
+        };
+        assert!(
+            cellinject_dashboard::view_geometry(&map, &settings, 2.0 * map.pixel_size, 1).is_none()
+        );
     }
 }

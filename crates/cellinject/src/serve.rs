@@ -187,6 +187,7 @@ impl Viewer for TwinViewer {
                 .collect(),
             origin_m: Some([grid.x0 - half(&grid), grid.z0 - half(&grid)]),
             pitch_m: grid.pitch,
+            to_view: None,
             tip_m: Some([tip.x, tip.depth, tip.z]),
             roi_m: Some([
                 roi.x0 - half(&roi),

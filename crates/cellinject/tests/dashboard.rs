@@ -240,37 +240,54 @@ fn remote_access_needs_the_printed_token_over_tcp() {
 
 #[test]
 fn the_end_of_the_server_aborts_and_records_the_run_going() {
-    let d = dir("serve", "end");
-    let s = Server::start(&d, &["--fast", "--serve-for", "6"]);
-    let (c, b) = s.http("POST", "/api/run", &[]);
-    assert_eq!(c, 202, "{b}");
-    assert_eq!(s.status()["state"], "running");
-    let mut s = s;
-    let t0 = Instant::now();
-    let code = loop {
-        if let Some(st) = s.child.try_wait().unwrap() {
-            break st.code();
+    // The server's time is up, or a service manager stops it (SIGTERM), or Ctrl-C
+    // (SIGINT), with a run going.
+    for (name, serve_for, signal) in [
+        ("end", "6", None),
+        ("term", "600", Some("-TERM")),
+        ("int", "600", Some("-INT")),
+    ] {
+        let d = dir("serve", name);
+        let s = Server::start(&d, &["--fast", "--serve-for", serve_for]);
+        let (c, b) = s.http("POST", "/api/run", &[]);
+        assert_eq!(c, 202, "{b}");
+        assert_eq!(s.status()["state"], "running");
+        let mut s = s;
+        if let Some(sig) = signal {
+            std::thread::sleep(Duration::from_secs(2));
+            let k = Command::new("kill")
+                .arg(sig)
+                .arg(s.child.id().to_string())
+                .status()
+                .unwrap();
+            assert!(k.success());
         }
+        let t0 = Instant::now();
+        let code = loop {
+            if let Some(st) = s.child.try_wait().unwrap() {
+                break st.code();
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "{name}: the server did not end"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        assert_eq!(code, Some(0), "{name}");
+        let o = run(&d, &["runs", "list", "--format", "json"]);
+        assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+        let runs: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(runs[0]["status"], "aborted", "{name}: {runs}");
         assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "the server did not end"
+            runs[0]["stopped"]
+                .as_str()
+                .unwrap_or("")
+                .contains("aborted by the operator"),
+            "{name}: {runs}"
         );
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    assert_eq!(code, Some(0));
-    let o = run(&d, &["runs", "list", "--format", "json"]);
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
-    let runs: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(runs[0]["status"], "aborted", "{runs}");
-    assert!(
-        runs[0]["stopped"]
-            .as_str()
-            .unwrap_or("")
-            .contains("aborted by the operator"),
-        "{runs}"
-    );
-    while let Ok(l) = s.lines.try_recv() {
-        assert!(!l.contains("panicked"), "{l}");
+        while let Ok(l) = s.lines.try_recv() {
+            assert!(!l.contains("panicked"), "{l}");
+        }
     }
 }
 

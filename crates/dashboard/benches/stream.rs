@@ -18,6 +18,7 @@ fn encode(c: &mut Criterion) {
         pixels: (0..w * h).map(|k| (k % 251) as u8).collect(),
         origin_m: Some([-1e-3, -7e-4]),
         pitch_m: 2.2e-6,
+        to_view: None,
         tip_m: Some([0.0, 3e-5, 0.0]),
         roi_m: Some([-1e-4, -1e-4, 1e-4, 1e-4]),
         time_s: 12.5,

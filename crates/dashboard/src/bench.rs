@@ -8,8 +8,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use cellinject_core::calibrate::HysteresisCalibration;
-use cellinject_core::inject::{Attempt, Observer, State, Target, Transition};
-use cellinject_hw::{Frame, PiezoChannel, Stage};
+use cellinject_core::inject::{Attempt, ImageMap, Observer, State, Target, Transition};
+use cellinject_hw::{CameraSettings, Frame, PiezoChannel, Stage};
 use cellinject_rig::{DynBackend, Rig};
 use serde::Serialize;
 
@@ -77,6 +77,12 @@ pub struct ViewFrame {
     pub origin_m: Option<[f64; 2]>,
     /// m per pixel.
     pub pitch_m: f64,
+    /// Where stage coordinates fall in this frame, when known and not as simple as
+    /// `origin_m` and `pitch_m` say: the affine map from stage (x, z) in m to the
+    /// frame's pixel coordinates (0 at the outer edge of the first pixel),
+    /// `column = a[0][0] x + a[0][1] z + a[0][2]`, `row = a[1][0] x + a[1][1] z + a[1][2]`
+    /// (a real bench: from the workflow's image-to-stage map).
+    pub to_view: Option<[[f64; 3]; 2]>,
     /// m, the tip (x, y, z) when the backend knows it.
     pub tip_m: Option<[f64; 3]>,
     /// m, the microscope's region of interest (x0, z0, x1, z1): where the program
@@ -100,6 +106,33 @@ pub struct GrabbedView {
     seen: u64,
 }
 
+/// Where stage (x, z) falls in a frame grabbed with `settings` and binned `k` x `k`
+/// for the view: the image-to-stage map's [`ImageMap::pixel_of`] (full-frame pixels,
+/// index at a pixel's centre), less the region of interest's corner, over the
+/// binning. None when the frame is not at the map's scale (another zoom).
+pub fn view_geometry(
+    map: &ImageMap,
+    settings: &CameraSettings,
+    pixel_size: f64,
+    k: u32,
+) -> Option<[[f64; 3]; 2]> {
+    let bin = settings.binning.max(1) as f64;
+    let same_scale = (pixel_size - map.pixel_size * bin).abs() <= 1e-6 * pixel_size;
+    if !same_scale {
+        return None;
+    }
+    let s = bin * k.max(1) as f64;
+    let roi = [settings.roi.x as f64, settings.roi.y as f64];
+    let row = |r: usize| {
+        let [bx, bz] = map.b[r];
+        let c = map.pixel0[r] - bx * map.stage0[0] - bz * map.stage0[1] - roi[r];
+        // Sensor pixel i spans [i - 0.5, i + 0.5) in the map's coordinates and
+        // [i, i + 1) in the view's.
+        [bx / s, bz / s, (c + 0.5) / s]
+    };
+    Some([row(0), row(1)])
+}
+
 impl GrabbedView {
     /// A view of the frames that reach `t`.
     pub fn new(t: Arc<Telemetry>) -> Self {
@@ -109,9 +142,14 @@ impl GrabbedView {
 
 impl Viewer for GrabbedView {
     fn frame(&mut self) -> Option<ViewFrame> {
-        let (f, n) = self.t.grabbed_since(self.seen)?;
+        let (f, settings, n) = self.t.grabbed_since(self.seen)?;
         self.seen = n;
-        Some(downscale(&f, 640))
+        let mut v = downscale(&f, 640);
+        if let Some(map) = self.t.map() {
+            let k = (f.width / v.width.max(1)).max(1);
+            v.to_view = view_geometry(&map, &settings, f.pixel_size, k);
+        }
+        Some(v)
     }
 }
 
@@ -139,6 +177,7 @@ pub fn downscale(f: &Frame, max_width: u32) -> ViewFrame {
         pixels,
         origin_m: None,
         pitch_m: f.pixel_size * b as f64,
+        to_view: None,
         tip_m: None,
         roi_m: None,
         time_s: f.timestamp,
@@ -393,6 +432,9 @@ impl Observer for Watch<'_> {
                 text: format!("{:?} -> {:?}: {}", t.from, t.to, t.reason),
             });
         });
+    }
+    fn mapped(&mut self, map: &ImageMap) {
+        self.shared.telemetry.set_map(*map);
     }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         let p = self.shared.plate;

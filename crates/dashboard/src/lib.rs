@@ -33,7 +33,7 @@ use std::time::{Duration, Instant};
 
 pub use bench::{
     Archive, BenchState, Board, Command, GrabbedView, Jog, JogAxis, PlateView, RunEnd, Shared,
-    Station, ViewFrame, Viewer,
+    Station, ViewFrame, Viewer, view_geometry,
 };
 pub use server::{Access, App, DashboardError, router};
 pub use watch::{Control, Telemetry, instrument};
@@ -103,8 +103,37 @@ pub fn spawn_viewer(
 pub enum Lifetime {
     /// Until Ctrl-C (or SIGTERM).
     UntilSignal,
-    /// For this many seconds (tests, demos).
+    /// For this many seconds (tests, demos), or until a signal if that comes first.
     For(f64),
+}
+
+/// Ctrl-C, or SIGTERM on Unix (a service manager's stop). Never resolves if the
+/// handlers cannot be installed.
+async fn signalled() {
+    #[cfg(unix)]
+    {
+        let mut term =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        tokio::select! {
+            r = tokio::signal::ctrl_c() => {
+                if r.is_err() {
+                    std::future::pending::<()>().await;
+                }
+            }
+            _ = async {
+                match term.as_mut() {
+                    Some(t) => { t.recv().await; }
+                    None => std::future::pending::<()>().await,
+                }
+            } => {}
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    }
 }
 
 /// What the front end hands the dashboard: one bench and how to see it.
@@ -163,29 +192,15 @@ pub fn serve(
     on_ready(addr);
     let stop_view = stop.clone();
     let ended = async move {
-        match lifetime {
-            Lifetime::For(s) => tokio::time::sleep(Duration::from_secs_f64(s)).await,
-            Lifetime::UntilSignal => {
-                #[cfg(unix)]
-                {
-                    let mut term =
-                        tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-                            .ok();
-                    tokio::select! {
-                        _ = tokio::signal::ctrl_c() => {}
-                        _ = async {
-                            match term.as_mut() {
-                                Some(t) => { t.recv().await; }
-                                None => std::future::pending::<()>().await,
-                            }
-                        } => {}
-                    }
-                }
-                #[cfg(not(unix))]
-                {
-                    let _ = tokio::signal::ctrl_c().await;
-                }
+        let limit = async {
+            match lifetime {
+                Lifetime::For(s) => tokio::time::sleep(Duration::from_secs_f64(s)).await,
+                Lifetime::UntilSignal => std::future::pending::<()>().await,
             }
+        };
+        tokio::select! {
+            _ = limit => {}
+            _ = signalled() => {}
         }
         // The live streams end with the view thread (their watch closes), so that
         // the graceful shutdown does not wait on them.

@@ -236,6 +236,7 @@ pub fn frame_msg(f: ViewFrame, n: u64) -> FrameMsg {
         "height": f.height,
         "origin_m": f.origin_m,
         "pitch_m": f.pitch_m,
+        "to_view": f.to_view,
         "tip_m": f.tip_m,
         "roi_m": f.roi_m,
         "time_s": f.time_s,

@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use cellinject_core::inject::ImageMap;
 use cellinject_hw::{
     Camera, CameraSettings, Clock, Frame, HwError, Injector, Optics, PiezoChannel, PositionSensor,
     Stage,
@@ -104,9 +105,12 @@ pub struct Readings {
 #[derive(Debug, Default)]
 pub struct Telemetry {
     readings: Mutex<Readings>,
-    /// Frames the workflow grabbed (the microscope), for a backend without a renderer.
-    last_frame: Mutex<Option<Frame>>,
+    /// The frame the workflow grabbed last (the microscope) and the camera's settings
+    /// it was taken with, for a backend without a renderer.
+    last_frame: Mutex<Option<(Frame, CameraSettings)>>,
     frames: AtomicU64,
+    /// The run's image-to-stage map, once the workflow has it.
+    map: Mutex<Option<ImageMap>>,
 }
 
 impl Telemetry {
@@ -117,14 +121,22 @@ impl Telemetry {
     fn with<R>(&self, f: impl FnOnce(&mut Readings) -> R) -> R {
         f(&mut lock(&self.readings))
     }
-    /// The microscope frame the program grabbed last, if it is newer than `seen`
-    /// (a count), and the count.
-    pub fn grabbed_since(&self, seen: u64) -> Option<(Frame, u64)> {
+    /// The microscope frame the program grabbed last and the camera's settings then,
+    /// if it is newer than `seen` (a count), and the count.
+    pub fn grabbed_since(&self, seen: u64) -> Option<(Frame, CameraSettings, u64)> {
         let n = self.frames.load(Ordering::SeqCst);
         if n == seen {
             return None;
         }
-        lock(&self.last_frame).clone().map(|f| (f, n))
+        lock(&self.last_frame).clone().map(|(f, s)| (f, s, n))
+    }
+    /// The workflow mapped the image to the stage.
+    pub fn set_map(&self, map: ImageMap) {
+        *lock(&self.map) = Some(map);
+    }
+    /// The image-to-stage map of the run, if there is one yet.
+    pub fn map(&self) -> Option<ImageMap> {
+        *lock(&self.map)
     }
 }
 
@@ -237,7 +249,29 @@ impl Camera for TapCamera {
     fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
         self.inner.grab_into(frame)?;
         if let Some(t) = &self.t {
-            *lock(&t.last_frame) = Some(frame.clone());
+            let settings = self.inner.settings();
+            let mut last = lock(&t.last_frame);
+            match last.as_mut() {
+                // The copy reuses the previous frame's buffer.
+                Some((f, s)) => {
+                    let Frame {
+                        width,
+                        height,
+                        bit_depth,
+                        pixels,
+                        timestamp,
+                        exposure,
+                        pixel_size,
+                        index,
+                    } = frame;
+                    (f.width, f.height, f.bit_depth) = (*width, *height, *bit_depth);
+                    (f.timestamp, f.exposure) = (*timestamp, *exposure);
+                    (f.pixel_size, f.index) = (*pixel_size, *index);
+                    f.pixels.clone_from(pixels);
+                    *s = settings;
+                }
+                None => *last = Some((frame.clone(), settings)),
+            }
             t.frames.fetch_add(1, Ordering::SeqCst);
         }
         Ok(())
@@ -398,6 +432,103 @@ mod tests {
             self.0 += seconds;
             Ok(())
         }
+    }
+
+    /// A camera whose frames are its region of interest of a bright sensor with one
+    /// dark sensor pixel.
+    struct SpotCamera {
+        settings: CameraSettings,
+        spot: [u32; 2],
+    }
+    impl Camera for SpotCamera {
+        fn sensor_size(&self) -> (u32, u32) {
+            (2048, 1536)
+        }
+        fn settings(&self) -> CameraSettings {
+            self.settings
+        }
+        fn configure(&mut self, settings: CameraSettings) -> Result<(), HwError> {
+            self.settings = settings;
+            Ok(())
+        }
+        fn frame_rate(&self) -> f64 {
+            30.0
+        }
+        fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
+            let r = self.settings.roi;
+            frame.width = r.width;
+            frame.height = r.height;
+            frame.bit_depth = 8;
+            frame.pixel_size = 0.7e-6;
+            frame.pixels = vec![200; (r.width * r.height) as usize];
+            let (i, j) = (self.spot[0] - r.x, self.spot[1] - r.y);
+            frame.pixels[(j * r.width + i) as usize] = 0;
+            Ok(())
+        }
+    }
+
+    /// The view of a bench without a renderer places a stage point where the frame
+    /// shows it: a dark sensor pixel put where the image map says a stage point is
+    /// imaged lands in the view pixel the frame's `to_view` gives for that point, for a
+    /// region of interest binned 2 x 2 for the view.
+    #[test]
+    fn the_grabbed_view_places_stage_points_where_the_frame_shows_them() {
+        use cellinject_hw::Roi;
+        // A slightly rotated map: 1 / 0.7 um pixels per metre, 10 mrad.
+        let (k, th) = (1.0 / 0.7e-6, 0.01f64);
+        let map = ImageMap {
+            pixel0: [1000.0, 700.0],
+            stage0: [1e-3, 2e-3],
+            b: [[k * th.cos(), -k * th.sin()], [k * th.sin(), k * th.cos()]],
+            residual_px: 0.1,
+            a1: [0.0, 1e6],
+            a3: [1e6, 0.0],
+            pixel_size: 0.7e-6,
+        };
+        let point = [map.stage0[0] + 150e-6, map.stage0[1] - 90e-6];
+        let full = map.pixel_of(point);
+        let spot = [full[0].round() as u32, full[1].round() as u32];
+        let roi = Roi {
+            x: 900,
+            y: 400,
+            width: 1280,
+            height: 960,
+        };
+        let t = Arc::new(Telemetry::default());
+        let mut cam = TapCamera {
+            inner: Box::new(SpotCamera {
+                settings: CameraSettings {
+                    roi,
+                    binning: 1,
+                    exposure: 1e-3,
+                    bit_depth: 8,
+                },
+                spot,
+            }),
+            t: Some(t.clone()),
+        };
+        let mut view = crate::bench::GrabbedView::new(t.clone());
+        cam.grab().expect("a frame");
+        let v = crate::Viewer::frame(&mut view).expect("a view");
+        assert_eq!(v.to_view, None, "no map yet");
+        t.set_map(map);
+        cam.grab().expect("a frame");
+        let v = crate::Viewer::frame(&mut view).expect("a view");
+        assert_eq!((v.width, v.height), (640, 480));
+        let a = v.to_view.expect("geometry from the map");
+        let at = [
+            a[0][0] * point[0] + a[0][1] * point[1] + a[0][2],
+            a[1][0] * point[0] + a[1][1] * point[1] + a[1][2],
+        ];
+        let darkest = (0..v.pixels.len())
+            .min_by_key(|&i| v.pixels[i])
+            .expect("pixels");
+        let (i, j) = (darkest % v.width as usize, darkest / v.width as usize);
+        assert_eq!(
+            (at[0].floor() as usize, at[1].floor() as usize),
+            (i, j),
+            "{at:?}"
+        );
     }
 
     #[test]

@@ -143,6 +143,7 @@ impl Viewer for Still {
             pixels: vec![0, 64, 128, 255, 1, 2, 3, 4],
             origin_m: Some([0.0, 0.0]),
             pitch_m: 1e-6,
+            to_view: None,
             tip_m: Some([1e-6, 0.0, 2e-6]),
             roi_m: None,
             time_s: 0.0,

@@ -335,6 +335,9 @@ pub trait Observer {
     fn proceed(&mut self) -> Result<(), String> {
         Ok(())
     }
+    /// The image is mapped to the stage (once per run, before the survey): where
+    /// things are in the microscope's frames.
+    fn mapped(&mut self, _map: &ImageMap) {}
     /// The tip's true distance to the cell (the twin), when the pulse starts.
     fn tip_error(&mut self, _target: &Target) -> Option<f64> {
         None
@@ -378,8 +381,9 @@ impl ImageMap {
         [self.stage0[0] + d[0], self.stage0[1] + d[1]]
     }
 
-    /// The full-frame pixel of the resting tip with the stage at `s` (m).
-    fn pixel_of(&self, s: [f64; 2]) -> [f64; 2] {
+    /// The full-frame pixel of the resting tip with the stage at `s` (m) (also where
+    /// a cell whose `stage_m` is `s` appears).
+    pub fn pixel_of(&self, s: [f64; 2]) -> [f64; 2] {
         let (u, v) = (s[0] - self.stage0[0], s[1] - self.stage0[1]);
         [
             self.pixel0[0] + self.b[0][0] * u + self.b[0][1] * v,
@@ -686,6 +690,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let t_start = self.now();
         self.fire(Event::Begin, "run started".into(), obs, None)?;
         let (cal, why) = self.calibrate(hysteresis)?;
+        if let Some(map) = &self.map {
+            obs.mapped(map);
+        }
         self.fire(Event::Calibrated, why, obs, None)?;
         let targets = match self.survey() {
             Ok(t) => t,
