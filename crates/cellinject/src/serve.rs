@@ -62,8 +62,8 @@ pub struct ServeArgs {
     fast: bool,
     #[command(flatten)]
     backend: crate::backend::BackendArgs,
-    /// Stop serving after this many seconds (default: until Ctrl-C); whatever is
-    /// going is aborted and recorded first.
+    /// Stop serving after this many seconds (default: until Ctrl-C or SIGTERM, which
+    /// also end it earlier); whatever is going is aborted and recorded first.
     #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
     serve_for: Option<f64>,
 }
