@@ -1083,40 +1083,40 @@ mod tests {
         let cam = &mut ran.opened.rig.camera;
         let (sw, sh) = cam.sensor_size();
         let full = cam.settings();
-        for (settings, k) in [
-            (
-                CameraSettings {
-                    roi: Roi {
-                        x: 700,
-                        y: 500,
-                        width: 640,
-                        height: 480,
-                    },
-                    binning: 1,
-                    ..full
+        // A tracking window as the workflow reads it, and the whole sensor binned 2 x 2
+        // by the camera (and again for the view, as the dashboard's downscale does).
+        for settings in [
+            CameraSettings {
+                roi: Roi {
+                    x: 700,
+                    y: 500,
+                    width: 640,
+                    height: 480,
                 },
-                1,
-            ),
-            (
-                CameraSettings {
-                    roi: Roi {
-                        x: 0,
-                        y: 0,
-                        width: sw,
-                        height: sh,
-                    },
-                    binning: 2,
-                    ..full
+                binning: 1,
+                ..full
+            },
+            CameraSettings {
+                roi: Roi {
+                    x: 0,
+                    y: 0,
+                    width: sw,
+                    height: sh,
                 },
-                3,
-            ),
+                binning: 2,
+                ..full
+            },
         ] {
             cam.configure(settings).unwrap();
-            let pixel_size = cam.grab().unwrap().pixel_size;
+            let frame = cam.grab().unwrap();
+            let k = frame.width.div_ceil(640);
             let g = twin.lock().unwrap().camera.grid();
-            let a = cellinject_dashboard::view_geometry(&map, &settings, pixel_size, k).unwrap();
+            let a =
+                cellinject_dashboard::view_geometry(&map, &settings, frame.pixel_size, k).unwrap();
             let view_pitch = g.pitch * k as f64;
-            let mut worst: f64 = 0.0;
+            // In sensor pixels: the worst cell and the mean offset (a bias).
+            let sensor = (settings.binning * k) as f64;
+            let (mut worst, mut bias) = (0.0f64, [0.0; 2]);
             for (c, w) in obs.2.iter().zip(&truth) {
                 let [x, z] = c.stage_m;
                 let got = [
@@ -1129,9 +1129,17 @@ mod tests {
                     (w[0] - g.x0 + 0.5 * g.pitch) / view_pitch,
                     (w[1] - g.z0 + 0.5 * g.pitch) / view_pitch,
                 ];
-                worst = worst.max((got[0] - want[0]).hypot(got[1] - want[1]));
+                let d = [(got[0] - want[0]) * sensor, (got[1] - want[1]) * sensor];
+                worst = worst.max(d[0].hypot(d[1]));
+                bias = [bias[0] + d[0], bias[1] + d[1]];
             }
-            assert!(worst < 1.0, "{settings:?} / {k}: {worst:.2} view px off");
+            let n = obs.2.len() as f64;
+            let bias = (bias[0] / n).hypot(bias[1] / n);
+            assert!(worst < 1.0, "{settings:?} / {k}: {worst:.2} sensor px off");
+            assert!(
+                bias < 0.25,
+                "{settings:?} / {k}: mean offset {bias:.2} sensor px"
+            );
         }
         // Another zoom: not the map's scale, no geometry.
         let settings = CameraSettings {

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use cellinject_core::calibrate::HysteresisCalibration;
-use cellinject_core::inject::{Attempt, ImageMap, Observer, State, Target, Transition};
+use cellinject_core::inject::{Attempt, Event, ImageMap, Observer, State, Target, Transition};
 use cellinject_hw::{CameraSettings, Frame, PiezoChannel, Stage};
 use cellinject_rig::{DynBackend, Rig};
 use serde::Serialize;
@@ -106,10 +106,14 @@ pub struct GrabbedView {
     seen: u64,
 }
 
-/// Where stage (x, z) falls in a frame grabbed with `settings` and binned `k` x `k`
-/// for the view: the image-to-stage map's [`ImageMap::pixel_of`] (full-frame pixels,
-/// index at a pixel's centre), less the region of interest's corner, over the
-/// binning. None when the frame is not at the map's scale (another zoom).
+/// Where stage (x, z) falls in a frame grabbed with `settings` (`pixel_size`: its
+/// output pixel, binning included) and binned `k` x `k` for the view, as the affine
+/// map of [`ViewFrame::to_view`]: the image-to-stage map's [`ImageMap::pixel_of`] `p`
+/// (full-frame sensor pixels, a pixel's centre at its index), less the region of
+/// interest's corner, plus half a sensor pixel (the view's coordinates start at a
+/// pixel's outer edge), over the camera's binning times `k`:
+/// `(p - roi + 0.5) / (binning k)`. None when the frame is not at the map's scale
+/// (another zoom).
 pub fn view_geometry(
     map: &ImageMap,
     settings: &CameraSettings,
@@ -146,7 +150,8 @@ impl Viewer for GrabbedView {
         self.seen = n;
         let mut v = downscale(&f, 640);
         if let Some(map) = self.t.map() {
-            let k = (f.width / v.width.max(1)).max(1);
+            // The view's binning (downscale's own factor).
+            let k = (v.pitch_m / f.pixel_size).round().max(1.0) as u32;
             v.to_view = view_geometry(&map, &settings, f.pixel_size, k);
         }
         Some(v)
@@ -420,6 +425,9 @@ impl Watch<'_> {
 
 impl Observer for Watch<'_> {
     fn transition(&mut self, t: &Transition) {
+        if t.event == Event::Begin {
+            self.shared.telemetry.clear_map();
+        }
         self.shared.update(|b| {
             if let Some(r) = b.run.as_mut() {
                 r.workflow = Some(t.to);

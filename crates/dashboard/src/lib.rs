@@ -107,31 +107,52 @@ pub enum Lifetime {
     For(f64),
 }
 
-/// Ctrl-C, or SIGTERM on Unix (a service manager's stop). Never resolves if the
-/// handlers cannot be installed.
-async fn signalled() {
+/// Ctrl-C, and SIGTERM on Unix (a service manager's stop), listened for from the
+/// moment this is made (inside the runtime), so that a stop that comes as soon as the
+/// address is printed ends the server like any other.
+struct Signals {
     #[cfg(unix)]
-    {
-        let mut term =
-            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-        tokio::select! {
-            r = tokio::signal::ctrl_c() => {
-                if r.is_err() {
-                    std::future::pending::<()>().await;
-                }
+    int: Option<tokio::signal::unix::Signal>,
+    #[cfg(unix)]
+    term: Option<tokio::signal::unix::Signal>,
+}
+
+impl Signals {
+    fn new() -> Self {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{SignalKind, signal};
+            Signals {
+                int: signal(SignalKind::interrupt()).ok(),
+                term: signal(SignalKind::terminate()).ok(),
             }
-            _ = async {
-                match term.as_mut() {
-                    Some(t) => { t.recv().await; }
+        }
+        #[cfg(not(unix))]
+        Signals {}
+    }
+
+    /// The first of them (never, if none could be listened for).
+    async fn first(mut self) {
+        #[cfg(unix)]
+        {
+            async fn next(s: &mut Option<tokio::signal::unix::Signal>) {
+                match s {
+                    Some(s) => {
+                        s.recv().await;
+                    }
                     None => std::future::pending::<()>().await,
                 }
-            } => {}
+            }
+            tokio::select! {
+                _ = next(&mut self.int) => {}
+                _ = next(&mut self.term) => {}
+            }
         }
-    }
-    #[cfg(not(unix))]
-    {
-        if tokio::signal::ctrl_c().await.is_err() {
-            std::future::pending::<()>().await;
+        #[cfg(not(unix))]
+        {
+            if tokio::signal::ctrl_c().await.is_err() {
+                std::future::pending::<()>().await;
+            }
         }
     }
 }
@@ -189,6 +210,10 @@ pub fn serve(
     let stop = Arc::new(AtomicBool::new(false));
     let (frames, view_thread) = spawn_viewer(viewer, stop.clone());
     let app = App::new(shared.clone(), cmd, access, archive, frames);
+    let signals = {
+        let _rt = rt.enter();
+        Signals::new()
+    };
     on_ready(addr);
     let stop_view = stop.clone();
     let ended = async move {
@@ -200,7 +225,7 @@ pub fn serve(
         };
         tokio::select! {
             _ = limit => {}
-            _ = signalled() => {}
+            _ = signals.first() => {}
         }
         // The live streams end with the view thread (their watch closes), so that
         // the graceful shutdown does not wait on them.

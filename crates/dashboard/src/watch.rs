@@ -134,6 +134,10 @@ impl Telemetry {
     pub fn set_map(&self, map: ImageMap) {
         *lock(&self.map) = Some(map);
     }
+    /// A new run starts: the last run's map no longer says where things are.
+    pub fn clear_map(&self) {
+        *lock(&self.map) = None;
+    }
     /// The image-to-stage map of the run, if there is one yet.
     pub fn map(&self) -> Option<ImageMap> {
         *lock(&self.map)
@@ -231,6 +235,26 @@ impl Stage for TapStage {
 struct TapCamera {
     inner: Box<dyn Camera>,
     t: Option<Arc<Telemetry>>,
+    /// The buffer the next grabbed frame is copied into.
+    spare: Frame,
+}
+
+/// `from` into `to`, reusing `to`'s pixel buffer.
+fn copy_frame(to: &mut Frame, from: &Frame) {
+    let Frame {
+        width,
+        height,
+        bit_depth,
+        pixels,
+        timestamp,
+        exposure,
+        pixel_size,
+        index,
+    } = from;
+    (to.width, to.height, to.bit_depth) = (*width, *height, *bit_depth);
+    (to.timestamp, to.exposure) = (*timestamp, *exposure);
+    (to.pixel_size, to.index) = (*pixel_size, *index);
+    to.pixels.clone_from(pixels);
 }
 
 impl Camera for TapCamera {
@@ -250,28 +274,18 @@ impl Camera for TapCamera {
         self.inner.grab_into(frame)?;
         if let Some(t) = &self.t {
             let settings = self.inner.settings();
+            // Copied into a buffer of our own outside the lock, then swapped in: the
+            // view thread never waits for the copy, and no frame is allocated per grab.
+            copy_frame(&mut self.spare, frame);
             let mut last = lock(&t.last_frame);
             match last.as_mut() {
-                // The copy reuses the previous frame's buffer.
                 Some((f, s)) => {
-                    let Frame {
-                        width,
-                        height,
-                        bit_depth,
-                        pixels,
-                        timestamp,
-                        exposure,
-                        pixel_size,
-                        index,
-                    } = frame;
-                    (f.width, f.height, f.bit_depth) = (*width, *height, *bit_depth);
-                    (f.timestamp, f.exposure) = (*timestamp, *exposure);
-                    (f.pixel_size, f.index) = (*pixel_size, *index);
-                    f.pixels.clone_from(pixels);
+                    std::mem::swap(f, &mut self.spare);
                     *s = settings;
                 }
-                None => *last = Some((frame.clone(), settings)),
+                None => *last = Some((std::mem::take(&mut self.spare), settings)),
             }
+            drop(last);
             t.frames.fetch_add(1, Ordering::SeqCst);
         }
         Ok(())
@@ -398,6 +412,7 @@ pub fn instrument(
         camera: Box::new(TapCamera {
             inner: camera,
             t: tap_camera.then(|| t.clone()),
+            spare: Frame::default(),
         }),
         side_camera,
         stage: Box::new(TapStage {
@@ -435,7 +450,7 @@ mod tests {
     }
 
     /// A camera whose frames are its region of interest of a bright sensor with one
-    /// dark sensor pixel.
+    /// dark sensor pixel, binned as set.
     struct SpotCamera {
         settings: CameraSettings,
         spot: [u32; 2],
@@ -455,14 +470,14 @@ mod tests {
             30.0
         }
         fn grab_into(&mut self, frame: &mut Frame) -> Result<(), HwError> {
-            let r = self.settings.roi;
-            frame.width = r.width;
-            frame.height = r.height;
+            let (r, b) = (self.settings.roi, self.settings.binning);
+            frame.width = r.width / b;
+            frame.height = r.height / b;
             frame.bit_depth = 8;
-            frame.pixel_size = 0.7e-6;
-            frame.pixels = vec![200; (r.width * r.height) as usize];
-            let (i, j) = (self.spot[0] - r.x, self.spot[1] - r.y);
-            frame.pixels[(j * r.width + i) as usize] = 0;
+            frame.pixel_size = 0.7e-6 * b as f64;
+            frame.pixels = vec![200; (frame.width * frame.height) as usize];
+            let (i, j) = ((self.spot[0] - r.x) / b, (self.spot[1] - r.y) / b);
+            frame.pixels[(j * frame.width + i) as usize] = 0;
             Ok(())
         }
     }
@@ -470,65 +485,90 @@ mod tests {
     /// The view of a bench without a renderer places a stage point where the frame
     /// shows it: a dark sensor pixel put where the image map says a stage point is
     /// imaged lands in the view pixel the frame's `to_view` gives for that point, for a
-    /// region of interest binned 2 x 2 for the view.
+    /// region of interest off the sensor's corner, binned 2 x 2 by the camera and 2 x 2
+    /// again for the view, with the point at several places within its sensor pixel
+    /// and within the view's pixel (half a pixel off anywhere shows).
     #[test]
     fn the_grabbed_view_places_stage_points_where_the_frame_shows_them() {
         use cellinject_hw::Roi;
         // A slightly rotated map: 1 / 0.7 um pixels per metre, 10 mrad.
-        let (k, th) = (1.0 / 0.7e-6, 0.01f64);
+        let (g, th) = (1.0 / 0.7e-6, 0.01f64);
         let map = ImageMap {
             pixel0: [1000.0, 700.0],
             stage0: [1e-3, 2e-3],
-            b: [[k * th.cos(), -k * th.sin()], [k * th.sin(), k * th.cos()]],
+            b: [[g * th.cos(), -g * th.sin()], [g * th.sin(), g * th.cos()]],
             residual_px: 0.1,
             a1: [0.0, 1e6],
             a3: [1e6, 0.0],
             pixel_size: 0.7e-6,
         };
-        let point = [map.stage0[0] + 150e-6, map.stage0[1] - 90e-6];
-        let full = map.pixel_of(point);
-        let spot = [full[0].round() as u32, full[1].round() as u32];
+        // The stage point imaged at full-frame pixel p (the map inverted by hand).
+        let stage_at = |p: [f64; 2]| {
+            let [[a, b], [c, d]] = map.b;
+            let det = a * d - b * c;
+            let (u, v) = (p[0] - map.pixel0[0], p[1] - map.pixel0[1]);
+            [
+                map.stage0[0] + (d * u - b * v) / det,
+                map.stage0[1] + (-c * u + a * v) / det,
+            ]
+        };
         let roi = Roi {
-            x: 900,
-            y: 400,
-            width: 1280,
-            height: 960,
+            x: 24,
+            y: 100,
+            width: 2000,
+            height: 1400,
+        };
+        let settings = CameraSettings {
+            roi,
+            binning: 2,
+            exposure: 1e-3,
+            bit_depth: 8,
         };
         let t = Arc::new(Telemetry::default());
-        let mut cam = TapCamera {
-            inner: Box::new(SpotCamera {
-                settings: CameraSettings {
-                    roi,
-                    binning: 1,
-                    exposure: 1e-3,
-                    bit_depth: 8,
-                },
-                spot,
-            }),
-            t: Some(t.clone()),
-        };
         let mut view = crate::bench::GrabbedView::new(t.clone());
-        cam.grab().expect("a frame");
-        let v = crate::Viewer::frame(&mut view).expect("a view");
-        assert_eq!(v.to_view, None, "no map yet");
-        t.set_map(map);
-        cam.grab().expect("a frame");
-        let v = crate::Viewer::frame(&mut view).expect("a view");
-        assert_eq!((v.width, v.height), (640, 480));
-        let a = v.to_view.expect("geometry from the map");
-        let at = [
-            a[0][0] * point[0] + a[0][1] * point[1] + a[0][2],
-            a[1][0] * point[0] + a[1][1] * point[1] + a[1][2],
-        ];
-        let darkest = (0..v.pixels.len())
-            .min_by_key(|&i| v.pixels[i])
-            .expect("pixels");
-        let (i, j) = (darkest % v.width as usize, darkest / v.width as usize);
-        assert_eq!(
-            (at[0].floor() as usize, at[1].floor() as usize),
-            (i, j),
-            "{at:?}"
-        );
+        let mut checked = 0;
+        for (n, frac) in [0.3, 1.45, 2.4, 2.55, 3.45, 3.6].into_iter().enumerate() {
+            // Full-frame pixel: a view pixel of 4 sensor pixels from the region's
+            // corner, plus `frac` sensor pixels in the column and 3.9 - frac in the row.
+            let p = [
+                roi.x as f64 + 4.0 * (60 + n) as f64 + frac,
+                roi.y as f64 + 4.0 * (40 + n) as f64 + 3.9 - frac,
+            ];
+            let point = stage_at(p);
+            let back = map.pixel_of(point);
+            assert!((back[0] - p[0]).hypot(back[1] - p[1]) < 1e-9);
+            let spot = [p[0].round() as u32, p[1].round() as u32];
+            let mut cam = TapCamera {
+                inner: Box::new(SpotCamera { settings, spot }),
+                t: Some(t.clone()),
+                spare: Frame::default(),
+            };
+            if n == 0 {
+                cam.grab().expect("a frame");
+                let v = crate::Viewer::frame(&mut view).expect("a view");
+                assert_eq!(v.to_view, None, "no map yet");
+                t.set_map(map);
+            }
+            cam.grab().expect("a frame");
+            let v = crate::Viewer::frame(&mut view).expect("a view");
+            assert_eq!((v.width, v.height), (500, 350));
+            let a = v.to_view.expect("geometry from the map");
+            let at = [
+                a[0][0] * point[0] + a[0][1] * point[1] + a[0][2],
+                a[1][0] * point[0] + a[1][1] * point[1] + a[1][2],
+            ];
+            let darkest = (0..v.pixels.len())
+                .min_by_key(|&i| v.pixels[i])
+                .expect("pixels");
+            let (i, j) = (darkest % v.width as usize, darkest / v.width as usize);
+            assert_eq!(
+                (at[0].floor() as usize, at[1].floor() as usize),
+                (i, j),
+                "{frac}: {at:?}"
+            );
+            checked += 1;
+        }
+        assert_eq!(checked, 6);
     }
 
     #[test]

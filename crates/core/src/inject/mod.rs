@@ -348,6 +348,26 @@ pub trait Observer {
     }
 }
 
+/// An attempt's outcome and reason when the run stops in its cell for `reason`
+/// (`by_operator`: an abort). Untouched, it stays skipped; touched and not yet judged, it
+/// is interrupted (an abort) or failed (a fault); judged already (the dose measured,
+/// the pipette withdrawing), it keeps its outcome. The reason is the stop's, or the
+/// cell's own verdict followed by the abort.
+fn verdict_on_stop(a: &mut Attempt, reason: String, by_operator: bool) {
+    if a.outcome == Outcome::Skipped && a.contact {
+        a.outcome = if by_operator {
+            Outcome::Interrupted
+        } else {
+            Outcome::Failed
+        };
+    }
+    if a.reason.is_empty() {
+        a.reason = reason;
+    } else if by_operator {
+        a.reason = format!("{}; then {reason}", a.reason);
+    }
+}
+
 /// The image-to-stage map and the actuators' directions in the image.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ImageMap {
@@ -1559,19 +1579,7 @@ impl<B: Backend> Workflow<'_, B> {
             Ok(()) => format!("{reason} (pipette retracted, stacks at rest)"),
             Err(e) => format!("{reason}; the safe state could not be reached either: {e}"),
         };
-        if a.outcome == Outcome::Skipped && a.contact {
-            a.outcome = if by_operator {
-                Outcome::Interrupted
-            } else {
-                Outcome::Failed
-            };
-        }
-        if a.reason.is_empty() {
-            a.reason = reason;
-        } else if by_operator {
-            // The cell's own verdict (a dose off) stays, and the abort is said too.
-            a.reason = format!("{}; then {reason}", a.reason);
-        }
+        verdict_on_stop(a, reason, by_operator);
         self.fire(Event::Fatal, r.clone(), obs, Some(&mut a.transitions))?;
         Ok(r)
     }
@@ -2046,5 +2054,65 @@ impl<B: Backend> Workflow<'_, B> {
         self.stage_to([None, Some(lift), None])?
             .map_err(Fail::Cell)?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn attempt(outcome: Outcome, contact: bool, reason: &str) -> Attempt {
+        Attempt {
+            target: Target {
+                index: 0,
+                well: [0, 0],
+                x_m: 0.0,
+                y_m: 0.0,
+                diameter_m: 20e-6,
+                stage_m: [0.0, 0.0],
+            },
+            outcome,
+            reason: reason.into(),
+            contact,
+            measured_tip_error_m: None,
+            depth_m: None,
+            pulse: None,
+            measured_dose_fraction: None,
+            truth: Truth::default(),
+            t: [0.0; 2],
+            transitions: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_stop_in_a_cell_keeps_a_judged_outcome_and_says_why() {
+        let abort = "clock: interrupted: aborted by the operator";
+        // Not touched: skipped, for the stop's reason.
+        let mut a = attempt(Outcome::Skipped, false, "");
+        verdict_on_stop(&mut a, abort.into(), true);
+        assert_eq!((a.outcome, a.reason.as_str()), (Outcome::Skipped, abort));
+        // Touched, not judged: interrupted by an abort, failed by a fault.
+        let mut a = attempt(Outcome::Skipped, true, "");
+        verdict_on_stop(&mut a, abort.into(), true);
+        assert_eq!(a.outcome, Outcome::Interrupted);
+        let mut a = attempt(Outcome::Skipped, true, "");
+        verdict_on_stop(&mut a, "stage: stalled".into(), false);
+        assert_eq!(
+            (a.outcome, a.reason.as_str()),
+            (Outcome::Failed, "stage: stalled")
+        );
+        // Judged: the outcome stays; a verdict of its own comes first, then the abort.
+        let mut a = attempt(Outcome::Injected, true, "");
+        verdict_on_stop(&mut a, abort.into(), true);
+        assert_eq!((a.outcome, a.reason.as_str()), (Outcome::Injected, abort));
+        let mut a = attempt(Outcome::Failed, true, "dose 40 % of the target");
+        verdict_on_stop(&mut a, abort.into(), true);
+        assert_eq!(a.outcome, Outcome::Failed);
+        assert_eq!(a.reason, format!("dose 40 % of the target; then {abort}"));
+        // A fault after a verdict leaves the verdict as it was (the fault is the run's
+        // reason to stop).
+        let mut a = attempt(Outcome::Failed, true, "dose 40 % of the target");
+        verdict_on_stop(&mut a, "stage: stalled".into(), false);
+        assert_eq!(a.reason, "dose 40 % of the target");
     }
 }
