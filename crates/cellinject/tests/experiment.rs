@@ -4,23 +4,23 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 
 use serde_json::Value;
 
+use common::err;
+
 fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("cellinject-exp-{name}-{}", std::process::id()));
-    let _ = fs::remove_dir_all(&d);
-    fs::create_dir_all(&d).unwrap();
-    d
+    common::dir("exp", name)
 }
 
 fn run(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cellinject"))
-        .current_dir(dir)
+    common::cmd(dir)
         .env(
             "XDG_CACHE_HOME",
             std::env::temp_dir().join(format!("cellinject-exp-cache-{}", std::process::id())),
@@ -28,10 +28,6 @@ fn run(dir: &Path, args: &[&str]) -> Output {
         .args(args)
         .output()
         .unwrap()
-}
-
-fn err(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 /// One calibration directory (approach 2) shared by the tests: `calibrate all`.

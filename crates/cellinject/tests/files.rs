@@ -6,28 +6,24 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("cellinject-files-{tag}-{}", std::process::id()));
-    let _ = fs::remove_dir_all(&d);
-    fs::create_dir_all(&d).unwrap();
-    d
+use common::err;
+
+fn dir(name: &str) -> PathBuf {
+    common::dir("files", name)
 }
 
 fn run(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cellinject"))
-        .current_dir(dir)
+    common::cmd(dir)
         .env("XDG_CACHE_HOME", dir.join("cache"))
         .args(args)
         .output()
         .unwrap()
-}
-
-fn err(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 fn files(dir: &Path) -> Vec<String> {

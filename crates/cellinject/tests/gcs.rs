@@ -5,6 +5,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::fs;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -16,26 +18,17 @@ use std::time::Duration;
 
 use serde_json::Value;
 
+use common::err;
+
 fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("cellinject-gcs-{name}-{}", std::process::id()));
-    let _ = fs::remove_dir_all(&d);
-    fs::create_dir_all(&d).unwrap();
-    d
+    common::dir("gcs", name)
 }
 
 fn run(dir: &Path, args: &[&str]) -> Output {
     let t = std::time::Instant::now();
-    let o = Command::new(env!("CARGO_BIN_EXE_cellinject"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap();
+    let o = common::cmd(dir).args(args).output().unwrap();
     eprintln!("{:.1} s: {}", t.elapsed().as_secs_f64(), args.join(" "));
     o
-}
-
-fn err(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 fn ok(o: &Output) -> Value {

@@ -15,13 +15,16 @@ pub fn dir(suite: &str, name: &str) -> PathBuf {
     d
 }
 
+/// `cellinject`, to be run in `dir`.
+pub fn cmd(dir: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_cellinject"));
+    c.current_dir(dir);
+    c
+}
+
 /// `cellinject ARGS` run in `dir`.
 pub fn run(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cellinject"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap()
+    cmd(dir).args(args).output().unwrap()
 }
 
 /// Its standard error.
