@@ -230,21 +230,8 @@ impl Recorder<'_> {
 
     /// The twin's cell nearest to a target (plate coordinates).
     fn nearest(&self, t: &Target) -> Option<cellinject_twin::CellState> {
-        let twin = self
-            .twin
-            .as_ref()?
-            .lock()
-            .unwrap_or_else(|e| e.into_inner());
-        let b = twin.biology.as_ref()?;
         let p = [t.x_m + self.plate.origin[0], t.y_m + self.plate.origin[1]];
-        b.cells
-            .iter()
-            .min_by(|a, c| {
-                let da = (a.centre[0] - p[0]).hypot(a.centre[1] - p[1]);
-                let dc = (c.centre[0] - p[0]).hypot(c.centre[1] - p[1]);
-                da.total_cmp(&dc)
-            })
-            .copied()
+        nearest_cell(self.twin.as_ref()?, p)
     }
 }
 
@@ -358,6 +345,20 @@ pub(crate) struct Job<'a> {
     pub base: (f64, f64),
     /// A progress bar on standard error.
     pub progress: bool,
+}
+
+/// The twin's cell whose true centre is nearest to stage point `p` (m).
+fn nearest_cell(twin: &SharedTwin, p: [f64; 2]) -> Option<cellinject_twin::CellState> {
+    let twin = twin.lock().unwrap_or_else(|e| e.into_inner());
+    let b = twin.biology.as_ref()?;
+    b.cells
+        .iter()
+        .min_by(|a, c| {
+            let da = (a.centre[0] - p[0]).hypot(a.centre[1] - p[1]);
+            let dc = (c.centre[0] - p[0]).hypot(c.centre[1] - p[1]);
+            da.total_cmp(&dc)
+        })
+        .copied()
 }
 
 /// The workflow's observer calls go to the records and, if given, to a second
@@ -1063,23 +1064,11 @@ mod tests {
         let map = obs.1.expect("the workflow mapped the image");
         assert!(obs.2.len() > 80, "{} cells found", obs.2.len());
         let twin = ran.opened.twin.clone().unwrap();
-        let truth: Vec<[f64; 2]> = {
-            let t = twin.lock().unwrap();
-            let cells = &t.biology.as_ref().unwrap().cells;
-            obs.2
-                .iter()
-                .map(|c| {
-                    cells
-                        .iter()
-                        .map(|k| k.centre)
-                        .min_by(|a, b| {
-                            let d = |p: &[f64; 2]| (p[0] - c.stage_m[0]).hypot(p[1] - c.stage_m[1]);
-                            d(a).total_cmp(&d(b))
-                        })
-                        .unwrap()
-                })
-                .collect()
-        };
+        let truth: Vec<[f64; 2]> = obs
+            .2
+            .iter()
+            .map(|c| nearest_cell(&twin, c.stage_m).unwrap().centre)
+            .collect();
         let cam = &mut ran.opened.rig.camera;
         let (sw, sh) = cam.sensor_size();
         let full = cam.settings();

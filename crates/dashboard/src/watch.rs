@@ -502,16 +502,6 @@ mod tests {
             a3: [1e6, 0.0],
             pixel_size: 0.7e-6,
         };
-        // The stage point imaged at full-frame pixel p (the map inverted by hand).
-        let stage_at = |p: [f64; 2]| {
-            let [[a, b], [c, d]] = map.b;
-            let det = a * d - b * c;
-            let (u, v) = (p[0] - map.pixel0[0], p[1] - map.pixel0[1]);
-            [
-                map.stage0[0] + (d * u - b * v) / det,
-                map.stage0[1] + (-c * u + a * v) / det,
-            ]
-        };
         let roi = Roi {
             x: 24,
             y: 100,
@@ -534,7 +524,7 @@ mod tests {
                 roi.x as f64 + 4.0 * (60 + n) as f64 + frac,
                 roi.y as f64 + 4.0 * (40 + n) as f64 + 3.9 - frac,
             ];
-            let point = stage_at(p);
+            let point = map.stage_of(p);
             let back = map.pixel_of(point);
             assert!((back[0] - p[0]).hypot(back[1] - p[1]) < 1e-9);
             let spot = [p[0].round() as u32, p[1].round() as u32];

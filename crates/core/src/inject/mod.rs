@@ -396,7 +396,7 @@ impl ImageMap {
     }
 
     /// The stage position (m) that puts the resting tip at full-frame pixel `px`.
-    fn stage_of(&self, px: [f64; 2]) -> [f64; 2] {
+    pub fn stage_of(&self, px: [f64; 2]) -> [f64; 2] {
         let d = self.stage_delta([px[0] - self.pixel0[0], px[1] - self.pixel0[1]]);
         [self.stage0[0] + d[0], self.stage0[1] + d[1]]
     }
