@@ -63,12 +63,13 @@ try {
     await view.screenshot({ path: `${shots}/dashboard-view.png` });
   }
 
-  // ABORT while the pipette is at a cell.
-  await page.waitForFunction(() => {
+  // ABORT while the pipette is at a cell. The A3 voltage reported is the one the wait
+  // saw (a later read may already see the next status, with the pipette withdrawn).
+  const seen = await page.waitForFunction(() => {
     const s = window.cellinject.status;
-    return s && s.run && s.run.current !== null && s.actuators_v[2] > 0;
+    return s && s.run && s.run.current !== null && s.actuators_v[2] > 0 ? s.actuators_v[2] : false;
   }, null, { timeout: 60000, polling: 10 });
-  out.a3_volts_before_abort = await page.evaluate(() => window.cellinject.status.actuators_v[2]);
+  out.a3_volts_before_abort = await seen.jsonValue();
   const ta = Date.now();
   await page.click('#abort');
   let st;
