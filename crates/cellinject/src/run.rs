@@ -1037,6 +1037,56 @@ mod tests {
         assert_eq!(ran.opened.rig.piezo[2].read_voltage().unwrap(), 0.0);
     }
 
+    /// Says stop before the third cell (what the dashboard's observer says when the
+    /// operator aborts between two cells).
+    struct AbortBetweenCells(usize);
+
+    impl Observer for AbortBetweenCells {
+        fn finished(&mut self, _: &Attempt) -> Result<(), String> {
+            self.0 += 1;
+            Ok(())
+        }
+        fn proceed(&mut self) -> Result<(), String> {
+            if self.0 >= 2 {
+                return Err("aborted by the test".into());
+            }
+            Ok(())
+        }
+    }
+
+    /// An abort between two cells: no cell is in progress, so the attempts recorded are
+    /// the two complete ones with their own outcomes and reasons; the run is recorded
+    /// aborted with the abort as why it stopped, and A3 ends at 0 V.
+    #[test]
+    fn an_abort_between_cells_leaves_the_done_cells_as_they_were() {
+        let stop = Arc::new(AtomicBool::new(false));
+        let mut obs = AbortBetweenCells(0);
+        let mut ran = run_on_twin("between", stop, &mut obs);
+        assert!(
+            ran.stopped
+                .as_ref()
+                .is_some_and(|s| s.contains("aborted by the test")),
+            "{:?}",
+            ran.stopped
+        );
+        let attempts = ran.db.attempts(ran.run_id).unwrap();
+        assert_eq!(attempts.len(), 2, "{attempts:?}");
+        for a in &attempts {
+            assert_ne!(a.outcome, "interrupted", "{a:?}");
+            assert!(a.t_end.is_some(), "{a:?}");
+            assert!(!a.reason.contains("aborted"), "{a:?}");
+        }
+        let run = ran.db.run(Some(ran.run_id)).unwrap();
+        assert_eq!(run.status, "aborted");
+        assert!(
+            run.stopped
+                .as_ref()
+                .is_some_and(|s| s.contains("aborted by the test")),
+            "{run:?}"
+        );
+        assert_eq!(ran.opened.rig.piezo[2].read_voltage().unwrap(), 0.0);
+    }
+
     /// Keeps the image map and the survey's cells, and stops the run there.
     struct StopAtSurvey(Arc<AtomicBool>, Option<ImageMap>, Vec<Target>);
 

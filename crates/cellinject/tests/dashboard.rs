@@ -338,30 +338,38 @@ fn the_dashboard_in_headless_chromium_shows_frames_and_aborts_a_run() {
     assert!(v["a3_volts_before_abort"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["aborted_after_s"].as_f64().unwrap() <= 1.0, "{v}");
     assert_eq!(v["recorded"], "aborted");
-    // The records say the same; the cell the pipette was in is recorded skipped (not
+    // The records say the same. The cell the pipette was in is recorded skipped (not
     // touched yet), interrupted (touched, dose not judged), or keeps the outcome its dose
     // was judged to (the abort came while the pipette was withdrawing), with the
-    // operator's abort as its reason either way.
+    // operator's abort as its reason either way; if the abort came between two cells
+    // (while the last one was being recorded), no cell was in progress and the last
+    // attempt is a complete one with its own reason.
     let o = run(&d, &["runs", "list", "--format", "json"]);
     let runs: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(runs[0]["status"], "aborted", "{runs}");
     let o = run(&d, &["runs", "show"]);
     let show: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(
+        show["run"]["stopped"]
+            .as_str()
+            .is_some_and(|s| s.contains("aborted by the operator")),
+        "{}",
+        show["run"]
+    );
     let attempts = show["attempts"].as_array().unwrap();
     let last = attempts.last().unwrap();
+    let in_cell = last["reason"]
+        .as_str()
+        .unwrap()
+        .contains("aborted by the operator");
+    assert!(last["t_end"].is_number(), "{last}");
     match last["outcome"].as_str().unwrap() {
-        "skipped" | "interrupted" => {}
+        "interrupted" => assert!(in_cell, "{last}"),
+        "skipped" => {}
         // Judged only after the dose was measured.
         "injected" | "failed" => assert!(last["measured_dose_fraction"].is_number(), "{last}"),
         other => panic!("unexpected outcome {other}: {last}"),
     }
-    assert!(
-        last["reason"]
-            .as_str()
-            .unwrap()
-            .contains("aborted by the operator"),
-        "{last}"
-    );
     assert!(
         attempts[..attempts.len() - 1]
             .iter()
