@@ -118,25 +118,32 @@ fn closed_loop_moves_settle_on_target() {
     let mut g = connect(&e);
     g.set_servo(&[("1", true), ("3", true)]).unwrap();
     assert_eq!(g.servo(&["1", "2", "3"]).unwrap(), vec![true, false, true]);
-    g.set_velocity(&[("3", 200.0)]).unwrap();
-    assert_eq!(g.velocity(&["3"]).unwrap(), vec![200.0]);
+    // Slow enough that a busy machine's pauses cannot hide the motion: 12.5 um at
+    // 20 um/s takes 0.62 s.
+    g.set_velocity(&[("3", 20.0)]).unwrap();
+    assert_eq!(g.velocity(&["3"]).unwrap(), vec![20.0]);
+    let t0 = Instant::now();
     g.move_to(&[("3", 12.5)]).unwrap();
     assert_eq!(g.target(&["3"]).unwrap(), vec![12.5]);
-    // Moving at 200 um/s: not there after 20 ms.
     std::thread::sleep(Duration::from_millis(20));
-    assert_ne!(g.moving_mask().unwrap() & 0b100, 0);
-    assert_eq!(g.on_target(&["3"]).unwrap(), vec![false]);
-    let t0 = Instant::now();
+    let (moving, on_target) = (g.moving_mask().unwrap(), g.on_target(&["3"]).unwrap());
+    if t0.elapsed() < Duration::from_millis(500) {
+        assert_ne!(moving & 0b100, 0);
+        assert_eq!(on_target, vec![false]);
+    }
     while !g.on_target(&["3"]).unwrap()[0] {
-        assert!(t0.elapsed() < Duration::from_secs(2), "never on target");
+        assert!(t0.elapsed() < Duration::from_secs(5), "never on target");
         std::thread::sleep(Duration::from_millis(5));
     }
     let pos = g.position(&["3"]).unwrap()[0];
     assert!((pos - 12.5).abs() < 0.05, "POS? {pos}");
     g.move_by(&[("3", -2.5)]).unwrap();
     assert_eq!(g.target(&["3"]).unwrap(), vec![10.0]);
-    std::thread::sleep(Duration::from_millis(200));
-    assert_eq!(g.moving_mask().unwrap(), 0);
+    let t1 = Instant::now();
+    while g.moving_mask().unwrap() != 0 {
+        assert!(t1.elapsed() < Duration::from_secs(3), "still moving");
+        std::thread::sleep(Duration::from_millis(5));
+    }
     assert!(g.ready().unwrap());
     let pos = g.position(&["3"]).unwrap()[0];
     assert!((pos - 10.0).abs() < 0.05, "POS? {pos}");
