@@ -607,7 +607,8 @@ fn run_track(
     };
     let mut tracker =
         Tracker::new(&first, roi, shape.into(), min_zncc).map_err(|e| dic_error("--roi", e))?;
-    let mut csv = String::from("frame,file,u_px,v_px,u_m,v_m,zncc,iterations,sigma_u_px,status\n");
+    let mut csv =
+        String::from("frame,file,u_px,v_px,u_m,v_m,zncc,iterations,sigma_u_px,status,blur_px\n");
     let (mut tracked, mut rejected) = (0, 0);
     let mut worst_zncc = (f64::INFINITY, f64::NEG_INFINITY);
     let t0 = std::time::Instant::now();
@@ -621,6 +622,7 @@ fn run_track(
         let status = match p.status {
             Status::Tracked => "tracked",
             Status::Recovered => "recovered",
+            Status::Defocused => "defocused",
             Status::Rejected => "rejected",
         };
         if p.status == Status::Rejected {
@@ -648,7 +650,7 @@ fn run_track(
         };
         let _ = writeln!(
             csv,
-            "{k},{},{},{},{},{},{:.6},{},{},{status}",
+            "{k},{},{},{},{},{},{:.6},{},{},{status},{}",
             f.file_name().and_then(|n| n.to_str()).unwrap_or(""),
             num(p.u),
             num(p.v),
@@ -656,7 +658,8 @@ fn run_track(
             m(p.v),
             p.zncc,
             p.iterations,
-            num(p.sigma_u)
+            num(p.sigma_u),
+            p.blur
         );
     }
     drop(progress);

@@ -53,13 +53,23 @@ pub enum BenchError {
     },
     /// The cameras lost the marker.
     #[error(
-        "the cameras lost the marker during {what} ({rejected} frames rejected): the motion was too fast or left the field of view"
+        "the {camera} camera lost the marker during {what}: {rejected} frames rejected, the best match reaching ZNCC {zncc:.3} (at least {min_zncc} needed) against the reference sharp and blurred by up to {blur_px} px (out of focus){tried}; the marker left the field of view, moved too far between frames, or is hidden"
     )]
     Lost {
         /// What was being done.
         what: &'static str,
-        /// Frames rejected.
+        /// The camera that lost it last.
+        camera: &'static str,
+        /// Frames rejected (both cameras).
         rejected: u64,
+        /// The best ZNCC of its last rejected frame.
+        zncc: f64,
+        /// The threshold.
+        min_zncc: f64,
+        /// Pixels, the largest blur tried on the reference.
+        blur_px: f64,
+        /// What was tried to recover (empty, or "; tried: ...").
+        tried: String,
     },
 }
 
@@ -237,6 +247,47 @@ impl<'r, B: Backend> Bench<'r, B> {
     /// Frames rejected by each camera's correlation so far (top, side).
     pub fn rejected(&self) -> [u64; 2] {
         [self.views[0].rejected, self.views[1].rejected]
+    }
+
+    /// Frames each camera measured out of focus (against a blurred reference) so far.
+    pub fn defocused(&self) -> [u64; 2] {
+        [self.views[0].defocused, self.views[1].defocused]
+    }
+
+    /// The error that says the cameras lost the marker during `what`, with what the
+    /// camera that lost it last reached, and what was tried (`tried`, may be empty).
+    pub fn lost(&self, what: &'static str, tried: &str) -> BenchError {
+        let last = Which::BOTH
+            .into_iter()
+            .filter_map(|w| self.views[w as usize].last_rejection.map(|r| (w, r)))
+            .max_by(|a, b| a.1.t.total_cmp(&b.1.t));
+        let (camera, zncc, blur) = match last {
+            Some((w, r)) => (w.name(), r.zncc, r.blur),
+            None => ("top", f64::NAN, 0.0),
+        };
+        BenchError::Lost {
+            what,
+            camera,
+            rejected: self.rejected().iter().sum(),
+            zncc,
+            min_zncc: vision::MIN_ZNCC,
+            blur_px: blur,
+            tried: if tried.is_empty() {
+                String::new()
+            } else {
+                format!("; tried: {tried}")
+            },
+        }
+    }
+
+    /// Looks for the marker afresh in both cameras (after it was lost and the stacks
+    /// were brought back to rest): the trackers forget the motion they saw, and one
+    /// frame pair is measured.
+    pub fn refind(&mut self) -> Result<[Option<[f64; 2]>; 2], BenchError> {
+        for v in &mut self.views {
+            v.forget();
+        }
+        self.measure_views(1)
     }
 
     /// The stacks' extensions from rest (A1, A2), m, averaged over `n` readings.

@@ -84,32 +84,28 @@ pub fn pixels<B: Backend>(
         bench_pixel(&bench, Which::Side),
     ];
     let origin = bench.stage_to([0.0; 3], [0.0; 3])?;
-    let mut stage: [Vec<[f64; 2]>; 2] = [Vec::new(), Vec::new()];
-    let mut px: [Vec<[f64; 2]>; 2] = [Vec::new(), Vec::new()];
-    for axis in 0..3 {
-        for k in [0.0, 1.0, 2.0, 1.0, 0.0, -1.0, -2.0, -1.0, 0.0] {
-            let mut d = [0.0; 3];
-            d[axis] = k * step;
-            let at = bench.stage_to(origin, d)?;
-            let moved = [at[0] - origin[0], at[1] - origin[1], at[2] - origin[2]];
-            let views = bench.measure_views(2)?;
-            for which in Which::BOTH {
-                let c = which as usize;
-                let axes = which.stage_axes();
-                if !axes.contains(&axis) && axis != 2 {
-                    continue;
+    // A lost marker is looked for afresh at the origin and the moves made again with
+    // half the step, twice at most (no smaller than 0.5 µm).
+    let mut step = step;
+    let mut tried = Vec::new();
+    let (stage, px) = loop {
+        match pixel_moves(&mut bench, origin, step)? {
+            Some(data) => break data,
+            None => {
+                tried.push(format!("{:.2} µm", step * 1e6));
+                bench.stage_to(origin, [0.0; 3])?;
+                bench.refind()?;
+                if tried.len() == 3 || step / 2.0 < 0.5e-6 {
+                    let tried = format!(
+                        "stage steps of {}, the marker looked for afresh at the origin after each",
+                        tried.join(", ")
+                    );
+                    return Err(bench.lost("the pixel calibration", &tried));
                 }
-                let Some(p) = views[c] else {
-                    return Err(BenchError::Lost {
-                        what: "the pixel calibration",
-                        rejected: bench.rejected()[c],
-                    });
-                };
-                stage[c].push([moved[axes[0]], moved[axes[1]]]);
-                px[c].push(p);
+                step /= 2.0;
             }
         }
-    }
+    };
     bench.stage_to(origin, [0.0; 3])?;
     let mut maps = identity;
     for which in Which::BOTH {
@@ -143,6 +139,42 @@ pub fn pixels<B: Backend>(
     Ok(cal)
 }
 
+/// Stage positions and marker pixels per camera.
+type PixelData = [Vec<[f64; 2]>; 2];
+
+/// The stage moves of the pixel calibration (0, ±1, ±2 steps along each axis from
+/// `origin`), each camera's view after each; `None` as soon as a camera loses the marker.
+fn pixel_moves<B: Backend>(
+    bench: &mut Bench<'_, B>,
+    origin: [f64; 3],
+    step: f64,
+) -> Result<Option<(PixelData, PixelData)>, BenchError> {
+    let mut stage: PixelData = [Vec::new(), Vec::new()];
+    let mut px: PixelData = [Vec::new(), Vec::new()];
+    for axis in 0..3 {
+        for k in [0.0, 1.0, 2.0, 1.0, 0.0, -1.0, -2.0, -1.0, 0.0] {
+            let mut d = [0.0; 3];
+            d[axis] = k * step;
+            let at = bench.stage_to(origin, d)?;
+            let moved = [at[0] - origin[0], at[1] - origin[1], at[2] - origin[2]];
+            let views = bench.measure_views(2)?;
+            for which in Which::BOTH {
+                let c = which as usize;
+                let axes = which.stage_axes();
+                if !axes.contains(&axis) && axis != 2 {
+                    continue;
+                }
+                let Some(p) = views[c] else {
+                    return Ok(None);
+                };
+                stage[c].push([moved[axes[0]], moved[axes[1]]]);
+                px[c].push(p);
+            }
+        }
+    }
+    Ok(Some((stage, px)))
+}
+
 fn bench_pixel<B: Backend>(bench: &Bench<'_, B>, which: Which) -> f64 {
     let cam: &dyn Camera = match which {
         Which::Top => &bench.rig.camera,
@@ -159,7 +191,8 @@ fn bench_pixel<B: Backend>(bench: &Bench<'_, B>, which: Which) -> f64 {
 /// | `model` | m/m | the same from the mechanism model (eqs. 24-26) |
 /// | `deviation` | 1 | largest entry difference over the model's largest entry |
 /// | `spread` | 1 | largest relative standard deviation of a column over the repeats |
-/// | `step_volts` | V | the step of each stack |
+/// | `step_volts` | V | the step asked for |
+/// | `volts` | V | the step each stack made (A1, A2): smaller than `step_volts` where the marker was lost and the steps made again at half the voltage |
 /// | `repeats` | | steps per stack |
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct JacobianCalibration {
@@ -173,6 +206,9 @@ pub struct JacobianCalibration {
     pub spread: f64,
     /// V.
     pub step_volts: f64,
+    /// V, per stack (0 in files written before it was recorded).
+    #[serde(default)]
+    pub volts: [f64; 2],
     /// Steps per stack.
     pub repeats: usize,
 }
@@ -223,8 +259,53 @@ pub fn model_jacobian(design: &Design, approach: Approach) -> Result<[[f64; 2]; 
     Ok(j)
 }
 
+/// Each camera's motion (x, y) per metre of stack `i`'s extension over `repeats` steps
+/// of `volts` (ramped up and back); `None` as soon as a camera loses the marker.
+fn jacobian_steps<B: Backend>(
+    bench: &mut Bench<'_, B>,
+    i: usize,
+    volts: f64,
+    repeats: usize,
+) -> Result<Option<[Vec<f64>; 2]>, BenchError> {
+    let mut cols = [Vec::new(), Vec::new()];
+    let mut scratch = Vec::new();
+    for _ in 0..repeats {
+        let mut pos = [[0.0; 2]; 2];
+        let mut ext = [0.0; 2];
+        for (k, v) in [volts, 0.0].into_iter().enumerate() {
+            let mut target = [0.0; 2];
+            target[i] = v;
+            bench.ramp_volts(target, 0.5, &mut scratch)?;
+            bench.hold_volts(target, 0.3, &mut scratch)?;
+            ext[k] = bench.read_stacks(20)?[i];
+            let views = bench.measure_views(3)?;
+            let (Some(top), Some(side)) = (views[0], views[1]) else {
+                return Ok(None);
+            };
+            pos[k] = [top[0], side[0]];
+        }
+        let de = ext[0] - ext[1];
+        if de.abs() < 1e-9 {
+            return Err(BenchError::Calibration {
+                what: "jacobian",
+                reason: format!(
+                    "{} moved {:.1} nm for {volts} V: is its sensor connected?",
+                    ACTUATOR_NAMES[i],
+                    de * 1e9
+                ),
+            });
+        }
+        for r in 0..2 {
+            cols[r].push((pos[0][r] - pos[1][r]) / de);
+        }
+    }
+    Ok(Some(cols))
+}
+
 /// Measures the Jacobian on `bench`: each stack ramps to `step_volts` and back
-/// `repeats` times.
+/// `repeats` times. A stack whose steps lose the marker (out of the field, too far out
+/// of focus) is brought back to rest, the marker looked for afresh, and its steps made
+/// again at half the voltage, twice at most.
 pub fn jacobian<B: Backend>(
     bench: &mut Bench<'_, B>,
     design: &Design,
@@ -234,39 +315,35 @@ pub fn jacobian<B: Backend>(
 ) -> Result<JacobianCalibration, BenchError> {
     let model = model_jacobian(design, approach)?;
     let mut cols = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
-    let mut scratch = Vec::new();
+    let mut used = [step_volts; 2];
     for i in 0..2 {
-        for _ in 0..repeats.max(1) {
-            let mut pos = [[0.0; 2]; 2];
-            let mut ext = [0.0; 2];
-            for (k, v) in [step_volts, 0.0].into_iter().enumerate() {
-                let mut target = [0.0; 2];
-                target[i] = v;
-                bench.ramp_volts(target, 0.5, &mut scratch)?;
-                bench.hold_volts(target, 0.3, &mut scratch)?;
-                ext[k] = bench.read_stacks(20)?[i];
-                let views = bench.measure_views(3)?;
-                let (Some(top), Some(side)) = (views[0], views[1]) else {
-                    return Err(BenchError::Lost {
-                        what: "the Jacobian calibration",
-                        rejected: bench.rejected().iter().sum(),
-                    });
-                };
-                pos[k] = [top[0], side[0]];
-            }
-            let de = ext[0] - ext[1];
-            if de.abs() < 1e-9 {
-                return Err(BenchError::Calibration {
-                    what: "jacobian",
-                    reason: format!(
-                        "{} moved {:.1} nm for {step_volts} V: is its sensor connected?",
-                        ACTUATOR_NAMES[i],
-                        de * 1e9
-                    ),
-                });
-            }
-            for r in 0..2 {
-                cols[r][i].push((pos[0][r] - pos[1][r]) / de);
+        // A lost marker: the stacks back to rest, the marker looked for afresh, and the
+        // steps made again at half the voltage, twice at most.
+        let mut volts = step_volts;
+        let mut tried = Vec::new();
+        loop {
+            match jacobian_steps(bench, i, volts, repeats.max(1))? {
+                Some(c) => {
+                    for r in 0..2 {
+                        cols[r][i] = c[r].clone();
+                    }
+                    used[i] = volts;
+                    break;
+                }
+                None => {
+                    tried.push(format!("{volts:.2} V"));
+                    bench.rest([0.0, 0.0], 0.5)?;
+                    bench.refind()?;
+                    if tried.len() == 3 {
+                        let tried = format!(
+                            "{} steps of {}, the marker looked for afresh at rest after each",
+                            ACTUATOR_NAMES[i],
+                            tried.join(", ")
+                        );
+                        return Err(bench.lost("the Jacobian calibration", &tried));
+                    }
+                    volts /= 2.0;
+                }
             }
         }
     }
@@ -300,6 +377,7 @@ pub fn jacobian<B: Backend>(
         deviation,
         spread,
         step_volts,
+        volts: used,
         repeats: repeats.max(1),
     };
     if let Some(reason) = cal.problem() {

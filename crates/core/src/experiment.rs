@@ -181,10 +181,7 @@ pub fn range<B: Backend>(
         let view = |r: &FrameRecord| r.views[i].map(|v| v[0]);
         let lost = rec.iter().filter(|r| view(r).is_none()).count();
         if lost * 10 > rec.len() {
-            return Err(BenchError::Lost {
-                what: "the range sweep",
-                rejected: lost as u64,
-            });
+            return Err(bench.lost("the range sweep", ""));
         }
         let span = |f: &dyn Fn(&FrameRecord) -> Option<f64>| {
             let v: Vec<f64> = rec.iter().filter_map(f).collect();
@@ -422,10 +419,7 @@ pub fn repeatability<B: Backend>(
             .take(opts.average)
             .collect();
         let Some(last) = tail.first() else {
-            return Err(BenchError::Lost {
-                what: "a repeatability run",
-                rejected: bench.rejected().iter().sum(),
-            });
+            return Err(bench.lost("a repeatability run", ""));
         };
         let k = tail.len() as f64;
         let mean_of = |f: &dyn Fn(&FrameRecord) -> Option<[f64; 3]>| -> Option<[f64; 2]> {
@@ -682,10 +676,7 @@ pub fn tracking<B: Backend>(
         .filter(|f| f.measured.is_none())
         .count();
     if lost * 10 > frames.len() + sine.len() {
-        return Err(BenchError::Lost {
-            what: "the tracking experiment",
-            rejected: lost as u64,
-        });
+        return Err(bench.lost("the tracking experiment", ""));
     }
     // One time line: the steps, the move to the circle's start, the circle.
     for f in &mut moving {

@@ -230,7 +230,26 @@ pub struct View {
     pub frame: Frame,
     /// Frames rejected by the correlation since the start.
     pub rejected: u64,
+    /// Frames measured against a blurred reference (out of focus) since the start.
+    pub defocused: u64,
+    /// The last rejected frame: the best ZNCC its attempts reached and the largest blur
+    /// (px) tried on the reference.
+    pub last_rejection: Option<Rejection>,
 }
+
+/// What the correlation reached on a rejected frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rejection {
+    /// The best ZNCC any attempt reached (sharp or blurred reference).
+    pub zncc: f64,
+    /// Pixels, the largest Gaussian blur tried on the reference.
+    pub blur: f64,
+    /// s, the frame's timestamp.
+    pub t: f64,
+}
+
+/// The lowest ZNCC a tracked frame may have.
+pub const MIN_ZNCC: f64 = 0.8;
 
 /// Side of the tracked subset in the object plane, m (inside the 80 µm marker tab: 181
 /// pixels at 10x, where the correlation's noise is a few nanometres).
@@ -258,7 +277,7 @@ impl View {
             width: side,
             height: side,
         };
-        let tracker = Tracker::new(&img, roi, Shape::Rigid, 0.8).map_err(dic)?;
+        let tracker = Tracker::new(&img, roi, Shape::Rigid, MIN_ZNCC).map_err(dic)?;
         Ok(View {
             which,
             tracker,
@@ -266,12 +285,21 @@ impl View {
             binning,
             frame: reference,
             rejected: 0,
+            defocused: 0,
+            last_rejection: None,
         })
     }
 
     /// Which camera.
     pub fn which(&self) -> Which {
         self.which
+    }
+
+    /// Forgets the motion seen so far: the next frame is looked for at the reference
+    /// position first, then by a search around it (after the marker was brought back
+    /// to rest).
+    pub fn forget(&mut self) {
+        self.tracker.forget();
     }
 
     /// Measures with another pixel map from now on.
@@ -308,7 +336,15 @@ impl View {
         let p = self.tracker.track(&img).map_err(dic)?;
         if p.status == Status::Rejected || !p.u.is_finite() || !p.v.is_finite() {
             self.rejected += 1;
+            self.last_rejection = Some(Rejection {
+                zncc: p.zncc,
+                blur: p.blur,
+                t: self.frame.timestamp,
+            });
             return Ok(None);
+        }
+        if p.status == Status::Defocused {
+            self.defocused += 1;
         }
         Ok(self.map.to_metres([p.u, p.v], self.binning))
     }

@@ -78,6 +78,24 @@ impl Speckle {
         Speckle { params: *p, dots }
     }
 
+    /// The same pattern seen out of focus: convolved with a Gaussian of `blur` pixels
+    /// (σ), exactly (each speckle's σ² grows by `blur²` and its peak falls so that its
+    /// integral stays the same).
+    pub fn defocused(&self, blur: f64) -> Speckle {
+        let dots = self
+            .dots
+            .iter()
+            .map(|&[x, y, s, a]| {
+                let s2 = s * s + blur * blur;
+                [x, y, s2.sqrt(), a * s * s / s2]
+            })
+            .collect();
+        Speckle {
+            params: self.params,
+            dots,
+        }
+    }
+
     /// Renders the pattern with every speckle centre moved by `map` (reference pixel
     /// coordinates to current ones), exactly integrated over the pixels.
     pub fn render_mapped(&self, map: impl Fn(f64, f64) -> (f64, f64), noise_seed: u64) -> Image {

@@ -352,3 +352,110 @@ fn tracking_rejects_a_frame_that_does_not_match() {
     assert_eq!(bad.status, Status::Rejected);
     assert!(bad.u.is_nan());
 }
+
+/// A speckle pattern that stays below the 8-bit ceiling where speckles overlap: a
+/// clipped reference is no longer a blurred frame's sharp original.
+fn unclipped() -> SpeckleParams {
+    SpeckleParams {
+        amplitude: [25.0, 45.0],
+        ..SpeckleParams::default_for(300, 300)
+    }
+}
+
+/// A region that goes out of focus while it moves (a camera looking along the motion)
+/// is still measured, against blurred copies of its reference: the blurred frames are
+/// rendered exactly (each speckle convolved with the defocus Gaussian), not by the
+/// tracker's own blur. Blur lowers the image gradients, so the noise-limited error
+/// grows (the tracker's own σ_u says by how much). A region of 121 px (the bench tracks
+/// 181 px): the speckles the blur brings in across the region's edge, which no
+/// reference can know, move a smaller region more.
+#[test]
+fn tracking_follows_a_region_out_of_focus() {
+    let p = unclipped();
+    let sp = Speckle::new(&p, 71);
+    let first = sp.render_shifted(0.0, 0.0, 0.0, 0);
+    let roi = Roi {
+        x: 90,
+        y: 90,
+        width: 121,
+        height: 121,
+    };
+    let mut t = Tracker::new(&first, roi, Shape::Rigid, 0.8).unwrap();
+    let mut defocused = 0;
+    // Out to 6 px of blur and back, moving 0.35 px per frame.
+    let blurs: Vec<f64> = (0..=12)
+        .chain((0..12).rev())
+        .map(|k| 0.5 * k as f64)
+        .collect();
+    for (k, &b) in blurs.iter().enumerate() {
+        let (u, v) = (0.35 * k as f64, -0.2 * k as f64);
+        let frame = sp.defocused(b).render_shifted(u, v, 0.0, 100 + k as u64);
+        let r = t.track(&frame).unwrap();
+        assert_ne!(r.status, Status::Rejected, "blur {b} px");
+        if r.status == Status::Defocused {
+            defocused += 1;
+            assert!(r.blur > 0.0);
+        }
+        let e = (r.u - u).abs().max((r.v - v).abs());
+        assert!(
+            e < 4.0 * r.sigma_u + 0.01,
+            "blur {b} px: error {e:.3} px, σ_u {:.3} px",
+            r.sigma_u
+        );
+    }
+    // The sharp reference alone rejects the blurriest frames: the ladder was needed.
+    assert!(defocused >= 4, "{defocused} frames measured out of focus");
+    // Back in focus, the sharp reference again.
+    let r = t.track(&sp.render_shifted(8.75, -5.0, 0.0, 999)).unwrap();
+    assert_eq!(r.status, Status::Tracked);
+    // Another pattern, blurred, is still no match.
+    let other = Speckle::new(&p, 72)
+        .defocused(4.0)
+        .render_shifted(8.75, -5.0, 0.0, 7);
+    let bad = t.track(&other).unwrap();
+    assert_eq!(bad.status, Status::Rejected);
+    assert_eq!(
+        bad.blur,
+        *cellinject_dic::track::BLUR_LADDER.last().unwrap()
+    );
+}
+
+/// Out of focus, the mean over many noisy frames (and noisy references) converges to the
+/// true shift: the blurred reference brings no bias of its own (a 121 px region, as in
+/// the test above).
+#[test]
+fn a_defocused_match_is_unbiased() {
+    let p = unclipped();
+    let (u, v) = (2.3, -1.4);
+    for seed in [81, 82, 83] {
+        let sp = Speckle::new(&p, seed);
+        let roi = Roi {
+            x: 90,
+            y: 90,
+            width: 121,
+            height: 121,
+        };
+        let blurred = sp.defocused(5.0);
+        let n = 24;
+        let (mut su, mut sv, mut s2) = (0.0, 0.0, 0.0);
+        for k in 0..n {
+            // Each trial with its own noise in the reference too.
+            let first = sp.render_shifted(0.0, 0.0, 0.0, 1000 + k);
+            let mut t = Tracker::new(&first, roi, Shape::Rigid, 0.8).unwrap();
+            let r = t
+                .track(&blurred.render_shifted(u, v, 0.0, 500 + k))
+                .unwrap();
+            assert_eq!(r.status, Status::Defocused);
+            su += r.u - u;
+            sv += r.v - v;
+            s2 += r.sigma_u * r.sigma_u;
+        }
+        let (bu, bv) = (su / n as f64, sv / n as f64);
+        // The mean's own noise is σ_u / √n; a bias would stand well above it.
+        let sigma_mean = (s2 / n as f64).sqrt() / (n as f64).sqrt();
+        assert!(
+            bu.abs() < 4.0 * sigma_mean + 0.005 && bv.abs() < 4.0 * sigma_mean + 0.005,
+            "pattern {seed}: mean error ({bu:.4}, {bv:.4}) px, σ of the mean {sigma_mean:.4} px"
+        );
+    }
+}
