@@ -878,11 +878,28 @@ fn repeatability(
         outln!("  the cameras agree with the truth to {}", nm(a));
     }
     outln!(
-        "  settling (within {} of the run's position): median {} frames, worst {}",
+        "  settling (within {} of the run's position): median {} frames, worst {}{}",
         nm(r.tolerance_m),
-        opt(r.settling_frames[0], |f| f.to_string()),
-        opt(r.settling_frames[1], |f| format!("{f} frames"))
+        opt(r.settling_median_frames, |f| f.to_string()),
+        opt(r.settling_max_frames, |f| format!("{f} frames")),
+        if r.unsettled_runs > 0 {
+            format!(" ({} runs never settled)", r.unsettled_runs)
+        } else {
+            String::new()
+        }
     );
+    let shortest = r
+        .run_list
+        .iter()
+        .map(|run| run.hold_s)
+        .fold(f64::INFINITY, f64::min);
+    if r.longest_hold_s > shortest + 1e-9 {
+        outln!(
+            "  held {:.2} to {:.2} s (the closed loop holds until in position)",
+            shortest,
+            r.longest_hold_s
+        );
+    }
     outln!("{}", crate::files::wrote(&files));
     Ok(())
 }

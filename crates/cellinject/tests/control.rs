@@ -129,7 +129,7 @@ fn run(
         r.true_rms_error_m.unwrap()[0] * 1e9,
         r.true_rms_error_m.unwrap()[1] * 1e9,
         r.camera_vs_truth_m.unwrap() * 1e9,
-        r.settling_frames
+        [r.settling_median_frames, r.settling_max_frames]
     );
     r
 }

@@ -430,17 +430,33 @@ impl<'r, B: Backend> Bench<'r, B> {
         &mut self,
         controller: &mut dyn Controller,
         seconds: f64,
+        reference: impl FnMut(f64) -> [f64; 2],
+        out: &mut Vec<FrameRecord>,
+    ) -> Result<(), BenchError> {
+        self.pending = None;
+        self.run_on(controller, 0.0, seconds, reference, out)
+    }
+
+    /// Goes on with a run [`Bench::run`] started `elapsed` s ago for `seconds` more: the
+    /// controller's time and the reference's go on from `elapsed`, and a frame still
+    /// waiting for its latency is delivered.
+    pub fn run_on(
+        &mut self,
+        controller: &mut dyn Controller,
+        elapsed: f64,
+        seconds: f64,
         mut reference: impl FnMut(f64) -> [f64; 2],
         out: &mut Vec<FrameRecord>,
     ) -> Result<(), BenchError> {
         let kind = controller.kind();
         let dt = 1.0 / self.timing.rate;
-        let t0 = self.rig.clock.now();
-        self.pending = None;
+        // The run's origin on the bench clock.
+        let t0 = self.rig.clock.now() - elapsed;
+        let end = elapsed + seconds;
         loop {
             let now = self.rig.clock.now();
             let t = now - t0;
-            if t >= seconds - 1e-9 {
+            if t >= end - 1e-9 {
                 break;
             }
             if now >= self.next_frame - 2e-4 {
@@ -473,7 +489,7 @@ impl<'r, B: Backend> Bench<'r, B> {
             let v = controller.step(now - t0, reference(now - t0), &m);
             let applied = self.command(v)?;
             controller.applied(applied);
-            let wake = (now + dt).min(self.next_frame - 1e-4).min(t0 + seconds);
+            let wake = (now + dt).min(self.next_frame - 1e-4).min(t0 + end);
             self.rig
                 .clock
                 .sleep((wake - now).max(1e-6))

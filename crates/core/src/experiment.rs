@@ -268,6 +268,8 @@ pub struct Run {
     /// Frames from the start of the hold until the measurement stayed within the
     /// tolerance of the run's position (`None`: never).
     pub settling_frames: Option<usize>,
+    /// s, how long the stacks were held (the closed loop holds until in position).
+    pub hold_s: f64,
     /// V, A1 and A2 at the end.
     pub volts: [f64; 2],
 }
@@ -280,7 +282,10 @@ pub struct Run {
 /// | `max_distance_m` | m | the largest distance of a run's (x, y) from the mean (the radius of Fig. 8's scatter) |
 /// | `true_max_error_m`, `true_rms_error_m`, `true_max_distance_m` | m | the same from the twin's truth |
 /// | `camera_vs_truth_m` | m | largest difference between a run's measured and true deviation from their means (both axes) |
-/// | `settling_frames` | frames | median and largest settling time (every later frame's measurement within `tolerance_m` of the run's position, per axis) |
+/// | `settling_frames` | frames | per run, the settling time (every later frame's measurement within `tolerance_m` of the run's position, per axis; `null`: never) |
+/// | `settling_median_frames`, `settling_max_frames` | frames | their median and largest (`null`: some run never settled) |
+/// | `unsettled_runs` | | runs that never settled |
+/// | `longest_hold_s` | s | the longest hold: the closed loop holds until in position, up to `IN_POSITION_EXTRA` more than `--hold` |
 /// | `mean_m` | m | mean measured position (x, y) |
 /// | `rejected_frames` | | frames a camera rejected (top, side) |
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -311,8 +316,16 @@ pub struct RepeatabilityReport {
     /// m.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub camera_vs_truth_m: Option<f64>,
-    /// Frames: median, largest (`null`: some run never settled).
-    pub settling_frames: [Option<usize>; 2],
+    /// Frames, per run (`null`: that run never settled).
+    pub settling_frames: Vec<Option<usize>>,
+    /// Frames, the median over the runs (`null`: over half never settled).
+    pub settling_median_frames: Option<usize>,
+    /// Frames, the largest (`null`: some run never settled).
+    pub settling_max_frames: Option<usize>,
+    /// Runs that never settled.
+    pub unsettled_runs: usize,
+    /// s, the longest hold (the closed loop holds until in position).
+    pub longest_hold_s: f64,
     /// m.
     pub tolerance_m: f64,
     /// m.
@@ -335,6 +348,28 @@ fn stats(v: &[[f64; 2]]) -> ([f64; 2], [f64; 2], [f64; 2], f64) {
         .map(|p| (p[0] - mean[0]).hypot(p[1] - mean[1]))
         .fold(0.0, f64::max);
     (mean, max, rms, dist)
+}
+
+/// The closed loop is in position when its last `average + IN_POSITION_FRAMES` camera
+/// measurements all lie within the tolerance of the mean of the last `average`.
+pub const IN_POSITION_FRAMES: usize = 3;
+
+/// s, the most a closed-loop run's hold is extended to wait until in position.
+pub const IN_POSITION_EXTRA: f64 = 2.0;
+
+/// Whether the measurements `points` (x, y) have come to rest: see
+/// [`IN_POSITION_FRAMES`].
+fn in_position_now(points: &[[f64; 2]], average: usize, tol: f64) -> bool {
+    let n = average.max(1);
+    let window = n + IN_POSITION_FRAMES;
+    if points.len() < window {
+        return false;
+    }
+    let tail = &points[points.len() - n..];
+    let end = [0, 1].map(|a| tail.iter().map(|p| p[a]).sum::<f64>() / n as f64);
+    points[points.len() - window..]
+        .iter()
+        .all(|p| (p[0] - end[0]).abs() <= tol && (p[1] - end[1]).abs() <= tol)
 }
 
 /// Frames until the (x, y) positions stay within `tol` of `end` (per axis), or `None`
@@ -402,16 +437,31 @@ pub fn repeatability<B: Backend>(
     opts.check()?;
     let mut runs = Vec::with_capacity(opts.runs);
     let mut rec = Vec::new();
+    let in_position = controller.kind() == Kind::Closed;
+    let step = 4.0 * bench.frame_period();
     for run in 0..opts.runs {
         controller.reset();
         rec.clear();
         bench.rest([0.0, 0.0], opts.rest)?;
         let shift = opts.shift;
         bench.run(controller, opts.hold, |_| [shift, shift], &mut rec)?;
-        let measured: Vec<[f64; 2]> = rec
-            .iter()
-            .filter_map(|r| r.measured.map(|p| [p[0], p[1]]))
-            .collect();
+        let mut held = opts.hold;
+        let measured = |rec: &[FrameRecord]| -> Vec<[f64; 2]> {
+            rec.iter()
+                .filter_map(|r| r.measured.map(|p| [p[0], p[1]]))
+                .collect()
+        };
+        // The closed loop holds until it is in position (see `IN_POSITION_FRAMES`): a
+        // joint that slips near the end of the hold is corrected before the run's
+        // position is read, as a positioning controller waits for on-target.
+        while in_position
+            && held < opts.hold + IN_POSITION_EXTRA
+            && !in_position_now(&measured(&rec), opts.average, opts.tolerance)
+        {
+            bench.run_on(controller, held, step, |_| [shift, shift], &mut rec)?;
+            held += step;
+        }
+        let measured = measured(&rec);
         let tail: Vec<&FrameRecord> = rec
             .iter()
             .rev()
@@ -437,6 +487,7 @@ pub fn repeatability<B: Backend>(
             measured: end,
             truth: mean_of(&|r| r.truth),
             settling_frames: settling(&measured, end, opts.tolerance),
+            hold_s: held,
             volts: last.volts,
         });
         progress(run + 1);
@@ -461,10 +512,12 @@ pub fn repeatability<B: Backend>(
         }
         None => (None, None, None, None),
     };
-    let mut settle: Vec<Option<usize>> = runs.iter().map(|r| r.settling_frames).collect();
+    let settling_frames: Vec<Option<usize>> = runs.iter().map(|r| r.settling_frames).collect();
+    let mut settle = settling_frames.clone();
     settle.sort_by_key(|s| s.unwrap_or(usize::MAX));
     let median = settle[settle.len() / 2];
     let worst = settle.last().copied().flatten();
+    let unsettled = settle.iter().filter(|s| s.is_none()).count();
     Ok(RepeatabilityReport {
         approach: approach.number(),
         control: controller.kind(),
@@ -477,7 +530,11 @@ pub fn repeatability<B: Backend>(
         true_max_distance_m: true_dist,
         true_rms_error_m: true_rms,
         camera_vs_truth_m: agree,
-        settling_frames: [median, if settle.contains(&None) { None } else { worst }],
+        settling_frames,
+        settling_median_frames: median,
+        settling_max_frames: if unsettled > 0 { None } else { worst },
+        unsettled_runs: unsettled,
+        longest_hold_s: runs.iter().map(|r| r.hold_s).fold(0.0, f64::max),
         tolerance_m: opts.tolerance,
         mean_m: mean,
         rejected_frames: bench.rejected(),
