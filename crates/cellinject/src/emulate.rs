@@ -16,7 +16,7 @@ pub enum EmulateCommand {
     /// on TCP, and the rest of the bench (cameras, stage, injector, zoom) on the bench
     /// endpoint; in wall-clock time, until killed (or `--serve-for` ends).
     #[command(
-        after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml --seed 2\n  cellinject experiment repeatability --backend gcs://127.0.0.1:50000\n\nPositions are µm of stack extension (the stack's sensor), voltages V. Errors: 1 syntax, 2 unknown command, 5 MOV with servo off, 7 target beyond TMN?/TMX? or a closed-loop move the safety envelope stopped, 10 stopped (#24, HLT, STP), 15 unknown axis, 17 value out of range (SVA outside 0..Vmax, refused by the safety envelope, or with the servo on)."
+        after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml --seed 2\n  cellinject experiment repeatability --backend gcs://127.0.0.1:50000\n\nPositions are µm of stack extension (the stack's sensor), voltages V. Closed loop: ONT? is 1 once the position has stayed within ±0.02 µm of the target for 20 ms; #5 reports an axis moving while its servo is on and it is not on target. Errors: 1 syntax, 2 unknown command, 5 MOV with servo off, 7 target beyond TMN?/TMX? or a closed-loop move the safety envelope stopped, 10 stopped (#24, HLT, STP), 15 unknown axis, 17 value out of range (SVA outside 0..Vmax, refused by the safety envelope, or with the servo on)."
     )]
     Gcs(GcsArgs),
 }

@@ -5,7 +5,14 @@
 //! without hardware. Three axes, `1`, `2`, `3` = the twin's stacks A1, A2, A3;
 //! positions are µm of stack extension as the stack's own sensor reads it, voltages
 //! are V. It runs in wall-clock time: a ticker brings the twin up to the wall clock
-//! every millisecond and before every command.
+//! every millisecond and before every command. The closed loops run on the twin's
+//! clock, one servo tick per millisecond of twin time, so however the wall clock
+//! slices time they are the same discrete-time system (see [`controller`]).
+//!
+//! On target (`ONT?` 1): the axis's trajectory has reached the target and its position
+//! (the sensor low-passed over 5 ms) has stayed within the settling window, ±0.02 µm
+//! of the target, for the settling time, 20 ms; `#5` reports an axis moving exactly
+//! while its servo is on and it is not on target.
 //!
 //! Commands: `*IDN?`, `CSV?` (2.0), `SAI?` and `SAI? ALL`, `ERR?`, `SVO`/`SVO?`,
 //! `MOV`/`MOV?`, `MVR`, `POS?`, `ONT?`, `VEL`/`VEL?`, `TMN?`/`TMX?` (the closed-loop
