@@ -12,6 +12,9 @@ use cellinject_hysteresis::{AnyModel, HysteresisError, Model, Range};
 use cellinject_plot::{Chart, Series, Style};
 use clap::{Subcommand, ValueEnum};
 
+use cellinject_core::table::Table;
+use serde::Serialize;
+
 use crate::files::{Kind as FileKind, Plan, write_with_plots, wrote};
 use crate::output::print_json;
 use crate::{Format, InputError};
@@ -49,19 +52,22 @@ pub enum HysteresisCommand {
         twin: crate::sim::TwinArgs,
     },
     /// Fit a hysteresis model to `time_s,voltage_v,displacement_m` data (from
-    /// `identify` or a real actuator), starting relaxed at 0 V.
+    /// `identify` or a real actuator), starting relaxed at 0 V. Columns are found by
+    /// name in any order, others ignored; dwells and a quantised voltage are welcome
+    /// (repeated voltages merge; a reversal must exceed 10 times the voltage's noise).
     #[command(
         after_help = "Examples:\n  cellinject hysteresis fit --data ident.csv --out model.json\n  cellinject hysteresis fit --data ident.csv --model pi-asym --size 16 --out pi.json"
     )]
     Fit {
-        /// The data (CSV with a header).
+        /// The data (CSV with a header naming `voltage_v`, `displacement_m` and
+        /// optionally `time_s`).
         #[arg(long, value_name = "FILE.csv")]
         data: PathBuf,
         /// Model class.
         #[arg(long, value_enum, default_value_t = ModelArg::Preisach)]
         model: ModelArg,
         /// Grid cells per axis (Preisach) or plays (PI).
-        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(2..=60))]
+        #[arg(long, default_value_t = core::DEFAULT_SIZE as u64, value_parser = clap::value_parser!(u64).range(2..=60))]
         size: u64,
         /// Highest input voltage of the model's range (default: the data's highest).
         #[arg(long)]
@@ -94,57 +100,66 @@ pub enum HysteresisCommand {
     },
 }
 
-/// Reads a numeric CSV with a header, checking the column names.
-fn read_csv(path: &Path, arg: &str, columns: &[&str]) -> Result<Vec<Vec<f64>>> {
+/// Reads a numeric CSV by its header (`needed` columns in any order, `optional` ones if
+/// present, others ignored), naming the file, line and column of anything wrong.
+fn read_table(
+    path: &Path,
+    arg: &str,
+    needed: &[&'static str],
+    optional: &[&'static str],
+) -> Result<Table> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| InputError(format!("{arg} `{}`: cannot read: {e}", path.display())))?;
-    let mut lines = text.lines();
-    let header = lines.next().unwrap_or("");
-    let names: Vec<&str> = header.split(',').map(|s| s.trim()).collect();
-    let idx: Vec<usize> = columns
-        .iter()
-        .map(|c| {
-            names.iter().position(|n| n == c).ok_or_else(|| {
-                InputError(format!(
-                    "{arg} `{}`: no column `{c}` in the header `{header}` (expected {})",
-                    path.display(),
-                    columns.join(",")
-                ))
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    let mut rows = Vec::new();
-    for (k, line) in lines.enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let cells: Vec<&str> = line.split(',').collect();
-        let row = idx
-            .iter()
-            .map(|&i| {
-                cells
-                    .get(i)
-                    .and_then(|c| c.trim().parse::<f64>().ok())
-                    .filter(|v| v.is_finite())
-            })
-            .collect::<Option<Vec<f64>>>()
-            .ok_or_else(|| {
-                InputError(format!(
-                    "{arg} `{}`, line {}: not {} finite numbers: `{line}`",
-                    path.display(),
-                    k + 2,
-                    columns.len()
-                ))
-            })?;
-        rows.push(row);
+    let t = Table::parse(&text, needed, optional)
+        .and_then(|t| t.non_decreasing("time_s").map(|()| t))
+        .map_err(|e| InputError(format!("{arg} `{}`: {e}", path.display())))?;
+    if !t.ignored.is_empty() {
+        eprintln!(
+            "warning: {arg} `{}`: column{} {} ignored (this command reads {})",
+            path.display(),
+            if t.ignored.len() == 1 { "" } else { "s" },
+            t.ignored
+                .iter()
+                .map(|c| format!("`{c}`"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            needed
+                .iter()
+                .chain(optional)
+                .map(|c| format!("`{c}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
-    Ok(rows)
+    Ok(t)
 }
 
-fn hysteresis_error(arg: &str, e: HysteresisError) -> anyhow::Error {
+/// A column of a table read with it as needed.
+fn column<'a>(t: &'a Table, name: &str) -> &'a [f64] {
+    t.column(name).unwrap_or(&[])
+}
+
+/// `hysteresis fit`'s JSON: the report and the columns of the data it ignored.
+#[derive(Serialize)]
+struct FitOutput<'a> {
+    #[serde(flatten)]
+    report: &'a core::FitReport,
+    ignored_columns: &'a [String],
+}
+
+/// A library error as the front end's: a solver failure exits 1, bad data 2, with the
+/// file (`--data` and the voltage column for what is wrong with the voltages).
+fn hysteresis_error(arg: &str, path: &Path, e: HysteresisError) -> anyhow::Error {
     match e {
         HysteresisError::Solver(_) => anyhow::anyhow!("{e}"),
-        e => InputError(format!("{arg}: {e}")).into(),
+        HysteresisError::ConstantInput { .. } | HysteresisError::TooFewReversals { .. } => {
+            InputError(format!(
+                "{arg} `{}`, column `voltage_v`: {e}",
+                path.display()
+            ))
+            .into()
+        }
+        e => InputError(format!("{arg} `{}`: {e}", path.display())).into(),
     }
 }
 
@@ -211,15 +226,35 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                 &[FileKind::Json, FileKind::Svg, FileKind::Png],
             )?;
             plan.check()?;
-            let rows = read_csv(data, "--data", &["voltage_v", "displacement_m"])?;
-            let volts: Vec<f64> = rows.iter().map(|r| r[0]).collect();
-            let disp: Vec<f64> = rows.iter().map(|r| r[1]).collect();
-            let top = v_max.unwrap_or_else(|| volts.iter().copied().fold(0.0, f64::max));
-            if !(top.is_finite() && top > 0.0)
-                || volts.iter().any(|v| *v < -1e-9 || *v > top + 1e-9)
-            {
+            let t = read_table(
+                data,
+                "--data",
+                &["voltage_v", "displacement_m"],
+                &["time_s"],
+            )?;
+            if t.is_empty() {
                 return Err(InputError(format!(
-                    "--data: the voltages must lie in [0, {top}] V (--v-max)"
+                    "--data `{}`: no rows under the header",
+                    data.display()
+                ))
+                .into());
+            }
+            let volts = column(&t, "voltage_v").to_vec();
+            let disp = column(&t, "displacement_m").to_vec();
+            let top = v_max.unwrap_or_else(|| volts.iter().copied().fold(0.0, f64::max));
+            if !(top.is_finite() && top > 0.0) {
+                return Err(InputError(format!(
+                    "--data `{}`, column `voltage_v`: no voltage above 0 V (and no --v-max)",
+                    data.display()
+                ))
+                .into());
+            }
+            if let Some(k) = volts.iter().position(|v| *v < -1e-9 || *v > top + 1e-9) {
+                return Err(InputError(format!(
+                    "--data `{}`, line {}, column `voltage_v`: {} V lies outside the model's range [0, {top}] V (--v-max)",
+                    data.display(),
+                    t.line(k),
+                    volts[k]
                 ))
                 .into());
             }
@@ -237,8 +272,27 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                     &volts,
                     &disp,
                 )
-                .map_err(|e| hysteresis_error("--data", e))?
+                .map_err(|e| hysteresis_error("--data", data, e))?
             };
+            let d = &r.data;
+            if d.merged > 0 {
+                eprintln!(
+                    "warning: --data `{}`: {} of {} rows repeat the voltage before them (dwells at the turning points, DAC steps slower than the logger): each held voltage fitted once, at its mean displacement",
+                    data.display(),
+                    d.merged,
+                    d.rows
+                );
+            }
+            if d.flattened > 0 {
+                eprintln!(
+                    "warning: --data `{}`: {} voltages turned back by less than {:.4} V ({} times the voltage's noise level {:.4} V): taken as holds, not reversals",
+                    data.display(),
+                    d.flattened,
+                    d.reversal_threshold,
+                    cellinject_hysteresis::data::REVERSAL_FACTOR,
+                    d.input_noise
+                );
+            }
             // Measured and modelled loops.
             let mut m = r.model.clone();
             m.reset();
@@ -272,12 +326,17 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             let json = serde_json::to_string_pretty(&r.model)?;
             write_with_plots(&files, json.as_bytes(), &[chart], 1)?;
             if *format == Format::Json {
-                return print_json(&r, &[&files[0], &files[1], &files[2]]);
+                let o = FitOutput {
+                    report: &r,
+                    ignored_columns: &t.ignored,
+                };
+                return print_json(&o, &[&files[0], &files[1], &files[2]]);
             }
             outln!(
-                "{:?} model fitted to {} samples: RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
+                "{:?} model fitted to {} samples ({} reversals): RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
                 model,
                 r.samples,
+                r.data.reversals,
                 r.rms * 1e9,
                 100.0 * r.rms_relative,
                 r.max * 1e9
@@ -306,21 +365,27 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                     model.display()
                 ))
             })?;
-            let rows = read_csv(trajectory, "--trajectory", &["time_s", "displacement_m"])?;
-            if rows.is_empty() {
+            let tab = read_table(
+                trajectory,
+                "--trajectory",
+                &["time_s", "displacement_m"],
+                &[],
+            )?;
+            if tab.is_empty() {
                 return Err(InputError(format!(
                     "--trajectory `{}`: no rows",
                     trajectory.display()
                 ))
                 .into());
             }
-            let targets: Vec<f64> = rows.iter().map(|r| r[1]).collect();
-            let r = core::invert(&m, &targets).map_err(|e| hysteresis_error("--trajectory", e))?;
+            let targets = column(&tab, "displacement_m").to_vec();
+            let r = core::invert(&m, &targets)
+                .map_err(|e| hysteresis_error("--trajectory", trajectory, e))?;
+            let t = column(&tab, "time_s").to_vec();
             let mut csv = String::from("time_s,voltage_v\n");
-            for (row, v) in rows.iter().zip(&r.volts) {
-                let _ = writeln!(csv, "{:.6},{:.6}", row[0], v);
+            for (time, v) in t.iter().zip(&r.volts) {
+                let _ = writeln!(csv, "{time:.6},{v:.6}");
             }
-            let t: Vec<f64> = rows.iter().map(|r| r[0]).collect();
             let charts = [
                 Chart {
                     title: "desired and predicted displacement".into(),

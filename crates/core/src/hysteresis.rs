@@ -4,7 +4,8 @@
 
 use cellinject_hw::{Clock, PiezoChannel};
 use cellinject_hysteresis::{
-    AnyModel, HysteresisError, Model, PrandtlIshlinskii, Preisach, Range, excitation, inverse,
+    AnyModel, DataSummary, HysteresisError, Model, PrandtlIshlinskii, Preisach, Range, excitation,
+    inverse,
 };
 use cellinject_model::ACTUATOR_NAMES;
 use cellinject_rig::{Backend, Rig};
@@ -78,6 +79,9 @@ pub fn identify<B: Backend>(
     })
 }
 
+/// The default size of `hysteresis fit`'s model: cells per axis of the Preisach grid.
+pub const DEFAULT_SIZE: usize = 20;
+
 /// The result of `hysteresis fit`: the model and how well it fits.
 ///
 /// | field | unit | meaning |
@@ -85,7 +89,8 @@ pub fn identify<B: Backend>(
 /// | `model` | | the fitted model (`"model": "preisach"` or `"pi"`), its input range in V |
 /// | `rms`, `max` | m | fit error over the data |
 /// | `rms_relative` | 1 | `rms` over the data's span |
-/// | `samples` | | rows used |
+/// | `samples` | | samples fitted (rows after merging held inputs) |
+/// | `data` | | what the data preparation did ([`DataSummary`]: rows, samples merged and flattened, reversals, the voltage's noise level and reversal threshold in V) |
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FitReport {
     /// The model.
@@ -96,12 +101,17 @@ pub struct FitReport {
     pub max: f64,
     /// 1.
     pub rms_relative: f64,
-    /// Rows.
+    /// Samples fitted.
     pub samples: usize,
+    /// What the preparation of the data did.
+    pub data: DataSummary,
 }
 
 /// Fits a model of `kind` and `size` (cells or plays) to (V, m) samples in time order,
-/// starting relaxed at 0 V, on the input range `range`.
+/// starting relaxed at 0 V, on the input range `range`. Real recordings are welcome:
+/// held voltages (dwells at the turning points, a DAC slower than the logger) merge
+/// into one sample, the voltage's wiggles within its measured noise or quantisation
+/// are holds, not reversals ([`cellinject_hysteresis::prepare`]).
 pub fn fit(
     kind: Kind,
     size: usize,
@@ -110,10 +120,17 @@ pub fn fit(
     disp: &[f64],
 ) -> Result<FitReport, HysteresisError> {
     let lambda = 1e-7;
-    let (model, rms, max, span, samples) = match kind {
+    let (model, rms, max, span, samples, data) = match kind {
         Kind::Preisach => {
             let f = Preisach::identify(range, size, volts, disp, lambda)?;
-            (AnyModel::Preisach(f.model), f.rms, f.max, f.span, f.samples)
+            (
+                AnyModel::Preisach(f.model),
+                f.rms,
+                f.max,
+                f.span,
+                f.samples,
+                f.data,
+            )
         }
         Kind::Pi | Kind::PiAsymmetric => {
             let f = PrandtlIshlinskii::identify(
@@ -124,7 +141,14 @@ pub fn fit(
                 disp,
                 lambda,
             )?;
-            (AnyModel::Pi(f.model), f.rms, f.max, f.span, f.samples)
+            (
+                AnyModel::Pi(f.model),
+                f.rms,
+                f.max,
+                f.span,
+                f.samples,
+                f.data,
+            )
         }
     };
     Ok(FitReport {
@@ -133,6 +157,7 @@ pub fn fit(
         max,
         rms_relative: rms / span.max(1e-300),
         samples,
+        data,
     })
 }
 

@@ -41,5 +41,6 @@ pub mod inject;
 pub mod model;
 pub mod reproduce;
 pub mod sim;
+pub mod table;
 pub mod tension;
 pub mod vision;

@@ -10,13 +10,15 @@
 //! input would give without committing it, and is inverted sample by sample by
 //! [`inverse`] (bisection on the input, exact to the model's precision because each
 //! model's output is continuous and non-decreasing in the input from any state).
-//! Identification reports its fit error ([`Fit`]); inversion reports its residual and
+//! Identification takes recordings as benches make them ([`data`]: dwells, a quantised
+//! or noisy input) and reports its fit error ([`Fit`]); inversion reports its residual and
 //! refuses a target outside the model's reach ([`HysteresisError::OutOfReach`]).
 //!
 //! **Architecture invariant:** pure computation on numbers: no IO, no time, no devices;
 //! a model's step allocates nothing.
 
 pub mod creep;
+pub mod data;
 pub mod pi;
 pub mod preisach;
 
@@ -24,6 +26,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use creep::LogCreep;
+pub use data::{DataSummary, Prepared, prepare};
 pub use pi::PrandtlIshlinskii;
 pub use preisach::Preisach;
 
@@ -37,6 +40,64 @@ pub enum HysteresisError {
         what: &'static str,
         /// Why.
         reason: String,
+    },
+    /// Inputs and outputs of different lengths.
+    #[error("identification data: {inputs} inputs but {outputs} outputs")]
+    LengthMismatch {
+        /// Inputs.
+        inputs: usize,
+        /// Outputs.
+        outputs: usize,
+    },
+    /// Too few samples (after merging repeated inputs) to identify a model.
+    #[error("{}", too_few(*rows, *samples, *min))]
+    TooFewSamples {
+        /// Samples given.
+        rows: usize,
+        /// Distinct samples left after merging repeated inputs.
+        samples: usize,
+        /// Fewest accepted.
+        min: usize,
+    },
+    /// A sample that is not a finite number.
+    #[error("identification data: sample {index}: the {which} is not a finite number")]
+    NotFinite {
+        /// Sample index (from 0).
+        index: usize,
+        /// `input` or `output`.
+        which: &'static str,
+    },
+    /// The input never moves by more than its noise.
+    #[error(
+        "the input stays within [{min}, {max}] over {samples} samples, never moving by more than {} times its noise level {noise:.3e}: hysteresis needs it to move",
+        data::REVERSAL_FACTOR
+    )]
+    ConstantInput {
+        /// Lowest input.
+        min: f64,
+        /// Highest input.
+        max: f64,
+        /// The input's noise or quantisation level.
+        noise: f64,
+        /// Samples.
+        samples: usize,
+    },
+    /// Fewer than two reversals of the input larger than its noise.
+    #[error(
+        "{reversals} reversals of the input (changes of direction larger than {threshold:.3e}, {} times its noise level {noise:.3e}) over [{min}, {max}]: hysteresis needs rising and falling branches",
+        data::REVERSAL_FACTOR
+    )]
+    TooFewReversals {
+        /// Reversals found.
+        reversals: usize,
+        /// Smallest change of direction counted.
+        threshold: f64,
+        /// The input's noise or quantisation level.
+        noise: f64,
+        /// Lowest input.
+        min: f64,
+        /// Highest input.
+        max: f64,
     },
     /// The least-squares solver failed.
     #[error("identification: {0}")]
@@ -55,6 +116,17 @@ pub enum HysteresisError {
         /// Highest output reachable.
         max: f64,
     },
+}
+
+fn too_few(rows: usize, samples: usize, min: usize) -> String {
+    if rows == samples {
+        format!("{rows} samples: give at least {min}, with reversals (a few thousand are enough)")
+    } else {
+        format!(
+            "{samples} distinct samples ({rows} given, {} repeating the input before them): give at least {min}, with reversals (a few thousand are enough)",
+            rows - samples
+        )
+    }
 }
 
 /// An input range (e.g. an amplifier's 0-100 V), normalised to [0, 1] by the models.
@@ -105,13 +177,17 @@ pub struct Fit<M> {
     pub max: f64,
     /// The data's span of outputs (max − min), for relative figures.
     pub span: f64,
-    /// Samples.
+    /// Samples fitted (after merging repeated inputs).
     pub samples: usize,
+    /// What the data preparation did (merged dwells, flattened noise, reversals).
+    pub data: DataSummary,
 }
 
 impl<M: Model + Clone> Fit<M> {
-    /// Replays the data through `model` from its relaxed state and measures the error.
-    pub fn measure(mut model: M, inputs: &[f64], outputs: &[f64]) -> Result<Self, HysteresisError> {
+    /// Replays prepared data through `model` from its relaxed state and measures the
+    /// error.
+    pub fn measure(mut model: M, data: &Prepared) -> Result<Self, HysteresisError> {
+        let (inputs, outputs) = (&data.inputs, &data.outputs);
         model.reset();
         let (mut s2, mut max) = (0.0, 0.0f64);
         for (&u, &y) in inputs.iter().zip(outputs) {
@@ -128,48 +204,9 @@ impl<M: Model + Clone> Fit<M> {
             max,
             span: hi - lo,
             samples: inputs.len(),
+            data: data.summary,
         })
     }
-}
-
-/// Refuses identification data that cannot identify anything.
-pub fn check_data(inputs: &[f64], outputs: &[f64], range: &Range) -> Result<(), HysteresisError> {
-    let bad = |reason: String| HysteresisError::Invalid {
-        what: "identification data",
-        reason,
-    };
-    if inputs.len() != outputs.len() {
-        return Err(bad(format!(
-            "{} inputs but {} outputs",
-            inputs.len(),
-            outputs.len()
-        )));
-    }
-    if inputs.len() < 100 {
-        return Err(bad(format!(
-            "{} samples: give at least 100, with reversals (a few thousand are enough)",
-            inputs.len()
-        )));
-    }
-    if !(range.max > range.min && range.min.is_finite() && range.max.is_finite()) {
-        return Err(bad(format!("input range [{}, {}]", range.min, range.max)));
-    }
-    if let Some(k) = inputs.iter().chain(outputs).position(|v| !v.is_finite()) {
-        return Err(bad(format!(
-            "sample {} is not a finite number",
-            k % inputs.len()
-        )));
-    }
-    let reversals = inputs
-        .windows(3)
-        .filter(|w| (w[1] - w[0]) * (w[2] - w[1]) < 0.0)
-        .count();
-    if reversals < 2 {
-        return Err(bad(format!(
-            "{reversals} reversals of the input: hysteresis needs rising and falling branches"
-        )));
-    }
-    Ok(())
 }
 
 /// Inverse of a model, sample by sample: the inputs that make `model` (from its current

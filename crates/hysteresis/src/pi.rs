@@ -158,7 +158,8 @@ impl PrandtlIshlinskii {
     }
 
     /// Identifies offset, weights (≥ 0) and, if `asymmetric`, the quadratic term (≥ 0)
-    /// for `n` evenly spaced plays, by non-negative least squares with a ridge.
+    /// for `n` evenly spaced plays, by non-negative least squares with a ridge, from
+    /// data prepared by [`crate::prepare`] (dwells merged, noise wiggles held).
     pub fn identify(
         range: Range,
         n: usize,
@@ -167,7 +168,7 @@ impl PrandtlIshlinskii {
         outputs: &[f64],
         lambda: f64,
     ) -> Result<Fit<PrandtlIshlinskii>, HysteresisError> {
-        crate::check_data(inputs, outputs, &range)?;
+        let data = crate::prepare(inputs, outputs, &range)?;
         if !(1..=MAX_PLAYS).contains(&n) {
             return Err(HysteresisError::Invalid {
                 what: "plays",
@@ -180,7 +181,7 @@ impl PrandtlIshlinskii {
         let mut h = DVector::<f64>::zeros(k);
         let mut state = vec![0.0; n];
         let mut row = vec![0.0; k];
-        for (&u, &y) in inputs.iter().zip(outputs) {
+        for (&u, &y) in data.inputs.iter().zip(&data.outputs) {
             let x = range.normalise(u);
             row[0] = 1.0;
             row[1] = if asymmetric { x * x } else { 0.0 };
@@ -205,7 +206,7 @@ impl PrandtlIshlinskii {
             .map_err(|e| HysteresisError::Solver(e.to_string()))?;
         let model =
             PrandtlIshlinskii::new(range, x[0], thresholds, x.as_slice()[2..].to_vec(), x[1])?;
-        Fit::measure(model, inputs, outputs)
+        Fit::measure(model, &data)
     }
 }
 

@@ -280,7 +280,9 @@ impl Preisach {
     /// Identifies the weights from samples of (input, output) in time order, starting
     /// from the relaxed state at the bottom of `range`, on an `n` x `n` grid, with a ridge
     /// `lambda` (relative to the data's scale) that keeps weights the data cannot see
-    /// small.
+    /// small. The data go through [`crate::prepare`] first: held inputs (dwells) merge
+    /// into one sample, wiggles within the input's noise are holds, and data without
+    /// two reversals larger than the noise are refused.
     pub fn identify(
         range: Range,
         n: usize,
@@ -288,7 +290,7 @@ impl Preisach {
         outputs: &[f64],
         lambda: f64,
     ) -> Result<crate::Fit<Preisach>, HysteresisError> {
-        crate::check_data(inputs, outputs, &range)?;
+        let data = crate::prepare(inputs, outputs, &range)?;
         if !(2..=60).contains(&n) {
             return Err(HysteresisError::Invalid {
                 what: "cells",
@@ -300,7 +302,7 @@ impl Preisach {
         let mut h = DVector::<f64>::zeros(k);
         let mut memory = Memory::default();
         let mut row = vec![0.0; k];
-        for (&u, &y) in inputs.iter().zip(outputs) {
+        for (&u, &y) in data.inputs.iter().zip(&data.outputs) {
             memory.apply(range.normalise(u));
             let x = memory.input();
             Self::regressors(n, &memory, &mut row[3..]);
@@ -326,7 +328,7 @@ impl Preisach {
         let x = cellinject_numeric::nnls_gram(&g, &h, &[0])
             .map_err(|e| HysteresisError::Solver(e.to_string()))?;
         let model = Preisach::new(range, n, x[0], [x[1], x[2]], x.as_slice()[3..].to_vec())?;
-        crate::Fit::measure(model, inputs, outputs)
+        crate::Fit::measure(model, &data)
     }
 }
 
