@@ -184,17 +184,30 @@ impl Spectrum {
                 })
                 .collect()
         };
+        // The window times the DFT's cosines and sines, per sample and bin.
+        let basis = |n: usize| -> Vec<[(f64, f64); SPECTRUM_BINS]> {
+            let window = hann(n);
+            (0..n)
+                .map(|i| {
+                    std::array::from_fn(|k| {
+                        let (sn, cs) = (bin_frequency(k) * i as f64).sin_cos();
+                        (window[i] * cs, window[i] * sn)
+                    })
+                })
+                .collect()
+        };
         // One line of samples: its windowed power at every bin.
-        let power = |line: &mut dyn Iterator<Item = f64>, window: &[f64], out: &mut [f64]| {
-            let v: Vec<f64> = line.zip(window).map(|(a, w)| a * w).collect();
-            for (k, o) in out.iter_mut().enumerate() {
-                let w = bin_frequency(k);
-                let (mut re, mut im) = (0.0, 0.0);
-                for (i, a) in v.iter().enumerate() {
-                    let (sn, cs) = (w * i as f64).sin_cos();
-                    re += a * cs;
-                    im += a * sn;
+        let power = |line: &mut dyn Iterator<Item = f64>,
+                     basis: &[[(f64, f64); SPECTRUM_BINS]],
+                     out: &mut [f64; SPECTRUM_BINS]| {
+            let mut acc = [(0.0, 0.0); SPECTRUM_BINS];
+            for (a, b) in line.zip(basis) {
+                for (s, (c, n)) in acc.iter_mut().zip(b) {
+                    s.0 += a * c;
+                    s.1 += a * n;
                 }
+            }
+            for (o, (re, im)) in out.iter_mut().zip(acc) {
                 *o += re * re + im * im;
             }
         };
@@ -202,16 +215,16 @@ impl Spectrum {
             x: [0.0; SPECTRUM_BINS],
             y: [0.0; SPECTRUM_BINS],
         };
-        let (wx, wy) = (hann(nw), hann(nh));
+        let (bx, by) = (basis(nw), basis(nh));
         for j in 0..nh {
             power(
                 &mut rs.gx[j * nw..(j + 1) * nw].iter().copied(),
-                &wx,
+                &bx,
                 &mut out.x,
             );
         }
         for i in 0..nw {
-            power(&mut (0..nh).map(|j| rs.gy[j * nw + i]), &wy, &mut out.y);
+            power(&mut (0..nh).map(|j| rs.gy[j * nw + i]), &by, &mut out.y);
         }
         out
     }
