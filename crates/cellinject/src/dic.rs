@@ -5,9 +5,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use cellinject_core::dic::{PointReport, SynthSummary, TrackSummary, field_report, points};
+use cellinject_dic::accept::DEFAULT_MAX_SIGMA;
 use cellinject_dic::field::FieldOptions;
 use cellinject_dic::track::{Roi, Status, Tracker};
-use cellinject_dic::{DicError, Image, PointOptions, Shape};
+use cellinject_dic::{Acceptance, DicError, Image, PointOptions, Shape};
 use cellinject_plot::map::{GridMap, maps_rgb, maps_svg};
 use clap::{Args, Subcommand, ValueEnum};
 
@@ -71,6 +72,10 @@ pub struct PointArgs {
     /// A point whose ZNCC falls below this, or that does not converge, has no match.
     #[arg(long, default_value_t = 0.8)]
     min_zncc: f64,
+    /// A point whose predicted standard error (noise and interpolation bias) exceeds
+    /// this in u or v has no match (too little texture), pixels.
+    #[arg(long, default_value_t = DEFAULT_MAX_SIGMA)]
+    max_sigma: f64,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Text)]
     format: Format,
@@ -102,6 +107,14 @@ pub enum DicCommand {
         /// Sigma of a Gaussian prefilter applied to both images, pixels (0 = none).
         #[arg(long, default_value_t = 0.0)]
         prefilter: f64,
+        /// A point whose ZNCC falls below this, or that does not converge, is dropped
+        /// (the rule of `dic` points).
+        #[arg(long, default_value_t = 0.8)]
+        min_zncc: f64,
+        /// A point whose predicted standard error (noise and interpolation bias) exceeds
+        /// this in u or v is dropped (too little texture), pixels.
+        #[arg(long, default_value_t = DEFAULT_MAX_SIGMA)]
+        max_sigma: f64,
         /// CSV output; maps of u and v are written beside it with the same stem, as PNG
         /// and SVG (axes in pixels, or micrometres with `--um-per-px`).
         #[arg(long, value_name = "FILE")]
@@ -230,8 +243,8 @@ fn dic_error(context: &str, e: DicError) -> anyhow::Error {
 }
 
 fn pair(reference: &Path, current: &Path) -> Result<(Image, Image)> {
-    let r = load_grey(reference)?;
-    let c = load_grey(current)?;
+    let r = load_grey(reference).map_err(|e| InputError(format!("--reference: {e}")))?;
+    let c = load_grey(current).map_err(|e| InputError(format!("--current: {e}")))?;
     if (r.width(), r.height()) != (c.width(), c.height()) {
         return Err(InputError(format!(
             "`{}` is {}x{} but `{}` is {}x{}: the images must have the same size",
@@ -258,6 +271,7 @@ fn run_points(a: &PointArgs) -> Result<()> {
         return Err(InputError("dic needs at least one --at X,Y".into()).into());
     }
     check_prefilter(a.prefilter)?;
+    let acceptance = acceptance(a.min_zncc, a.max_sigma)?;
     let (r, c) = pair(reference, current)?;
     let opts = PointOptions {
         subset: a.subset,
@@ -266,14 +280,7 @@ fn run_points(a: &PointArgs) -> Result<()> {
         prefilter: a.prefilter,
         ..PointOptions::default()
     };
-    if !(-1.0..=1.0).contains(&a.min_zncc) {
-        return Err(InputError(format!(
-            "--min-zncc must lie in [-1, 1], got {}",
-            a.min_zncc
-        ))
-        .into());
-    }
-    let res = points(&r, &c, &a.at, &opts, a.min_zncc).map_err(|e| match e {
+    let res = points(&r, &c, &a.at, &opts, &acceptance).map_err(|e| match e {
         DicError::SubsetSize { .. } => dic_error("--subset", e),
         DicError::SubsetOutside { .. } => dic_error("--at", e),
         other => dic_error("dic", other),
@@ -334,11 +341,29 @@ fn run_points(a: &PointArgs) -> Result<()> {
     }
     if res.iter().all(|p| matches!(p, PointReport::Missing { .. })) {
         anyhow::bail!(
-            "no point matched reliably (ZNCC at least {} and converged): nothing to measure",
-            a.min_zncc
+            "no point matched reliably (converged, ZNCC at least {}, predicted σ at most {} px): nothing to measure",
+            a.min_zncc,
+            a.max_sigma
         );
     }
     Ok(())
+}
+
+/// The acceptance rule of `dic` and `dic field`, checked.
+fn acceptance(min_zncc: f64, max_sigma: f64) -> Result<Acceptance> {
+    if !(-1.0..=1.0).contains(&min_zncc) {
+        return Err(InputError(format!("--min-zncc must lie in [-1, 1], got {min_zncc}")).into());
+    }
+    if max_sigma.is_nan() || max_sigma <= 0.0 {
+        return Err(InputError(format!(
+            "--max-sigma must be a positive number of pixels, got {max_sigma}"
+        ))
+        .into());
+    }
+    Ok(Acceptance {
+        min_zncc,
+        max_sigma,
+    })
 }
 
 fn check_prefilter(sigma: f64) -> Result<()> {
@@ -357,6 +382,7 @@ struct FieldArgs {
     subset: usize,
     shape: ShapeArg,
     prefilter: f64,
+    acceptance: (f64, f64),
     um_per_px: Option<f64>,
     format: Format,
 }
@@ -367,6 +393,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         subset,
         shape,
         prefilter,
+        acceptance: (min_zncc, max_sigma),
         um_per_px,
         format,
     } = a;
@@ -379,6 +406,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         return Err(InputError("--step must be at least 1".into()).into());
     }
     check_prefilter(prefilter)?;
+    let acceptance = acceptance(min_zncc, max_sigma)?;
     let mut plan = Plan::new();
     plan.input("--reference", reference)
         .input("--current", current);
@@ -390,6 +418,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         subset,
         shape: shape.into(),
         prefilter,
+        acceptance,
         ..FieldOptions::default()
     };
     let t0 = std::time::Instant::now();
@@ -429,10 +458,12 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
             }
         }
     }
+    let dropped = report.dropped;
     let (Some(ru), Some(rv)) = (report.u_range, report.v_range) else {
         anyhow::bail!(
-            "no grid point matched ({} tried): nothing to measure (no texture, or the images do not overlap); no file written",
-            f.nx * f.ny
+            "no grid point matched ({} tried, {} dropped as unreliable): nothing to measure (no texture, or the images do not overlap); no file written",
+            f.nx * f.ny,
+            dropped.total()
         );
     };
     // Displacement maps: u and v side by side, each on its own colour scale.
@@ -480,6 +511,13 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         f.nx,
         f.ny,
         found as f64 / elapsed.max(1e-9)
+    );
+    outln!(
+        "{} dropped as unreliable ({} predicted σ above {max_sigma} px, {} ZNCC below {min_zncc}, {} not converged)",
+        dropped.total(),
+        dropped.uncertain,
+        dropped.low_zncc,
+        dropped.not_converged
     );
     outln!(
         "u from {:.4} to {:.4} px, v from {:.4} to {:.4} px",
@@ -786,6 +824,8 @@ pub fn run(a: &DicArgs) -> Result<()> {
             subset,
             shape,
             prefilter,
+            min_zncc,
+            max_sigma,
             out,
             um_per_px,
             format,
@@ -797,6 +837,7 @@ pub fn run(a: &DicArgs) -> Result<()> {
                 subset: *subset,
                 shape: *shape,
                 prefilter: *prefilter,
+                acceptance: (*min_zncc, *max_sigma),
                 um_per_px: *um_per_px,
                 format: *format,
             },

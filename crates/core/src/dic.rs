@@ -2,7 +2,9 @@
 //! Decoding image files is the front end's; these take decoded [`Image`]s.
 
 use cellinject_dic::field::{Field, FieldOptions, field};
-use cellinject_dic::{DicError, Image, PointOptions, PointResult, correlate_points};
+use cellinject_dic::{
+    Acceptance, DicError, Dropped, Image, PointOptions, PointResult, correlate_points, judge,
+};
 use serde::Serialize;
 
 /// One point of `cellinject dic` (an element of its JSON list). A point without a
@@ -111,28 +113,25 @@ impl PointReport {
 }
 
 /// `cellinject dic`: correlates each of `at` (reference pixels) into `current`. A
-/// result that did not converge or whose ZNCC is below `min_zncc` is not a measurement:
-/// it is reported as [`PointReport::Missing`], with its ZNCC in the reason.
+/// result that [`judge`] rejects (not converged, ZNCC below `acceptance.min_zncc`,
+/// predicted σ above `acceptance.max_sigma`: the rule `dic field` applies too) is not a
+/// measurement: it is reported as [`PointReport::Missing`], with the reason.
 pub fn points(
     reference: &Image,
     current: &Image,
     at: &[(f64, f64)],
     options: &PointOptions,
-    min_zncc: f64,
+    acceptance: &Acceptance,
 ) -> Result<Vec<PointReport>, DicError> {
     let res = correlate_points(reference, current, at, options)?;
     Ok(at
         .iter()
         .zip(&res)
-        .map(|(&p, r)| match r {
-            Some(q) if !(q.converged && q.zncc >= min_zncc) => {
+        .map(|(&p, r)| match r.as_ref().map(|q| judge(q, acceptance)) {
+            Some(Err(why)) => {
                 let mut m = PointReport::new(p, &None);
                 if let PointReport::Missing { error, .. } = &mut m {
-                    *error = if q.converged {
-                        "no reliable match: the ZNCC is below --min-zncc"
-                    } else {
-                        "no reliable match: the correlation did not converge"
-                    };
+                    *error = why.reason();
                 }
                 m
             }
@@ -148,6 +147,10 @@ pub struct FieldReport {
     pub field: Field,
     /// Points with a match.
     pub found: usize,
+    /// Points computed but dropped by the acceptance rule, by reason.
+    pub dropped: Dropped,
+    /// The rule.
+    pub acceptance: Acceptance,
     /// Smallest and largest u over the matched points, px (None if none matched).
     pub u_range: Option<(f64, f64)>,
     /// The same for v.
@@ -171,22 +174,19 @@ fn range(f: &Field, sel: fn(&PointResult) -> f64) -> Option<(f64, f64)> {
     })
 }
 
-/// `cellinject dic field`: the full field on a grid; points that did not converge or
-/// fall below `options.min_zncc` are left out (no number is reported for them).
+/// `cellinject dic field`: the full field on a grid; points the acceptance rule of the
+/// point mode rejects (`options.acceptance`) are left out (no number is reported for
+/// them) and counted.
 pub fn field_report(
     reference: &Image,
     current: &Image,
     options: &FieldOptions,
 ) -> Result<FieldReport, DicError> {
-    let mut f = field(reference, current, options)?;
-    // Only converged points at or above the ZNCC threshold are measurements.
-    for p in &mut f.points {
-        if p.is_some_and(|q| !(q.converged && q.zncc >= options.min_zncc)) {
-            *p = None;
-        }
-    }
+    let f = field(reference, current, options)?;
     Ok(FieldReport {
         found: f.points.iter().flatten().count(),
+        dropped: f.dropped,
+        acceptance: options.acceptance,
         u_range: range(&f, |p| p.u),
         v_range: range(&f, |p| p.v),
         field: f,
@@ -197,7 +197,10 @@ pub fn field_report(
 ///
 /// | field | unit | meaning |
 /// |---|---|---|
-/// | `points`, `found` | | grid points, of which matched |
+/// | `points`, `found` | | grid points, of which matched (measurements) |
+/// | `dropped` | | computed but rejected by the point mode's rule |
+/// | `dropped_by` | | the same by reason: `not_converged`, `low_zncc`, `uncertain` (predicted σ above `max_sigma`) |
+/// | `min_zncc`, `max_sigma` | 1, px | the rule's thresholds |
 /// | `nx`, `ny`, `step` | –, –, px | the grid |
 /// | `u_range`, `v_range` | px | smallest and largest displacement over the matched points |
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -206,6 +209,14 @@ pub struct FieldSummary {
     pub points: usize,
     /// Matched.
     pub found: usize,
+    /// Dropped by the acceptance rule.
+    pub dropped: usize,
+    /// The same by reason.
+    pub dropped_by: DroppedBy,
+    /// 1.
+    pub min_zncc: f64,
+    /// px.
+    pub max_sigma: f64,
     /// Columns.
     pub nx: usize,
     /// Rows.
@@ -218,13 +229,33 @@ pub struct FieldSummary {
     pub v_range: Option<(f64, f64)>,
 }
 
+/// Points dropped by the acceptance rule, by reason.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct DroppedBy {
+    /// IC-GN did not converge.
+    pub not_converged: usize,
+    /// ZNCC below `min_zncc`.
+    pub low_zncc: usize,
+    /// Predicted σ above `max_sigma` (too little texture).
+    pub uncertain: usize,
+}
+
 impl FieldReport {
     /// What `dic field` reports besides its CSV.
     pub fn summary(&self) -> FieldSummary {
         let f = &self.field;
+        let d = self.dropped;
         FieldSummary {
             points: f.nx * f.ny,
             found: self.found,
+            dropped: d.total(),
+            dropped_by: DroppedBy {
+                not_converged: d.not_converged,
+                low_zncc: d.low_zncc,
+                uncertain: d.uncertain,
+            },
+            min_zncc: self.acceptance.min_zncc,
+            max_sigma: self.acceptance.max_sigma,
             nx: f.nx,
             ny: f.ny,
             step: f.step,

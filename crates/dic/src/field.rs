@@ -4,12 +4,19 @@
 //! guess, so IC-GN converges in a few iterations and no point needs its own search. The
 //! grid is cut into tiles, each grown from its own seed, in parallel with rayon; the
 //! tiling does not depend on the number of threads, so results are reproducible.
+//!
+//! Every computed point goes through [`judge`], the rule of the point mode: a point it
+//! rejects is not reported, and is counted in [`Field::dropped`]; one that did not
+//! converge or has a low ZNCC is not used as a starting guess either. (A neighbour's guess lets IC-GN converge where the point mode's
+//! own search would not, so without the rule the field reported points the point mode
+//! refused.)
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
+use crate::accept::{Acceptance, Dropped, Rejection, judge};
 use crate::icgn::{self, IcgnOptions, PointResult, Shape};
 use crate::search;
 use crate::{DicError, Image, check_subset};
@@ -25,8 +32,9 @@ pub struct FieldOptions {
     pub shape: Shape,
     /// Largest displacement the seeds search for, pixels.
     pub search_radius: usize,
-    /// Points below this ZNCC do not propagate their guess.
-    pub min_zncc: f64,
+    /// What makes a point a measurement (the point mode's rule); the others are
+    /// dropped.
+    pub acceptance: Acceptance,
     /// Grid points per tile side (each tile grows from its own seed).
     pub tile: usize,
     /// Sigma of an optional Gaussian prefilter of both images, pixels (0 = none).
@@ -42,7 +50,7 @@ impl Default for FieldOptions {
             subset: 31,
             shape: Shape::Affine,
             search_radius: 64,
-            min_zncc: 0.8,
+            acceptance: Acceptance::default(),
             tile: 32,
             prefilter: 0.0,
             // Neighbours start close to their solution, and the iteration contracts
@@ -69,8 +77,10 @@ pub struct Field {
     pub y0: usize,
     /// Grid step.
     pub step: usize,
-    /// Row-major results (`None`: not computed or no match).
+    /// Row-major measurements (`None`: not reached, no match, or dropped).
     pub points: Vec<Option<PointResult>>,
+    /// Points computed but rejected by the acceptance rule, by reason.
+    pub dropped: Dropped,
 }
 
 #[derive(PartialEq)]
@@ -93,6 +103,14 @@ impl Ord for Candidate {
             .total_cmp(&other.zncc)
             .then_with(|| other.index.cmp(&self.index))
     }
+}
+
+/// Whether a computed point hands its deformation to its neighbours as their starting
+/// guess: when it converged at a ZNCC the rule accepts. A point dropped only for its
+/// predicted σ still does (it is likely close, and each neighbour is judged on its
+/// own), or a band of weak texture would cut the rest of its tile off.
+fn propagates(verdict: Result<(), Rejection>) -> bool {
+    matches!(verdict, Ok(()) | Err(Rejection::Uncertain))
 }
 
 /// Computes the displacement field between two images.
@@ -121,14 +139,25 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
     let y0 = m + 1;
     let nx = (w - 2 * m - 2 - 1) / step + 1;
     let ny = (h - 2 * m - 2 - 1) / step + 1;
-    let crate::Prepared { r, s, pr, pc } =
-        crate::Prepared::new(reference, current, opts.search_radius, opts.prefilter);
+    let crate::Prepared {
+        r,
+        s,
+        pr,
+        pc,
+        floor,
+    } = crate::Prepared::new(reference, current, opts.search_radius, opts.prefilter);
+    let icgn_opts = IcgnOptions {
+        residual_floor: opts.icgn.residual_floor.max(floor),
+        ..opts.icgn
+    };
     let tile = opts.tile.max(4);
     let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(tile))
         .flat_map(|ty| (0..nx.div_ceil(tile)).map(move |tx| (tx, ty)))
         .collect();
     let grid = |gx: usize, gy: usize| (x0 + gx * step, y0 + gy * step);
-    let results: Vec<Vec<(usize, Option<PointResult>)>> = tiles
+    // Per tile: (grid index, measurement) pairs and the tile's dropped points.
+    type TileResult = (Vec<(usize, Option<PointResult>)>, Dropped);
+    let results: Vec<TileResult> = tiles
         .par_iter()
         .map(|&(tx, ty)| {
             let (gx0, gy0) = (tx * tile, ty * tile);
@@ -136,6 +165,9 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
             let (tw, th) = (gx1 - gx0, gy1 - gy0);
             let mut out: Vec<Option<PointResult>> = vec![None; tw * th];
             let mut done = vec![false; tw * th];
+            // Every converged result, kept or not: the starting guesses.
+            let mut guess: Vec<Option<PointResult>> = vec![None; tw * th];
+            let mut dropped = Dropped::default();
             let mut heap = BinaryHeap::new();
             // Seed: the tile centre, then spiralling candidates until one correlates.
             let centre = (tw / 2, th / 2);
@@ -156,12 +188,17 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                 );
                 let Some(hit) = hit else { continue };
                 let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
-                let res = icgn::refine(&r, &s, px, py, subset, opts.shape, init, &opts.icgn);
+                let res = icgn::refine(&r, &s, px, py, subset, opts.shape, init, &icgn_opts);
                 let k = j * tw + i;
                 done[k] = true;
                 if let Some(p) = res {
-                    out[k] = Some(p);
-                    if p.zncc >= opts.min_zncc {
+                    let verdict = judge(&p, &opts.acceptance);
+                    guess[k] = Some(p);
+                    match verdict {
+                        Ok(()) => out[k] = Some(p),
+                        Err(why) => dropped.add(why),
+                    }
+                    if propagates(verdict) {
                         heap.push(Candidate {
                             zncc: p.zncc,
                             index: k,
@@ -171,7 +208,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                 }
             }
             while let Some(Candidate { index, .. }) = heap.pop() {
-                let Some(parent) = out[index] else { continue };
+                let Some(parent) = guess[index] else { continue };
                 let (i, j) = (index % tw, index / tw);
                 let neighbours = [
                     (i as i64 - 1, j as i64),
@@ -200,10 +237,15 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                         vy,
                     ];
                     if let Some(p) =
-                        icgn::refine(&r, &s, px, py, subset, opts.shape, init, &opts.icgn)
+                        icgn::refine(&r, &s, px, py, subset, opts.shape, init, &icgn_opts)
                     {
-                        out[k] = Some(p);
-                        if p.zncc >= opts.min_zncc && p.converged {
+                        let verdict = judge(&p, &opts.acceptance);
+                        guess[k] = Some(p);
+                        match verdict {
+                            Ok(()) => out[k] = Some(p),
+                            Err(why) => dropped.add(why),
+                        }
+                        if propagates(verdict) {
                             heap.push(Candidate {
                                 zncc: p.zncc,
                                 index: k,
@@ -212,19 +254,24 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                     }
                 }
             }
-            (0..tw * th)
+            let points = (0..tw * th)
                 .map(|k| {
                     let (i, j) = (k % tw, k / tw);
                     ((gy0 + j) * nx + gx0 + i, out[k])
                 })
-                .collect()
+                .collect();
+            (points, dropped)
         })
         .collect();
     let mut points = vec![None; nx * ny];
-    for tile in results {
+    let mut dropped = Dropped::default();
+    for (tile, d) in results {
         for (k, p) in tile {
             points[k] = p;
         }
+        dropped.not_converged += d.not_converged;
+        dropped.low_zncc += d.low_zncc;
+        dropped.uncertain += d.uncertain;
     }
     Ok(Field {
         nx,
@@ -233,5 +280,6 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         y0,
         step,
         points,
+        dropped,
     })
 }

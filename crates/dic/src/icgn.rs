@@ -30,6 +30,13 @@ pub struct IcgnOptions {
     pub tolerance: f64,
     /// Give up after this many iterations.
     pub max_iterations: usize,
+    /// Smallest variance of the residual used for the predicted σ, grey levels²: the
+    /// noise the two images must hold whatever the residual says, their quantisation
+    /// ([`crate::image::quantisation_variance`]; the callers that hold the images set
+    /// it). Where a smooth patch is quantised into steps of one grey level, both images
+    /// show the same steps and the residual drops far below the rounding noise, while
+    /// the rounding has moved the steps to whole pixels.
+    pub residual_floor: f64,
 }
 
 impl Default for IcgnOptions {
@@ -37,6 +44,7 @@ impl Default for IcgnOptions {
         IcgnOptions {
             tolerance: 1e-5,
             max_iterations: 40,
+            residual_floor: 0.0,
         }
     }
 }
@@ -60,7 +68,13 @@ pub struct PointResult {
     pub iterations: usize,
     /// Whether the update fell below the tolerance.
     pub converged: bool,
-    /// Predicted standard error of u, `√2·σ / √Σ(∂f/∂x)²` (Pan et al., Opt. Express 2008).
+    /// Predicted standard error of u, pixels: the noise term (the residual's variance
+    /// times the u entry of the inverse information matrix of the subset, offset and
+    /// gain included; for a subset whose gradients are independent of everything else
+    /// it is Pan et al.'s `√2·σ / √Σ(∂f/∂x)²`, Opt. Express 2008) and the interpolation
+    /// bias the cubic spline makes at this sub-pixel position for the subset's spectrum
+    /// ([`spline_response`]), added in quadrature. Infinite when the subset's texture
+    /// cannot fix u at all (a uniform or linear ramp of grey levels).
     pub sigma_u: f64,
     /// Predicted standard error of v.
     pub sigma_v: f64,
@@ -143,6 +157,121 @@ struct RefSubset {
     sum_gy2: f64,
 }
 
+/// Number of frequencies of the subset's gradient spectrum kept for the bias term.
+const SPECTRUM_BINS: usize = 16;
+
+/// Gradient power of a subset along x and y at the frequencies `π·(k + ½)/SPECTRUM_BINS`,
+/// k = 0..SPECTRUM_BINS: Hann-windowed DFTs of each row of ∂f/∂x (each column of ∂f/∂y),
+/// summed. It weights the spline's per-frequency bias into the subset's bias.
+#[derive(Debug, Clone, Copy)]
+struct Spectrum {
+    x: [f64; SPECTRUM_BINS],
+    y: [f64; SPECTRUM_BINS],
+}
+
+fn bin_frequency(k: usize) -> f64 {
+    std::f64::consts::PI * (k as f64 + 0.5) / SPECTRUM_BINS as f64
+}
+
+impl Spectrum {
+    fn new(rs: &RefSubset, s: Subset) -> Self {
+        let (nw, nh) = (2 * s.half_w + 1, 2 * s.half_h + 1);
+        let hann = |n: usize| -> Vec<f64> {
+            (0..n)
+                .map(|i| {
+                    let t = std::f64::consts::PI * (i as f64 + 0.5) / n as f64;
+                    t.sin().powi(2)
+                })
+                .collect()
+        };
+        // The window times the DFT's cosines and sines, per sample and bin.
+        let basis = |n: usize| -> Vec<[(f64, f64); SPECTRUM_BINS]> {
+            let window = hann(n);
+            (0..n)
+                .map(|i| {
+                    std::array::from_fn(|k| {
+                        let (sn, cs) = (bin_frequency(k) * i as f64).sin_cos();
+                        (window[i] * cs, window[i] * sn)
+                    })
+                })
+                .collect()
+        };
+        // One line of samples: its windowed power at every bin.
+        let power = |line: &mut dyn Iterator<Item = f64>,
+                     basis: &[[(f64, f64); SPECTRUM_BINS]],
+                     out: &mut [f64; SPECTRUM_BINS]| {
+            let mut acc = [(0.0, 0.0); SPECTRUM_BINS];
+            for (a, b) in line.zip(basis) {
+                for (s, (c, n)) in acc.iter_mut().zip(b) {
+                    s.0 += a * c;
+                    s.1 += a * n;
+                }
+            }
+            for (o, (re, im)) in out.iter_mut().zip(acc) {
+                *o += re * re + im * im;
+            }
+        };
+        let mut out = Spectrum {
+            x: [0.0; SPECTRUM_BINS],
+            y: [0.0; SPECTRUM_BINS],
+        };
+        let (bx, by) = (basis(nw), basis(nh));
+        for j in 0..nh {
+            power(
+                &mut rs.gx[j * nw..(j + 1) * nw].iter().copied(),
+                &bx,
+                &mut out.x,
+            );
+        }
+        for i in 0..nw {
+            power(&mut (0..nh).map(|j| rs.gy[j * nw + i]), &by, &mut out.y);
+        }
+        out
+    }
+}
+
+/// The cubic B-spline interpolant at fractional offset `t` for a sinusoid of angular
+/// frequency `w` (rad/px) of unit amplitude: its position error (−arg of the response
+/// relative to the exact `e^{iωt}`, over ω; the ideal band-limited interpolant has none)
+/// and its gain.
+pub fn spline_response(t: f64, w: f64) -> (f64, f64) {
+    let wt = weights(t);
+    let (mut re, mut im) = (0.0, 0.0);
+    for (j, a) in wt.iter().enumerate() {
+        let ph = w * (j as f64 - 1.0 - t);
+        re += a * ph.cos();
+        im += a * ph.sin();
+    }
+    // The prefilter's gain at w: 6 / (4 + 2 cos w).
+    let gain = re.hypot(im) * 6.0 / (4.0 + 2.0 * w.cos());
+    (-im.atan2(re) / w, gain)
+}
+
+/// Gain of the spline's derivative at the pixels relative to the exact `iω`:
+/// `(c₊₁ − c₋₁)/2` of the prefiltered coefficients.
+fn derivative_gain(w: f64) -> f64 {
+    6.0 * w.sin() / (w * (4.0 + 2.0 * w.cos()))
+}
+
+/// The bias of a translation measured by matching a subset through the cubic spline at
+/// fractional offset `t`, for the power `power` of the subset's spline gradients over
+/// the bins: the per-frequency position errors weighted by each frequency's weight in
+/// the Gauss-Newton normal equations (Schreier, Braasch & Sutton, Opt. Eng. 39, 2000):
+/// |F|²ω² times the reference gradient's gain and the interpolant's gain.
+fn interpolation_bias_1d(t: f64, power: &[f64; SPECTRUM_BINS]) -> f64 {
+    let t = t - t.floor();
+    let (mut num, mut den) = (0.0, 0.0);
+    for (k, p) in power.iter().enumerate() {
+        let w = bin_frequency(k);
+        let (err, gain) = spline_response(t, w);
+        // `power` holds |F|²ω²·D²: one D too many.
+        let weight = p * gain / derivative_gain(w);
+        num += weight * err;
+        den += weight;
+    }
+    if den > 0.0 { num / den } else { 0.0 }
+}
+
 impl RefSubset {
     fn new(r: &Reference, x: usize, y: usize, s: Subset) -> Self {
         let n = (2 * s.half_w + 1) * (2 * s.half_h + 1);
@@ -214,6 +343,38 @@ pub struct Prepared {
     shape: Shape,
     h6_inv: Option<SMatrix<f64, 6, 6>>,
     h2_inv: Option<SMatrix<f64, 2, 2>>,
+    /// Entries u and v of the inverse information matrix (per unit residual variance).
+    cov: (f64, f64),
+    spectrum: Spectrum,
+}
+
+/// The u and v entries of the inverse of the information matrix `JᵀJ` of the subset's
+/// parameters (`ns` shape parameters, u at 0 and v at `iv`) together with the two nuisance
+/// parameters ZNSSD eliminates, offset and gain (columns 1 and f − f̄): the Schur
+/// complement `H − s₁s₁ᵀ/n − s_f s_fᵀ/Σ(f − f̄)²`. Infinite where it is singular (a
+/// uniform or linear ramp of grey levels: the gain and offset explain any shift).
+fn nuisance_covariance<const N: usize>(
+    h: &SMatrix<f64, N, N>,
+    s1: &SVector<f64, N>,
+    sf: &SVector<f64, N>,
+    n: f64,
+    ff: f64,
+    iv: usize,
+) -> (f64, f64) {
+    let schur = h - s1 * s1.transpose() / n - sf * sf.transpose() / ff;
+    // Scaled to unit diagonal first, so the test for singularity is relative.
+    let d = SVector::<f64, N>::from_fn(|i, _| schur[(i, i)].max(0.0).sqrt());
+    if d.iter().any(|v| *v == 0.0 || !v.is_finite()) {
+        return (f64::INFINITY, f64::INFINITY);
+    }
+    let scaled = SMatrix::<f64, N, N>::from_fn(|i, j| schur[(i, j)] / (d[i] * d[j]));
+    match scaled.cholesky() {
+        Some(c) if c.l().diagonal().iter().all(|v| *v > 1e-6) => {
+            let inv = c.inverse();
+            (inv[(0, 0)] / (d[0] * d[0]), inv[(iv, iv)] / (d[iv] * d[iv]))
+        }
+        _ => (f64::INFINITY, f64::INFINITY),
+    }
 }
 
 /// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
@@ -251,6 +412,18 @@ pub fn prepare(
             }
         }
     }
+    // Sums of the steepest-descent images and of their products with f − f̄, for the
+    // covariance with offset and gain eliminated.
+    let (mut s1, mut sf) = ([0.0f64; 6], [0.0f64; 6]);
+    for k in 0..n {
+        let (gx, gy, dx, dy, f) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k], rs.f[k]);
+        let j = [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy];
+        for i in 0..6 {
+            s1[i] += j[i];
+            sf[i] += j[i] * f;
+        }
+    }
+    let ff = rs.df * rs.df;
     match shape {
         Shape::Affine => {
             // Index of the weight (1, dx, dy) products: [i][j] -> moment column.
@@ -275,6 +448,20 @@ pub fn prepare(
             h2[(1, 1)] = mom[2][0];
         }
     }
+    let cov = match shape {
+        Shape::Affine => {
+            nuisance_covariance(&h6, &SVector::from(s1), &SVector::from(sf), n as f64, ff, 3)
+        }
+        Shape::Rigid => nuisance_covariance(
+            &h2,
+            &SVector::from([s1[0], s1[3]]),
+            &SVector::from([sf[0], sf[3]]),
+            n as f64,
+            ff,
+            1,
+        ),
+    };
+    let spectrum = Spectrum::new(&rs, subset);
     Some(Prepared {
         rs,
         x,
@@ -283,6 +470,8 @@ pub fn prepare(
         shape,
         h6_inv: h6.cholesky().map(|c| c.inverse()),
         h2_inv: h2.try_inverse(),
+        cov,
+        spectrum,
     })
 }
 
@@ -319,6 +508,8 @@ pub fn refine_prepared(
         shape,
         h6_inv,
         h2_inv,
+        cov,
+        spectrum,
     } = prepared;
     let (x, y, subset, shape, h6_inv, h2_inv) = (*x, *y, *subset, *shape, *h6_inv, *h2_inv);
     let n = rs.f.len();
@@ -442,9 +633,18 @@ pub fn refine_prepared(
             break;
         }
     }
-    // Noise from the residual: it holds the noise of both images, 2σ².
-    let dof = (n as f64 - 6.0).max(1.0);
-    let sigma_noise = (residual2 / (2.0 * dof)).sqrt();
+    // Noise from the residual: it holds the noise of both images, 2σ². Degrees of
+    // freedom: the shape parameters, offset and gain.
+    let params = match shape {
+        Shape::Affine => 8.0,
+        Shape::Rigid => 4.0,
+    };
+    let dof = (n as f64 - params).max(1.0);
+    let var = (residual2 / dof).max(opts.residual_floor);
+    let sigma_noise = (0.5 * var).sqrt();
+    let bias_u = interpolation_bias_1d(p[0], &spectrum.x);
+    let bias_v = interpolation_bias_1d(p[3], &spectrum.y);
+
     Some(PointResult {
         x: xc,
         y: yc,
@@ -454,8 +654,8 @@ pub fn refine_prepared(
         zncc,
         iterations,
         converged,
-        sigma_u: std::f64::consts::SQRT_2 * sigma_noise / rs.sum_gx2.sqrt(),
-        sigma_v: std::f64::consts::SQRT_2 * sigma_noise / rs.sum_gy2.sqrt(),
+        sigma_u: (var * cov.0 + bias_u * bias_u).sqrt(),
+        sigma_v: (var * cov.1 + bias_v * bias_v).sqrt(),
         sigma_noise,
     })
 }

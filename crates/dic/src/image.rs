@@ -154,6 +154,46 @@ impl Image {
     }
 }
 
+/// Variance of the rounding noise of an image's grey levels: `q²/12` for the step `q`
+/// of its levels when they are whole numbers (8- or 16-bit data; `q` is the greatest
+/// common divisor of their differences, 256 for 8-bit data stored in 16 bits), 0 for
+/// other values (a synthetic or already filtered image) and for a uniform image.
+pub fn quantisation_variance(img: &Image) -> f64 {
+    let data = img.data();
+    if data.iter().any(|v| v.fract() != 0.0 || v.abs() > 1e15) {
+        return 0.0;
+    }
+    let lo = data.iter().copied().fold(f64::INFINITY, f64::min);
+    let gcd = |mut a: u64, mut b: u64| {
+        while b != 0 {
+            (a, b) = (b, a % b);
+        }
+        a
+    };
+    let mut q = 0u64;
+    for v in data {
+        q = gcd(q, (v - lo) as u64);
+        if q == 1 {
+            break;
+        }
+    }
+    (q * q) as f64 / 12.0
+}
+
+/// Factor by which [`Image::gaussian_blur`] of `sigma` scales the variance of white noise.
+pub fn blur_noise_gain(sigma: f64) -> f64 {
+    if sigma <= 0.0 {
+        return 1.0;
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let k: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let s: f64 = k.iter().sum();
+    let g: f64 = k.iter().map(|v| (v / s).powi(2)).sum();
+    g * g
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -177,5 +217,27 @@ mod tests {
         };
         assert!(var(b.data()) < 0.5 * var(img.data()));
         assert_eq!(img.gaussian_blur(0.0), img);
+    }
+
+    #[test]
+    fn rounding_noise_is_found_from_the_levels() {
+        let eight = Image::new(3, 1, vec![0.0, 7.0, 255.0]).unwrap();
+        assert!((quantisation_variance(&eight) - 1.0 / 12.0).abs() < 1e-15);
+        // 8-bit data stored in 16 bits: steps of 256.
+        let wide = Image::new(3, 1, vec![0.0, 256.0, 1024.0]).unwrap();
+        assert!((quantisation_variance(&wide) - 256.0 * 256.0 / 12.0).abs() < 1e-9);
+        let smooth = Image::new(3, 1, vec![0.5, 1.25, 2.0]).unwrap();
+        assert_eq!(quantisation_variance(&smooth), 0.0);
+        // The blur's variance gain: the sum of the squared weights, in two dimensions.
+        let mut rng = cellinject_numeric::Rng::new(1, 1);
+        let noise: Vec<f64> = (0..16384).map(|_| rng.gaussian_exact()).collect();
+        let img = Image::new(128, 128, noise).unwrap();
+        let var = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64;
+        let ratio = var(img.gaussian_blur(1.0).data()) / var(img.data());
+        assert!(
+            (ratio / blur_noise_gain(1.0) - 1.0).abs() < 0.1,
+            "{ratio} vs {}",
+            blur_noise_gain(1.0)
+        );
     }
 }

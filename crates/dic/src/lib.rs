@@ -17,6 +17,7 @@
 //! **Architecture invariant:** pure computation: images in, numbers out. No file, no
 //! clock, no device.
 
+pub mod accept;
 pub mod bspline;
 pub mod calib;
 pub mod field;
@@ -28,6 +29,7 @@ pub mod track;
 
 use thiserror::Error;
 
+pub use accept::{Acceptance, Dropped, Rejection, judge};
 pub use bspline::BSpline;
 pub use icgn::{IcgnOptions, PointResult, Reference, Shape, Subset};
 pub use image::Image;
@@ -135,6 +137,9 @@ pub(crate) struct Prepared {
     pub(crate) s: BSpline,
     pub(crate) pr: Vec<Image>,
     pub(crate) pc: Vec<Image>,
+    /// Variance of the rounding noise of both images after the prefilter, grey levels²:
+    /// the floor of the residual variance ([`IcgnOptions::residual_floor`]).
+    pub(crate) floor: f64,
 }
 
 impl Prepared {
@@ -147,6 +152,9 @@ impl Prepared {
         search_radius: usize,
         prefilter: f64,
     ) -> Self {
+        let floor = (image::quantisation_variance(reference)
+            + image::quantisation_variance(current))
+            * image::blur_noise_gain(prefilter);
         let (reference, current) = if prefilter > 0.0 {
             (
                 reference.gaussian_blur(prefilter),
@@ -161,6 +169,7 @@ impl Prepared {
             pc: search::pyramid(&current, levels),
             s: BSpline::new(&current),
             r: Reference::new(reference),
+            floor,
         }
     }
 }
@@ -202,8 +211,17 @@ pub fn correlate_points(
             });
         }
     }
-    let Prepared { r, s, pr, pc } =
-        Prepared::new(reference, current, opts.search_radius, opts.prefilter);
+    let Prepared {
+        r,
+        s,
+        pr,
+        pc,
+        floor,
+    } = Prepared::new(reference, current, opts.search_radius, opts.prefilter);
+    let icgn_opts = IcgnOptions {
+        residual_floor: opts.icgn.residual_floor.max(floor),
+        ..opts.icgn
+    };
     Ok(points
         .iter()
         .map(|&(x, y)| {
@@ -219,7 +237,7 @@ pub fn correlate_points(
                 subset,
                 opts.shape,
                 init,
-                &opts.icgn,
+                &icgn_opts,
             )?;
             let (dx, dy) = (x - xi as f64, y - yi as f64);
             let [ux, uy, vx, vy] = res.gradients;

@@ -171,6 +171,8 @@ impl Tracker {
             opts: IcgnOptions {
                 tolerance: 1e-4,
                 max_iterations: 20,
+                // Every frame is rounded like the first.
+                residual_floor: 2.0 * crate::image::quantisation_variance(first),
             },
             last: None,
             velocity: (0.0, 0.0),

@@ -1,0 +1,291 @@
+//! DIC on real photographs (not speckle) shifted by known sub-pixel amounts.
+//!
+//! The photographs are 256x256 8-bit crops in `tests/data/photos` (see its README for
+//! sources and licences). Each current image is made here from the committed original
+//! by an exact band-limited shift, independent of the code under test and of its
+//! interpolant: the image is extended mirror-symmetrically to a 512x512 period (so the
+//! period has no jump at its edges), shifted in the Fourier domain, cropped, and rounded
+//! to 8 bits like a camera's frame; optionally both images get Gaussian noise first.
+//!
+//! "Textured" is defined here, independently of the DIC: a grid point is textured when
+//! the noise limit of Pan et al. (2008), `√2·σ/√Σ(∇f − mean ∇f)²` over its subset with
+//! central differences of the original and σ the noise the test adds (rounding
+//! included), is at most 0.01 px in x and in y. The mean gradient is removed because
+//! ZNSSD's offset and gain make a linear ramp of grey levels carry no information.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use cellinject_dic::Image;
+use cellinject_dic::field::{FieldOptions, field};
+use cellinject_numeric::Rng;
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex;
+
+const PHOTOS: [&str; 6] = [
+    "camera_sky_coat",
+    "camera_field",
+    "astronaut",
+    "brick",
+    "grass",
+    "gravel",
+];
+
+fn load(name: &str) -> Image {
+    let path = format!(
+        "{}/tests/data/photos/{name}.png",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let img = image::open(&path).unwrap().into_luma8();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    Image::new(w, h, img.into_raw().into_iter().map(f64::from).collect()).unwrap()
+}
+
+/// The band-limited shift of `img`'s mirror-symmetric periodic extension: the result at
+/// pixel (x, y) is the trigonometric interpolant of the extension at (x − u, y − v).
+fn fourier_shift(img: &Image, u: f64, v: f64) -> Vec<f64> {
+    let (w, h) = (img.width(), img.height());
+    let (ew, eh) = (2 * w, 2 * h);
+    let mirror = |i: usize, n: usize| if i < n { i } else { 2 * n - 1 - i };
+    let mut e: Vec<Complex<f64>> = (0..eh)
+        .flat_map(|y| (0..ew).map(move |x| (x, y)))
+        .map(|(x, y)| Complex::new(img.at(mirror(x, w), mirror(y, h)), 0.0))
+        .collect();
+    let mut planner = FftPlanner::new();
+    let fft2 = |data: &mut [Complex<f64>], inverse: bool, planner: &mut FftPlanner<f64>| {
+        let (fr, fc) = if inverse {
+            (planner.plan_fft_inverse(ew), planner.plan_fft_inverse(eh))
+        } else {
+            (planner.plan_fft_forward(ew), planner.plan_fft_forward(eh))
+        };
+        for row in data.chunks_mut(ew) {
+            fr.process(row);
+        }
+        let mut col = vec![Complex::new(0.0, 0.0); eh];
+        for x in 0..ew {
+            for y in 0..eh {
+                col[y] = data[y * ew + x];
+            }
+            fc.process(&mut col);
+            for y in 0..eh {
+                data[y * ew + x] = col[y];
+            }
+        }
+    };
+    fft2(&mut e, false, &mut planner);
+    let freq = |k: usize, n: usize| {
+        if 2 * k < n {
+            k as f64 / n as f64
+        } else {
+            k as f64 / n as f64 - 1.0
+        }
+    };
+    for ky in 0..eh {
+        for kx in 0..ew {
+            let phase = -2.0 * std::f64::consts::PI * (freq(kx, ew) * u + freq(ky, eh) * v);
+            e[ky * ew + kx] *= Complex::from_polar(1.0, phase);
+        }
+    }
+    fft2(&mut e, true, &mut planner);
+    let scale = 1.0 / (ew * eh) as f64;
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| e[y * ew + x].re * scale)
+        .collect()
+}
+
+/// Adds Gaussian noise and rounds to 8 bits, as a camera would.
+fn expose(values: &[f64], w: usize, h: usize, noise: f64, rng: &mut Rng) -> Image {
+    let data = values
+        .iter()
+        .map(|v| (v + noise * rng.gaussian_exact()).round().clamp(0.0, 255.0))
+        .collect();
+    Image::new(w, h, data).unwrap()
+}
+
+/// Gradient energy of the subset minus its best plane (central differences).
+fn texture(img: &Image, x: usize, y: usize, m: usize) -> (f64, f64) {
+    let (mut gx, mut gy) = (Vec::new(), Vec::new());
+    for j in y - m..=y + m {
+        for i in x - m..=x + m {
+            gx.push(0.5 * (img.at(i + 1, j) - img.at(i - 1, j)));
+            gy.push(0.5 * (img.at(i, j + 1) - img.at(i, j - 1)));
+        }
+    }
+    let var = |g: &[f64]| {
+        let mean = g.iter().sum::<f64>() / g.len() as f64;
+        g.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
+    };
+    (var(&gx), var(&gy))
+}
+
+/// One photograph, one shift, one noise level: the field and what it says.
+struct Run {
+    name: &'static str,
+    shift: (f64, f64),
+    noise: f64,
+    /// Grid points, textured ones, textured ones kept.
+    points: usize,
+    textured: usize,
+    textured_kept: usize,
+    /// Kept points, and the largest error among them, px.
+    kept: usize,
+    worst: f64,
+    /// Kept points more than 0.1 px off.
+    wrong: usize,
+    /// Dropped by the acceptance rule.
+    dropped: usize,
+    /// RMS error over the kept points' u and v, and RMS predicted σ, px.
+    rms_error: f64,
+    rms_sigma: f64,
+}
+
+fn run(name: &'static str, img: &Image, shift: (f64, f64), noise: f64, seed: u64) -> Run {
+    let (w, h) = (img.width(), img.height());
+    let mut rng = Rng::new(seed, 1);
+    let r = if noise > 0.0 {
+        expose(img.data(), w, h, noise, &mut rng)
+    } else {
+        img.clone()
+    };
+    let c = expose(&fourier_shift(img, shift.0, shift.1), w, h, noise, &mut rng);
+    let opts = FieldOptions::default();
+    let f = field(&r, &c, &opts).unwrap();
+    // The current image's rounding, and the added noise in both images.
+    let sigma = (noise * noise + 1.0 / 12.0).sqrt();
+    let m = opts.subset / 2;
+    let (mut textured, mut textured_kept, mut kept, mut wrong) = (0, 0, 0, 0);
+    let (mut worst, mut se, mut ss) = (0.0f64, 0.0, 0.0);
+    for (k, p) in f.points.iter().enumerate() {
+        let (x, y) = (f.x0 + (k % f.nx) * f.step, f.y0 + (k / f.nx) * f.step);
+        let (tx, ty) = texture(img, x, y, m);
+        let limit = std::f64::consts::SQRT_2 * sigma / tx.min(ty).sqrt();
+        if limit <= 0.01 {
+            textured += 1;
+            textured_kept += usize::from(p.is_some());
+        }
+        if let Some(p) = p {
+            let (eu, ev) = (p.u - shift.0, p.v - shift.1);
+            let e = eu.hypot(ev);
+            kept += 1;
+            worst = worst.max(e);
+            wrong += usize::from(e > 0.1);
+            se += eu * eu + ev * ev;
+            ss += p.sigma_u * p.sigma_u + p.sigma_v * p.sigma_v;
+        }
+    }
+    let n = (2 * kept.max(1)) as f64;
+    Run {
+        name,
+        shift,
+        noise,
+        points: f.points.len(),
+        textured,
+        textured_kept,
+        kept,
+        worst,
+        wrong,
+        dropped: f.dropped.total(),
+        rms_error: (se / n).sqrt(),
+        rms_sigma: (ss / n).sqrt(),
+    }
+}
+
+const SHIFTS: [(f64, f64); 4] = [(0.37, -0.62), (0.25, 0.1), (-1.13, 2.5), (0.05, -0.8)];
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Issue 20, point 6: on photographs shifted by known sub-pixel amounts, no point more
+/// than 0.1 px off is reported, at least 90 % of the textured grid points are kept,
+/// and the predicted σ is within a factor of two of the RMS error. Prints one line per
+/// photograph, shift and noise (`cargo test -p cellinject-dic --test real_images --
+/// --include-ignored --nocapture`).
+#[test]
+#[ignore = "issue 20 point 6 is not met yet in the low-texture parts of camera and astronaut (see the printed table)"]
+fn photographs_shifted_by_known_amounts() {
+    let mut runs = Vec::new();
+    for name in PHOTOS {
+        let img = load(name);
+        for (k, &shift) in SHIFTS.iter().enumerate() {
+            for noise in [0.0, 2.0] {
+                let r = run(name, &img, shift, noise, 7 + k as u64);
+                println!(
+                    "{:16} shift ({:5.2}, {:5.2}) noise {}: kept {:4} of {} ({:3} dropped), worst {:.3} px, {:3} over 0.1 px, textured {:4} kept {:5.1} %, rms error {:.4} px, rms σ {:.4} px, ratio {:.2}",
+                    r.name,
+                    r.shift.0,
+                    r.shift.1,
+                    r.noise,
+                    r.kept,
+                    r.points,
+                    r.dropped,
+                    r.worst,
+                    r.wrong,
+                    r.textured,
+                    100.0 * r.textured_kept as f64 / r.textured.max(1) as f64,
+                    r.rms_error,
+                    r.rms_sigma,
+                    r.rms_error / r.rms_sigma
+                );
+                runs.push(r);
+            }
+        }
+    }
+    let ratios: Vec<f64> = runs.iter().map(|r| r.rms_error / r.rms_sigma).collect();
+    let kept: Vec<f64> = runs
+        .iter()
+        .filter(|r| r.textured > 0)
+        .map(|r| r.textured_kept as f64 / r.textured as f64)
+        .collect();
+    let worst: Vec<f64> = runs.iter().map(|r| r.worst).collect();
+    println!(
+        "rms error / rms σ: median {:.2}, from {:.2} to {:.2}; textured kept: median {:.1} %, lowest {:.1} %; worst error: median {:.3} px, largest {:.3} px",
+        median(ratios.clone()),
+        ratios.iter().copied().fold(f64::INFINITY, f64::min),
+        ratios.iter().copied().fold(0.0, f64::max),
+        100.0 * median(kept.clone()),
+        100.0 * kept.iter().copied().fold(f64::INFINITY, f64::min),
+        median(worst.clone()),
+        worst.iter().copied().fold(0.0, f64::max)
+    );
+    for r in &runs {
+        let at = format!("{} {:?} noise {}", r.name, r.shift, r.noise);
+        assert_eq!(r.wrong, 0, "{at}: kept points over 0.1 px off");
+        if r.textured > 0 {
+            assert!(
+                r.textured_kept as f64 >= 0.9 * r.textured as f64,
+                "{at}: {} of {} textured points kept",
+                r.textured_kept,
+                r.textured
+            );
+        }
+        let ratio = r.rms_error / r.rms_sigma;
+        assert!(
+            (0.5..=2.0).contains(&ratio),
+            "{at}: rms error / rms σ {ratio}"
+        );
+    }
+}
+
+/// The generator is exact: a whole-pixel shift is the mirrored image moved by whole
+/// pixels.
+#[test]
+fn the_fourier_shift_is_exact() {
+    let img = load("camera_field");
+    let (w, h) = (img.width(), img.height());
+    let moved = fourier_shift(&img, 3.0, -2.0);
+    let mirror = |i: isize, n: usize| -> usize {
+        let n = n as isize;
+        let m = i.rem_euclid(2 * n);
+        (if m < n { m } else { 2 * n - 1 - m }) as usize
+    };
+    let mut worst = 0.0f64;
+    for y in 0..h {
+        for x in 0..w {
+            let want = img.at(mirror(x as isize - 3, w), mirror(y as isize + 2, h));
+            worst = worst.max((moved[y * w + x] - want).abs());
+        }
+    }
+    assert!(worst < 1e-9, "{worst}");
+}
