@@ -799,3 +799,28 @@ pub fn tracking<B: Backend>(
         desired,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn in_position_needs_the_whole_window_inside_the_tolerance() {
+        let tol = 100e-9;
+        let at = |x: f64| [x, 0.0];
+        // Settled for six frames: in position.
+        let mut p: Vec<[f64; 2]> = vec![at(5e-6), at(1e-6)];
+        p.extend((0..6).map(|k| at(1e-6 + 10e-9 * (k % 2) as f64)));
+        assert!(in_position_now(&p, 3, tol));
+        // A slip in the last frame (1.1 µm): not in position, whatever came before.
+        p.push(at(2.1e-6));
+        assert!(!in_position_now(&p, 3, tol));
+        // Five frames back in the band are not yet enough; six are.
+        p.extend((0..5).map(|_| at(1e-6)));
+        assert!(!in_position_now(&p, 3, tol));
+        p.push(at(1e-6));
+        assert!(in_position_now(&p, 3, tol));
+        // Too few frames to say.
+        assert!(!in_position_now(&p[..4], 3, tol));
+    }
+}
