@@ -1822,10 +1822,46 @@ impl<B: Backend> Workflow<'_, B> {
                 lateral * 1e6
             )));
         }
+        let mut along = beta * map.a3[0].hypot(map.a3[1]) * pix;
+        // The approach must start outside the membrane: the withdrawal comes back to
+        // this point, and a tip still in the cell when A1 relaxes tears it sideways. The
+        // stage placed the tip `gap` before the membrane by the survey's map; where the
+        // image says it stands closer than half that, the stage backs it off straight
+        // along the pipette's axis to the full gap.
+        let mut backed = String::new();
+        if along - r < 0.5 * o.gap {
+            let short = r + o.gap - along;
+            let x = self.rig.stage.position(0).map_err(dev("stage"))?;
+            let z = self.rig.stage.position(2).map_err(dev("stage"))?;
+            if let Err(e) =
+                self.stage_to([Some(x - d3[0] * short), None, Some(z - d3[1] * short)])?
+            {
+                return Err(Fail::Cell(e));
+            }
+            shot = self.shoot(Some(roi_centre))?;
+            let Some(t) = shot.tip(self.background.as_ref().expect("background")) else {
+                return Err(Fail::Cell(
+                    "lost tracking: the tip was not found after backing off".into(),
+                ));
+            };
+            tip = t;
+            let e = [
+                cell_px[0] + aim_off[0] - tip[0],
+                cell_px[1] + aim_off[1] - tip[1],
+            ];
+            let [alpha, b] = decompose(e, map.a1, map.a3);
+            beta = b;
+            lateral = alpha.abs() * map.a1[0].hypot(map.a1[1]) * pix;
+            backed = format!(
+                " (backed off {:.2} um along the axis: the tip stood {:.2} um from the membrane)",
+                short * 1e6,
+                (along - r) * 1e6
+            );
+            along = beta * map.a3[0].hypot(map.a3[1]) * pix;
+        }
         a.measured_tip_error_m = Some(lateral);
-        let along = beta * map.a3[0].hypot(map.a3[1]) * pix;
         let why = format!(
-            "tip {:.2} um off the cell's axis, {:.2} um from its centre along it",
+            "tip {:.2} um off the cell's axis, {:.2} um from its centre along it{backed}",
             lateral * 1e6,
             along * 1e6
         );
