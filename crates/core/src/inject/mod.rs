@@ -1777,19 +1777,25 @@ impl<B: Backend> Workflow<'_, B> {
             }
         }
         let dark0 = cell_darkness(&shot, cell_px, r_px);
+        // The tip's offset from the aim: across the cell's axis (A1's direction, m) and
+        // along it (A3's extension to the cell's centre, m).
+        let offset = |tip: [f64; 2]| {
+            let e = [
+                cell_px[0] + aim_off[0] - tip[0],
+                cell_px[1] + aim_off[1] - tip[1],
+            ];
+            let [alpha, b] = decompose(e, map.a1, map.a3);
+            (alpha, alpha.abs() * map.a1[0].hypot(map.a1[1]) * pix, b)
+        };
         // Align: A1 under the sensor loop, its reference corrected from each frame.
         let mut lateral = f64::INFINITY;
         let mut beta = 0.0;
         let mut misses = 0;
         let mut converged = 0;
         for _ in 0..15 {
-            let e = [
-                cell_px[0] + aim_off[0] - tip[0],
-                cell_px[1] + aim_off[1] - tip[1],
-            ];
-            let [alpha, b] = decompose(e, map.a1, map.a3);
+            let (alpha, l, b) = offset(tip);
             beta = b;
-            lateral = alpha.abs() * map.a1[0].hypot(map.a1[1]) * pix;
+            lateral = l;
             if lateral < o.align_tolerance {
                 converged += 1;
                 if converged >= 2 {
@@ -1844,14 +1850,7 @@ impl<B: Backend> Workflow<'_, B> {
                     "lost tracking: the tip was not found after backing off".into(),
                 ));
             };
-            tip = t;
-            let e = [
-                cell_px[0] + aim_off[0] - tip[0],
-                cell_px[1] + aim_off[1] - tip[1],
-            ];
-            let [alpha, b] = decompose(e, map.a1, map.a3);
-            beta = b;
-            lateral = alpha.abs() * map.a1[0].hypot(map.a1[1]) * pix;
+            (_, lateral, beta) = offset(t);
             backed = format!(
                 " (backed off {:.2} um along the axis: the tip stood {:.2} um from the membrane)",
                 short * 1e6,
