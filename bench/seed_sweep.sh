@@ -6,26 +6,31 @@
 #   1. `cellinject calibrate all` (pixels, hysteresis, Jacobian): exit code and reason;
 #   2. with --repeat N (default 0: skipped), `experiment repeatability --control closed
 #      --runs N` on that seed's calibration: the true max error, camera vs truth and
-#      the runs that never settled.
+#      the runs that never settled;
+#   3. with --run, `cellinject run` on that seed's default plate (approach 2 only: the
+#      twin's own): its exit code and the mean tip error of its injections (twin's truth).
 # Then it prints, per approach, the failure count and every failure's reason, and the
 # median and worst of each figure. Results go to target/seed-sweep/results.tsv.
 #
-# Usage: bash bench/seed_sweep.sh [--seeds FIRST-LAST] [--approaches "1 2"] [--repeat N] [--jobs J]
+# Usage: bash bench/seed_sweep.sh [--seeds FIRST-LAST] [--approaches "1 2"] [--repeat N] [--run] [--jobs J]
 # e.g.   bash bench/seed_sweep.sh --seeds 1-200                 # the calibration sweep
 #        bash bench/seed_sweep.sh --seeds 1-20 --repeat 200     # with closed-loop repeatability
+#        bash bench/seed_sweep.sh --seeds 1-20 --approaches 2 --run   # with an injection run
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=1-20
 approaches="1 2"
 repeat=0
+run=0
 jobs=2
 while [ $# -gt 0 ]; do
   case $1 in
     --seeds) seeds=$2; shift 2 ;;
     --approaches) approaches=$2; shift 2 ;;
     --repeat) repeat=$2; shift 2 ;;
+    --run) run=1; shift ;;
     --jobs) jobs=$2; shift 2 ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     *) echo "seed_sweep.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -38,7 +43,7 @@ bin=$PWD/target/release/cellinject
 work=$PWD/target/seed-sweep
 rm -rf "$work"
 mkdir -p "$work"
-export bin work repeat
+export bin work repeat run
 
 one() {
   local a=$1 s=$2 d="$work/a$1-s$2" line
@@ -61,6 +66,16 @@ print(f"{max(t) * 1e9:.1f}\t{d[\"camera_vs_truth_m\"] * 1e9:.1f}\t{d[\"unsettled
     else
       line="$line	fail: $(tail -1 "$d/rep.err" | tr '\t' ' ')		"
     fi
+  fi
+  if [ "$run" -eq 1 ] && [ "$a" = 2 ]; then
+    local rc=0
+    "$bin" run --seed "$s" --db "$d/runs.sqlite" --format json >"$d/run.json" 2>"$d/run.err" || rc=$?
+    "$bin" runs export --db "$d/runs.sqlite" --format csv >"$d/attempts.csv" 2>/dev/null || true
+    line="$line	run:$rc:$(python3 -c '
+import csv, sys
+e = [float(r["tip_error_m"]) for r in csv.DictReader(open(sys.argv[1])) if r["tip_error_m"]]
+print(f"{sum(e) / len(e) * 1e6:.3f}" if e else "")
+' "$d/attempts.csv"):$(tail -1 "$d/run.err" | tr '\t:' '  ')"
   fi
   echo "$line"
 }
@@ -95,4 +110,15 @@ for a in sorted({r[0] for r in rows}):
                   f"median {statistics.median(err):.1f} nm, worst {max(err):.1f} nm (seed {w[1]}); "
                   f"cameras vs truth median {statistics.median(cam):.1f} nm, worst {max(cam):.1f} nm; "
                   f"runs never settled: {sum(uns)}")
+    runs = [next((c for c in r if c.startswith("run:")), None) for r in rs]
+    runs = [x.split(":", 3) for x in runs if x]
+    if runs:
+        bad = [x for x in runs if x[1] != "0"]
+        tips = [float(x[2]) for x in runs if x[2]]
+        line = f"  run: {len(runs) - len(bad)} of {len(runs)} completed"
+        if tips:
+            line += f"; mean tip error median {statistics.median(tips):.3f} um, worst {max(tips):.3f} um"
+        print(line)
+        for x in bad:
+            print(f"    a run stopped: {x[3]}")
 EOF
