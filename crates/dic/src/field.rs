@@ -113,6 +113,46 @@ fn propagates(verdict: Result<(), Rejection>) -> bool {
     matches!(verdict, Ok(()) | Err(Rejection::Uncertain))
 }
 
+/// One tile's propagation: what is kept, the starting guesses, what was dropped and
+/// the points waiting to hand on their guess.
+struct Tile {
+    out: Vec<Option<PointResult>>,
+    /// Every converged result, kept or not: the starting guesses.
+    guess: Vec<Option<PointResult>>,
+    dropped: Dropped,
+    heap: BinaryHeap<Candidate>,
+}
+
+impl Tile {
+    fn new(n: usize) -> Self {
+        Tile {
+            out: vec![None; n],
+            guess: vec![None; n],
+            dropped: Dropped::default(),
+            heap: BinaryHeap::new(),
+        }
+    }
+
+    /// Judges the computed point `k`: kept or counted as dropped, remembered as a guess,
+    /// and queued to hand it on when it [`propagates`] (returned).
+    fn keep(&mut self, k: usize, p: PointResult, acceptance: &crate::Acceptance) -> bool {
+        let verdict = judge(&p, acceptance);
+        self.guess[k] = Some(p);
+        match verdict {
+            Ok(()) => self.out[k] = Some(p),
+            Err(why) => self.dropped.add(why),
+        }
+        let hands_on = propagates(verdict);
+        if hands_on {
+            self.heap.push(Candidate {
+                zncc: p.zncc,
+                index: k,
+            });
+        }
+        hands_on
+    }
+}
+
 /// Computes the displacement field between two images.
 pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<Field, DicError> {
     let subset = check_subset(opts.subset)?;
@@ -163,12 +203,8 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
             let (gx0, gy0) = (tx * tile, ty * tile);
             let (gx1, gy1) = ((gx0 + tile).min(nx), (gy0 + tile).min(ny));
             let (tw, th) = (gx1 - gx0, gy1 - gy0);
-            let mut out: Vec<Option<PointResult>> = vec![None; tw * th];
+            let mut work = Tile::new(tw * th);
             let mut done = vec![false; tw * th];
-            // Every converged result, kept or not: the starting guesses.
-            let mut guess: Vec<Option<PointResult>> = vec![None; tw * th];
-            let mut dropped = Dropped::default();
-            let mut heap = BinaryHeap::new();
             // Seed: the tile centre, then spiralling candidates until one correlates.
             let centre = (tw / 2, th / 2);
             let mut order: Vec<(usize, usize)> =
@@ -191,24 +227,16 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                 let res = icgn::refine(&r, &s, px, py, subset, opts.shape, init, &icgn_opts);
                 let k = j * tw + i;
                 done[k] = true;
-                if let Some(p) = res {
-                    let verdict = judge(&p, &opts.acceptance);
-                    guess[k] = Some(p);
-                    match verdict {
-                        Ok(()) => out[k] = Some(p),
-                        Err(why) => dropped.add(why),
-                    }
-                    if propagates(verdict) {
-                        heap.push(Candidate {
-                            zncc: p.zncc,
-                            index: k,
-                        });
-                        break;
-                    }
+                if let Some(p) = res
+                    && work.keep(k, p, &opts.acceptance)
+                {
+                    break;
                 }
             }
-            while let Some(Candidate { index, .. }) = heap.pop() {
-                let Some(parent) = guess[index] else { continue };
+            while let Some(Candidate { index, .. }) = work.heap.pop() {
+                let Some(parent) = work.guess[index] else {
+                    continue;
+                };
                 let (i, j) = (index % tw, index / tw);
                 let neighbours = [
                     (i as i64 - 1, j as i64),
@@ -239,28 +267,17 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                     if let Some(p) =
                         icgn::refine(&r, &s, px, py, subset, opts.shape, init, &icgn_opts)
                     {
-                        let verdict = judge(&p, &opts.acceptance);
-                        guess[k] = Some(p);
-                        match verdict {
-                            Ok(()) => out[k] = Some(p),
-                            Err(why) => dropped.add(why),
-                        }
-                        if propagates(verdict) {
-                            heap.push(Candidate {
-                                zncc: p.zncc,
-                                index: k,
-                            });
-                        }
+                        work.keep(k, p, &opts.acceptance);
                     }
                 }
             }
             let points = (0..tw * th)
                 .map(|k| {
                     let (i, j) = (k % tw, k / tw);
-                    ((gy0 + j) * nx + gx0 + i, out[k])
+                    ((gy0 + j) * nx + gx0 + i, work.out[k])
                 })
                 .collect();
-            (points, dropped)
+            (points, work.dropped)
         })
         .collect();
     let mut points = vec![None; nx * ny];
