@@ -65,16 +65,7 @@ fn calibrated(tw: &SharedTwin, approach: Approach) -> (PixelCalibration, Calibra
     let marker = RigParams::default().optics.marker;
     let px = calibrate::pixels(&mut rig, marker, 4e-6).unwrap();
     let hy = calibrate::hysteresis(&mut rig, 4000, 20).unwrap();
-    let mut bench = Bench::new(
-        &mut rig,
-        Acquisition::Marker,
-        marker,
-        px.maps,
-        None,
-        Timing::default(),
-    )
-    .unwrap();
-    let jac = calibrate::jacobian(&mut bench, &prototype(), approach, 15.0, 3).unwrap();
+    let (jac, _) = jacobian(&mut rig, &px, approach).unwrap();
     (
         px,
         Calibrations {
@@ -82,6 +73,26 @@ fn calibrated(tw: &SharedTwin, approach: Approach) -> (PixelCalibration, Calibra
             hysteresis: hy,
         },
     )
+}
+
+/// The Jacobian calibration on `rig` with the pixel maps `px` (15 V steps, 3 repeats),
+/// and the frames each camera measured out of focus on the way.
+fn jacobian<B: cellinject_rig::Backend>(
+    rig: &mut cellinject_rig::Rig<B>,
+    px: &PixelCalibration,
+    approach: Approach,
+) -> Result<(calibrate::JacobianCalibration, [u64; 2]), cellinject_core::bench::BenchError> {
+    let marker = RigParams::default().optics.marker;
+    let mut bench = Bench::new(
+        rig,
+        Acquisition::Marker,
+        marker,
+        px.maps,
+        None,
+        Timing::default(),
+    )?;
+    let jac = calibrate::jacobian(&mut bench, &prototype(), approach, 15.0, 3)?;
+    Ok((jac, bench.defocused()))
 }
 
 /// A bench tracking the marker on `rig`, with the twin's truth beside the cameras.
@@ -477,18 +488,8 @@ fn calibrations_hold_on_seeds_where_the_marker_went_out_of_focus() {
         let marker = RigParams::default().optics.marker;
         let px = calibrate::pixels(&mut rig, marker, 4e-6).unwrap();
         assert!(px.problem(px.maps[0].zoom).is_none());
-        let mut bench = Bench::new(
-            &mut rig,
-            Acquisition::Marker,
-            marker,
-            px.maps,
-            None,
-            Timing::default(),
-        )
-        .unwrap();
-        let jac = calibrate::jacobian(&mut bench, &prototype(), approach, 15.0, 3)
+        let (jac, defocused) = jacobian(&mut rig, &px, approach)
             .unwrap_or_else(|e| panic!("approach {approach:?}, seed {seed}: {e}"));
-        let defocused = bench.defocused();
         eprintln!(
             "approach {approach:?}, seed {seed}: Jacobian {:.2} % from the model, spread {:.2} %, steps {:?} V, frames out of focus {defocused:?}",
             jac.deviation * 100.0,
