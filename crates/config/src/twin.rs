@@ -115,6 +115,11 @@ pub(crate) fn bench(
         Ok(cellinject_simparams::ThermalParams {
             drift_rate: s.num("drift_rate", d.drift_rate, Check::Between(-1.0, 1.0))?,
             expansion: s.num("expansion", d.expansion, Check::Between(-1e-5, 1e-5))?,
+            magnification: s.num(
+                "magnification",
+                d.magnification,
+                Check::Between(-1e-2, 1e-2),
+            )?,
         })
     })?;
     let sensors = with(top, "sensor", d.sensors, |s, d| {

@@ -167,6 +167,19 @@ pub struct ThermalParams {
     pub drift_rate: f64,
     /// m/K, change of each drive's length per kelvin (stack and frame together).
     pub expansion: f64,
+    /// 1/K, relative change of the microscope's magnification per kelvin (the zoom
+    /// lens and the tube): the object-plane size of a pixel changes by
+    /// `−magnification · ΔT` of itself, while the frames still report the nominal
+    /// pixel size.
+    pub magnification: f64,
+}
+
+impl ThermalParams {
+    /// K, the ambient temperature's change since the start (time 0) at `t` s:
+    /// `drift_rate · t`.
+    pub fn delta_t(&self, t: f64) -> f64 {
+        self.drift_rate * t
+    }
 }
 
 /// The stacks' strain-gauge position sensors (PI's P-8xx stacks: a few nm of noise).

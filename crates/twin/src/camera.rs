@@ -193,7 +193,15 @@ pub struct Microscope {
     looks: Vec<(usize, CellLook)>,
     /// Frames still to come with the illumination off (a fault of the twin).
     dark_frames: u32,
+    /// The magnification over its nominal value (thermal drift), in steps of
+    /// [`SCALE_STEP`].
+    scale: f64,
 }
+
+/// Resolution of the magnification's thermal drift: the static layer is drawn again
+/// when the magnification has changed by this much (at most 0.0013 px at the edge of a
+/// 2592-pixel frame).
+pub const SCALE_STEP: f64 = 1e-6;
 
 impl Microscope {
     /// A camera at full resolution with the default exposure, behind a lens set up as
@@ -228,7 +236,23 @@ impl Microscope {
             noise_stream: stream::CAMERA,
             looks: Vec::new(),
             dark_frames: 0,
+            scale: 1.0,
         }
+    }
+
+    /// The lens's magnification drifted by `relative` of its nominal value (temperature):
+    /// things look `1 + relative` times larger while the frames still report the
+    /// nominal pixel size, as a real camera does. Applied in steps of [`SCALE_STEP`].
+    pub fn set_magnification_drift(&mut self, relative: f64) {
+        let scale = 1.0 + (relative / SCALE_STEP).round() * SCALE_STEP;
+        if scale.is_finite() && scale > 0.5 {
+            self.scale = scale;
+        }
+    }
+
+    /// The magnification over its nominal value (1 without drift).
+    pub fn magnification_drift(&self) -> f64 {
+        self.scale
     }
 
     /// How the cells that changed look now (index into the scene's cells, look); the
@@ -368,7 +392,7 @@ impl Microscope {
     pub fn grid(&self) -> Grid {
         let s = &self.settings;
         let b = s.binning as usize;
-        let p = self.params.pixel_size / self.optics.zoom;
+        let p = self.params.pixel_size / (self.optics.zoom * self.scale);
         let (w, h) = ((s.roi.width as usize) / b, (s.roi.height as usize) / b);
         // Centre of output pixel (0, 0) in sensor pixel units, relative to the sensor centre.
         let cx = s.roi.x as f64 + 0.5 * b as f64 - 0.5 * self.params.width as f64;
@@ -661,7 +685,8 @@ impl Microscope {
         out.bit_depth = self.settings.bit_depth;
         out.timestamp = timestamp;
         out.exposure = exposure;
-        out.pixel_size = g.pitch;
+        // What the camera knows: the nominal pixel size, not the drifted one.
+        out.pixel_size = g.pitch * self.scale;
         out.index = index;
         out.pixels.clear();
         out.pixels.resize(self.work.len(), 0);
@@ -689,6 +714,61 @@ mod tests {
         assert!((step(-2.0) - 0.022_750_13).abs() < 1e-5);
         assert_eq!(step(-9.0), 0.0);
         assert_eq!(step(9.0), 1.0);
+    }
+
+    #[test]
+    fn a_drifted_magnification_enlarges_the_image_while_frames_report_the_nominal_pixel() {
+        let mut c = camera();
+        c.set_zoom(2.5).unwrap();
+        let mut f = Frame::default();
+        c.render(&TipPose::default(), 0.0, 0, 1, &mut f);
+        let nominal = f.pixel_size;
+        // A feeder wall near the right edge: the darkest column of the mean column
+        // profile, high-passed (the vignetting removed), near `guess`; sub-pixel by the
+        // centroid of darkness within 3 px.
+        let wall = |f: &Frame, guess: Option<f64>| -> f64 {
+            let (w, h) = (f.width as usize, f.height as usize);
+            let mut col = vec![0.0f64; w];
+            for j in 0..h {
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += f.pixels[j * w + i] as f64 / h as f64;
+                }
+            }
+            let hp: Vec<f64> = (0..w)
+                .map(|i| {
+                    let (lo, hi) = (i.saturating_sub(30), (i + 31).min(w));
+                    col[i] - col[lo..hi].iter().sum::<f64>() / (hi - lo) as f64
+                })
+                .collect();
+            let (a, b) = match guess {
+                None => (w * 4 / 5, w * 19 / 20),
+                Some(g) => (g as usize - 6, g as usize + 7),
+            };
+            let k = (a..b).min_by(|x, y| hp[*x].total_cmp(&hp[*y])).unwrap();
+            let (mut sw, mut sx) = (0.0, 0.0);
+            for (i, v) in hp.iter().enumerate().take(k + 4).skip(k - 3) {
+                sw += -v.min(0.0);
+                sx += -v.min(0.0) * i as f64;
+            }
+            sx / sw
+        };
+        let before = wall(&f, None);
+        c.set_magnification_drift(2e-3);
+        assert!((c.magnification_drift() - 1.002).abs() < 1e-12);
+        c.render(&TipPose::default(), 0.0, 0, 1, &mut f);
+        assert_eq!(f.pixel_size, nominal, "the camera does not know its drift");
+        assert!((c.grid().pitch - nominal / 1.002).abs() < 1e-18);
+        // A point at u pixels from the centre moves to 1.002 u (independent of the
+        // renderer: a rescaling about the sensor's centre).
+        let centre = 0.5 * f.width as f64 - 0.5 - VIEW_CENTER[0] / nominal;
+        let expected = centre + (before - centre) * 1.002;
+        let after = wall(&f, Some(before));
+        println!("wall {before:.3} -> {after:.3} px (expected {expected:.3})");
+        assert!(
+            (after - expected).abs() < 0.05,
+            "wall at {before:.2} px moved to {after:.2} px, expected {expected:.2} px"
+        );
+        assert!((after - before).abs() > 1.0, "{before} -> {after}");
     }
 
     fn camera() -> Microscope {

@@ -299,10 +299,13 @@ impl Twin {
         if let (View::Top, Some(b)) = (view, self.biology.as_ref()) {
             self.camera.set_cell_looks(&b.looks());
         }
+        let thermal = self.world.params().sim.thermal;
+        let drift = thermal.magnification * thermal.delta_t(e.start);
         let cam = match view {
             View::Top => &mut self.camera,
             View::Side => &mut self.side,
         };
+        cam.set_magnification_drift(drift);
         cam.render(&pose, e.start, e.index, seed, frame);
         self.last_frame[v] = Some(e.index);
     }
@@ -347,6 +350,8 @@ impl Twin {
         let now = self.world.time();
         self.peeks += 1;
         let seed = self.world.params().sim.seed;
+        let thermal = self.world.params().sim.thermal;
+        cam.set_magnification_drift(thermal.magnification * thermal.delta_t(now));
         cam.render(&pose, now, self.peeks, seed, frame);
         cam.grid()
     }
@@ -424,7 +429,7 @@ impl PositionSensor for TwinSensor {
         let t = lock(&self.twin);
         let p = t.world.params().sim;
         let extension = t.world.extension(self.channel);
-        let drift = p.sensors.thermal_drift * p.thermal.drift_rate * t.world.time();
+        let drift = p.sensors.thermal_drift * p.thermal.delta_t(t.world.time());
         Ok(extension + drift + p.sensors.noise * self.rng.gaussian_exact())
     }
     fn noise(&self) -> f64 {

@@ -321,7 +321,7 @@ impl World {
     #[inline]
     fn imposed_by_drives(&self) -> Vector2<f64> {
         let thermal =
-            self.params.sim.thermal.expansion * self.params.sim.thermal.drift_rate * self.time();
+            self.params.sim.thermal.expansion * self.params.sim.thermal.delta_t(self.time());
         // A stack's extension pushes the drive: Δl2 = −e (the paper's eq. 44 sign).
         Vector2::new(
             self.l_base[0] - self.stacks[0].extension() - thermal,
