@@ -8,7 +8,8 @@
 #      --runs N` on that seed's calibration: the true max error, camera vs truth and
 #      the runs that never settled;
 #   3. with --run, `cellinject run` on that seed's default plate (approach 2 only: the
-#      twin's own): its exit code and the mean tip error of its injections (twin's truth).
+#      twin's own): its exit code, the mean tip error of its injections (twin's truth)
+#      and the worst mean of a tenth of the run (in order: drift would show as a trend).
 # Then it prints, per approach, the failure count and every failure's reason, and the
 # median and worst of each figure. Results go to target/seed-sweep/results.tsv.
 #
@@ -73,8 +74,13 @@ print(f"{max(t) * 1e9:.1f}\t{d[\"camera_vs_truth_m\"] * 1e9:.1f}\t{d[\"unsettled
     "$bin" runs export --db "$d/runs.sqlite" --format csv >"$d/attempts.csv" 2>/dev/null || true
     line="$line	run:$rc:$(python3 -c '
 import csv, sys
-e = [float(r["tip_error_m"]) for r in csv.DictReader(open(sys.argv[1])) if r["tip_error_m"]]
-print(f"{sum(e) / len(e) * 1e6:.3f}" if e else "")
+e = [float(r["tip_error_m"]) for r in csv.DictReader(open(sys.argv[1]))
+     if r["tip_error_m"] and r["outcome"] == "injected"]
+n = len(e)
+# The mean of each tenth of the run (injections in order): drift shows as a trend.
+tenths = [e[k * n // 10:(k + 1) * n // 10] for k in range(10)] if n >= 10 else [e]
+worst = max(sum(t) / len(t) for t in tenths if t) if e else 0.0
+print(f"{sum(e) / n * 1e6:.3f}:{worst * 1e6:.3f}" if e else ":")
 ' "$d/attempts.csv"):$(tail -1 "$d/run.err" | tr '\t:' '  ')"
   fi
   echo "$line"
@@ -111,14 +117,17 @@ for a in sorted({r[0] for r in rows}):
                   f"cameras vs truth median {statistics.median(cam):.1f} nm, worst {max(cam):.1f} nm; "
                   f"runs never settled: {sum(uns)}")
     runs = [next((c for c in r if c.startswith("run:")), None) for r in rs]
-    runs = [x.split(":", 3) for x in runs if x]
+    runs = [(r[1], x.split(":", 4)) for r, x in zip(rs, runs) if x]
     if runs:
-        bad = [x for x in runs if x[1] != "0"]
-        tips = [float(x[2]) for x in runs if x[2]]
+        bad = [(s, x) for s, x in runs if x[1] != "0"]
+        tips = [(float(x[2]), float(x[3]), s) for s, x in runs if x[2]]
         line = f"  run: {len(runs) - len(bad)} of {len(runs)} completed"
         if tips:
-            line += f"; mean tip error median {statistics.median(tips):.3f} um, worst {max(tips):.3f} um"
+            m = max(tips)
+            t = max(tips, key=lambda v: v[1])
+            line += (f"; mean tip error median {statistics.median(v[0] for v in tips):.3f} um, "
+                     f"worst {m[0]:.3f} um (seed {m[2]}); worst tenth of a run {t[1]:.3f} um (seed {t[2]})")
         print(line)
-        for x in bad:
-            print(f"    a run stopped: {x[3]}")
+        for s, x in bad:
+            print(f"    seed {s}: the run stopped: {x[4]}")
 EOF

@@ -8,7 +8,7 @@ use cellinject_config::Description;
 use cellinject_core::calibrate::HysteresisCalibration;
 use cellinject_core::inject::{Attempt, ImageMap, Observer, Options, Target, Transition, Workflow};
 use cellinject_plate::{GenerateOptions, Plate, generate};
-use cellinject_records::{AttemptRow, Records, RecordsError, RunRow};
+use cellinject_records::{AttemptRow, EventRow, Records, RecordsError, RunRow};
 use cellinject_twin::{Fault, SharedTwin};
 use clap::{Args, Subcommand};
 use serde::Serialize;
@@ -43,6 +43,12 @@ pub struct RunArgs {
     /// touching neighbour in the pipette's path (the twin's membrane tears past 0.6).
     #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
     max_off_centre: f64,
+    /// Seconds of device time between two re-checks of the background and the
+    /// image-to-stage map (the bench drifts with temperature; the image is mapped again
+    /// when the resting tip is more than 1.5 µm from where the map puts it); 0: only
+    /// after a fault on a cell, which always brings one.
+    #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
+    recheck_every: f64,
     /// Inject a fault into the twin: KIND@CELL, KIND one of clog, hard-clog, break,
     /// move, dark, stall; CELL the plate file's cell index (repeatable).
     #[arg(long, value_name = "KIND@CELL")]
@@ -166,9 +172,11 @@ struct Summary {
     cells_per_min: f64,
     stopped: Option<String>,
     attempts: Vec<AttemptRow>,
+    /// The run's own transitions: calibration, survey, re-checks, the end.
+    events: Vec<EventRow>,
 }
 
-fn summary(run: &RunRow, attempts: Vec<AttemptRow>) -> Summary {
+fn summary(run: &RunRow, attempts: Vec<AttemptRow>, events: Vec<EventRow>) -> Summary {
     let n = |o: &str| attempts.iter().filter(|a| a.outcome == o).count();
     Summary {
         run: run.id,
@@ -188,6 +196,7 @@ fn summary(run: &RunRow, attempts: Vec<AttemptRow>) -> Summary {
         },
         stopped: run.stopped.clone(),
         attempts,
+        events,
     }
 }
 
@@ -244,14 +253,28 @@ impl Observer for Recorder<'_> {
             };
             let tip = twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
             eprintln!(
-                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um]",
+                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um]",
                 t.from,
                 t.to,
                 t.reason,
                 tip.x * 1e6,
-                tip.z * 1e6
+                tip.z * 1e6,
+                tip.depth * 1e6
             );
         }
+    }
+    fn logged(&mut self, t: &Transition) -> Result<(), String> {
+        let name = |v: serde_json::Value| v.as_str().unwrap_or_default().to_string();
+        let row = EventRow {
+            t: t.t,
+            from: name(serde_json::to_value(t.from).unwrap_or_default()),
+            event: name(serde_json::to_value(t.event).unwrap_or_default()),
+            to: name(serde_json::to_value(t.to).unwrap_or_default()),
+            reason: t.reason.clone(),
+        };
+        self.db
+            .write_event(self.run, &row)
+            .map_err(|e| e.to_string())
     }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         if self.progress {
@@ -374,6 +397,10 @@ impl Observer for Tee<'_, '_> {
         if let Some(x) = self.extra.as_mut() {
             x.transition(t);
         }
+    }
+    fn logged(&mut self, t: &Transition) -> Result<(), String> {
+        self.rec.logged(t)?;
+        self.extra.as_mut().map_or(Ok(()), |x| x.logged(t))
     }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         self.rec.surveyed(targets)?;
@@ -500,6 +527,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     let options = Options {
         target_fraction: args.dose,
         max_off_centre: args.max_off_centre,
+        recheck_every: args.recheck_every,
         ..Options::default()
     };
     options
@@ -567,7 +595,8 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         if r.status == "finished" {
             let attempts = db.attempts(r.id).map_err(records_error)?;
             if args.format == Format::Json {
-                return print_json(summary(&r, attempts), &[]);
+                let events = db.events(r.id).map_err(records_error)?;
+                return print_json(summary(&r, attempts, events), &[]);
             }
             outln!("run {} is finished: nothing to resume", r.id);
             return Ok(());
@@ -647,7 +676,11 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     };
     let (result, stopped) = execute(job, &mut db, &mut rig, None, &|| false)?;
     let r = db.run(Some(run_id)).map_err(records_error)?;
-    let s = summary(&r, db.attempts(run_id).map_err(records_error)?);
+    let s = summary(
+        &r,
+        db.attempts(run_id).map_err(records_error)?,
+        db.events(run_id).map_err(records_error)?,
+    );
     if let Err(e) = &result
         && matches!(
             e,
@@ -719,6 +752,13 @@ fn print_text(s: &Summary) {
         s.cell_time_s,
         s.cells_per_min
     );
+    for e in s
+        .events
+        .iter()
+        .filter(|e| e.event == "recheck" || e.event == "rechecked")
+    {
+        outln!("  {:.0} s: {}", e.t, e.reason);
+    }
     for a in s.attempts.iter().filter(|a| a.outcome != "injected") {
         outln!(
             "  cell {} well [{}, {}]: {}: {}",
@@ -770,7 +810,11 @@ pub fn runs(cmd: &RunsCommand) -> Result<()> {
             let db = open_existing(db)?;
             let r = db.run(*run).map_err(records_error)?;
             let a = db.attempts(r.id).map_err(records_error)?;
-            print_json(serde_json::json!({ "run": r, "attempts": a }), &[])
+            let e = db.events(r.id).map_err(records_error)?;
+            print_json(
+                serde_json::json!({ "run": r, "attempts": a, "events": e }),
+                &[],
+            )
         }
         RunsCommand::Export { db, run, format } => {
             let db = open_existing(db)?;

@@ -331,3 +331,79 @@ fn a_move_the_safety_envelope_refuses_stops_the_run_with_the_refusal_recorded() 
     assert!(why.contains("refused") && why.contains("travel"), "{why}");
     assert_eq!(s["attempts"].as_array().unwrap().len(), 0);
 }
+
+#[test]
+fn re_checks_of_the_calibrations_are_made_on_time_and_recorded_with_their_verdict() {
+    let d = dir("recheck");
+    plate(&d);
+    let every = |db: &str, seconds: &str| {
+        run(
+            &d,
+            &[
+                "run",
+                "--plate",
+                "p.toml",
+                "--db",
+                db,
+                "--recheck-every",
+                seconds,
+                "--format",
+                "json",
+            ],
+        )
+    };
+    let o = every("r.sqlite", "10");
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let s: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let events = s["events"].as_array().unwrap();
+    let t = |e: &Value| e["t"].as_f64().unwrap();
+    let of = |name: &str| -> Vec<&Value> { events.iter().filter(|e| e["event"] == name).collect() };
+    // The run's own transitions are recorded in order: calibrated, surveyed, ..., the end.
+    assert_eq!(events[0]["event"], "begin");
+    assert_eq!(of("calibrated").len(), 1);
+    assert_eq!(events.last().unwrap()["event"], "no_more_cells");
+    assert!(events.windows(2).all(|w| t(&w[0]) <= t(&w[1])));
+    // A run of about 40 s of cells re-checks every 10 s of device time: at least twice,
+    // each due no earlier than 10 s after the last map or check, each answered.
+    let (due, done) = (of("recheck"), of("rechecked"));
+    assert!(due.len() >= 2, "{events:?}");
+    assert_eq!(due.len(), done.len());
+    let mut last = t(of("calibrated")[0]);
+    for (a, b) in due.iter().zip(&done) {
+        assert!(t(a) - last >= 10.0 - 1e-9, "{a} after {last}");
+        assert!(
+            a["reason"].as_str().unwrap().contains("(every 10 s)"),
+            "{a}"
+        );
+        // The verdict says what was measured and what was done.
+        let r = b["reason"].as_str().unwrap();
+        assert!(r.contains("um from where the map puts it"), "{r}");
+        assert!(
+            r.contains("the map holds") || r.contains("image mapped to the stage again"),
+            "{r}"
+        );
+        assert_eq!(
+            (a["to"].as_str(), b["from"].as_str()),
+            (Some("rechecking"), Some("rechecking"))
+        );
+        last = t(b);
+    }
+    // The re-checks cost time but not cells.
+    let cells = s["cells_found"].as_u64().unwrap() as usize;
+    assert_eq!(s["attempts"].as_array().unwrap().len(), cells);
+    // The record reads back the same events.
+    let o = run(&d, &["runs", "show", "--db", "r.sqlite"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let shown: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(shown["events"], s["events"]);
+    // A period that is not a number of seconds is refused, naming the option.
+    for bad in ["-1", "nan", "inf"] {
+        let o = every("x.sqlite", bad);
+        assert_eq!(o.status.code(), Some(2), "{bad}: {}", err(&o));
+        assert!(err(&o).contains("--recheck-every"), "{bad}: {}", err(&o));
+    }
+    assert!(
+        !d.join("x.sqlite").exists(),
+        "a refused run writes no database"
+    );
+}

@@ -1,8 +1,10 @@
 //! # cellinject-records
 //!
 //! The injection workflow's run records in an embedded SQLite database (rusqlite with
-//! its bundled SQLite): a `runs` table (plate, seed, settings, calibration, status) and
-//! an `attempts` table, one row per cell attempt. Every write is its own transaction
+//! its bundled SQLite): a `runs` table (plate, seed, settings, calibration, status), an
+//! `attempts` table, one row per cell attempt, and an `events` table, one row per
+//! transition of the run outside the cells (calibrated, surveyed, each re-check of the
+//! calibrations and its verdict, the end). Every write is its own transaction
 //! in WAL mode with `synchronous = FULL`, so a killed process loses at most the attempt
 //! in progress; an attempt is first written `started`, marked `contact` when the
 //! pipette may touch the cell, and completed with its outcome. On resume, `started`
@@ -24,8 +26,9 @@ use thiserror::Error;
 
 /// `application_id` of a cellinject database: "CIJR".
 pub const APPLICATION_ID: i32 = 0x4349_4A52;
-/// Schema version written by this build.
-pub const SCHEMA_VERSION: i32 = 1;
+/// Schema version written by this build (2 added `events`; a version-1 database is
+/// upgraded in place when opened).
+pub const SCHEMA_VERSION: i32 = 2;
 
 /// Why the records failed.
 #[derive(Debug, Error)]
@@ -145,6 +148,22 @@ pub struct AttemptRow {
     pub transitions: serde_json::Value,
 }
 
+/// A transition of the run outside its cells (calibration, survey, a re-check, the
+/// end): when, from which state by which event to which, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EventRow {
+    /// s, device time.
+    pub t: f64,
+    /// State before.
+    pub from: String,
+    /// Event.
+    pub event: String,
+    /// State after.
+    pub to: String,
+    /// Why, in words with the numbers.
+    pub reason: String,
+}
+
 /// An open run database.
 pub struct Records {
     conn: Connection,
@@ -190,6 +209,20 @@ CREATE TABLE attempts (
 CREATE INDEX attempts_run ON attempts(run);
 ";
 
+/// Version 2: the run's own transitions.
+const EVENTS: &str = "
+CREATE TABLE events (
+    id INTEGER PRIMARY KEY,
+    run INTEGER NOT NULL REFERENCES runs(id),
+    t REAL NOT NULL,
+    from_state TEXT NOT NULL,
+    event TEXT NOT NULL,
+    to_state TEXT NOT NULL,
+    reason TEXT NOT NULL
+);
+CREATE INDEX events_run ON events(run);
+";
+
 fn unreadable(path: &Path, e: rusqlite::Error) -> RecordsError {
     RecordsError::Unreadable {
         path: path.display().to_string(),
@@ -231,13 +264,18 @@ impl Records {
             }
             conn.execute_batch("PRAGMA journal_mode = WAL;")?;
             conn.execute_batch(&format!(
-                "BEGIN; {SCHEMA} PRAGMA application_id = {APPLICATION_ID}; PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+                "BEGIN; {SCHEMA} {EVENTS} PRAGMA application_id = {APPLICATION_ID}; PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
             ))?;
         } else if version > SCHEMA_VERSION {
             return Err(RecordsError::Newer {
                 path: path.display().to_string(),
                 found: version,
             });
+        } else if version < 2 {
+            // One transaction: a killed upgrade leaves the version-1 database as it was.
+            conn.execute_batch(&format!(
+                "BEGIN; {EVENTS} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+            ))?;
         }
         conn.execute_batch(
             "PRAGMA journal_mode = WAL; PRAGMA synchronous = FULL; PRAGMA foreign_keys = ON;",
@@ -410,6 +448,32 @@ impl Records {
         Ok(id)
     }
 
+    /// Records a transition of the run outside its cells, in its own transaction.
+    pub fn write_event(&mut self, run: i64, e: &EventRow) -> Result<(), RecordsError> {
+        self.conn.execute(
+            "INSERT INTO events (run, t, from_state, event, to_state, reason) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            params![run, e.t, e.from, e.event, e.to, e.reason],
+        )?;
+        Ok(())
+    }
+
+    /// A run's own transitions in order.
+    pub fn events(&self, run: i64) -> Result<Vec<EventRow>, RecordsError> {
+        let mut st = self.conn.prepare(
+            "SELECT t, from_state, event, to_state, reason FROM events WHERE run = ?1 ORDER BY id",
+        )?;
+        let rows = st.query_map([run], |r| {
+            Ok(EventRow {
+                t: r.get(0)?,
+                from: r.get(1)?,
+                event: r.get(2)?,
+                to: r.get(3)?,
+                reason: r.get(4)?,
+            })
+        })?;
+        Ok(rows.collect::<Result<_, _>>()?)
+    }
+
     /// A run's attempts in order.
     pub fn attempts(&self, run: i64) -> Result<Vec<AttemptRow>, RecordsError> {
         let mut st = self.conn.prepare(
@@ -532,5 +596,43 @@ mod tests {
         )
         .unwrap();
         assert!(Records::open(&p).is_err());
+    }
+
+    #[test]
+    fn a_version_1_database_is_upgraded_keeping_its_runs_and_events_round_trip() {
+        let p = tmp("v1.sqlite");
+        {
+            // A database as version 1 wrote it: its schema, no events table.
+            let c = Connection::open(&p).unwrap();
+            c.execute_batch(&format!(
+                "{SCHEMA} PRAGMA application_id = {APPLICATION_ID}; PRAGMA user_version = 1;"
+            ))
+            .unwrap();
+            c.execute(
+                "INSERT INTO runs (created, status, plate, seed, backend, settings, calibration) VALUES (0, 'finished', '[plate]', 3, 'twin', '{}', '{}')",
+                [],
+            )
+            .unwrap();
+        }
+        let mut r = Records::open(&p).unwrap();
+        let version: i32 = r
+            .conn
+            .pragma_query_value(None, "user_version", |x| x.get(0))
+            .unwrap();
+        assert_eq!(version, SCHEMA_VERSION);
+        let run = r.run(None).unwrap();
+        assert_eq!((run.status.as_str(), run.seed), ("finished", Some(3)));
+        assert!(r.events(run.id).unwrap().is_empty());
+        let e = EventRow {
+            t: 301.5,
+            from: "next_cell".into(),
+            event: "recheck".into(),
+            to: "rechecking".into(),
+            reason: "re-check 300 s after the image map was made".into(),
+        };
+        r.write_event(run.id, &e).unwrap();
+        drop(r);
+        let r = Records::open(&p).unwrap();
+        assert_eq!(r.events(run.id).unwrap(), vec![e]);
     }
 }

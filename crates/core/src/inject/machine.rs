@@ -18,6 +18,9 @@ pub enum State {
     Surveying,
     /// Choosing the next cell.
     NextCell,
+    /// Between cells: checking that the image-to-stage map still holds (the bench
+    /// drifts), and mapping the image again if it does not.
+    Rechecking,
     /// The stage carries the lifted pipette over the cell and lowers it.
     MovingStage,
     /// Finding the tip and the cell in the image.
@@ -50,6 +53,10 @@ pub enum Event {
     Begin,
     /// Calibrations loaded or made, and checked.
     Calibrated,
+    /// A re-check of the calibrations is due (every N cells, or after a fault).
+    Recheck,
+    /// The re-check is done: the map held, or it was made again.
+    Rechecked,
     /// The cells are known.
     Surveyed,
     /// A cell to do.
@@ -115,6 +122,8 @@ pub fn next(state: State, event: Event) -> Option<State> {
         (S::NextCell, E::CellChosen) => S::MovingStage,
         (S::NextCell, E::CellSkipped) => S::NextCell,
         (S::NextCell, E::NoMoreCells) => S::Finished,
+        (S::NextCell, E::Recheck) => S::Rechecking,
+        (S::Rechecking, E::Rechecked) => S::NextCell,
         (S::MovingStage, E::StageArrived) => S::Looking,
         (S::Looking, E::Found | E::CellMoved) => S::Aligning,
         (S::Aligning, E::Aligned) => S::Approaching,
@@ -140,6 +149,7 @@ pub fn next(state: State, event: Event) -> Option<State> {
             S::Calibrating
             | S::Surveying
             | S::NextCell
+            | S::Rechecking
             | S::MovingStage
             | S::Looking
             | S::Aligning
@@ -156,11 +166,12 @@ pub fn next(state: State, event: Event) -> Option<State> {
 }
 
 /// Every state, for tests and documentation.
-pub const STATES: [State; 15] = [
+pub const STATES: [State; 16] = [
     State::Start,
     State::Calibrating,
     State::Surveying,
     State::NextCell,
+    State::Rechecking,
     State::MovingStage,
     State::Looking,
     State::Aligning,
@@ -175,9 +186,11 @@ pub const STATES: [State; 15] = [
 ];
 
 /// Every event.
-pub const EVENTS: [Event; 19] = [
+pub const EVENTS: [Event; 21] = [
     Event::Begin,
     Event::Calibrated,
+    Event::Recheck,
+    Event::Rechecked,
     Event::Surveyed,
     Event::CellChosen,
     Event::CellSkipped,

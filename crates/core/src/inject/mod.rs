@@ -41,6 +41,18 @@ const RETRACT_TIMEOUT: f64 = 2.0;
 /// the line between two wells stays clear of every cell (they lie within their wells).
 const A3_PROBE: f64 = 20e-6;
 
+/// How a skip for a blocked approach begins (no re-check follows it: nothing was off).
+const BLOCKED: &str = "the approach is blocked";
+
+/// m, farthest the resting tip may be from where the image map puts it (in the object
+/// plane, at either of the re-check's two stage positions) before the image is mapped
+/// again. The map only brings the tip to the start of the approach; the cell is found
+/// again in the image and a cell more than 1.5 um from where the map puts it is
+/// followed (the same bound). The check's own noise is 0.2-0.6 um (the tip detector's
+/// 0.2-0.4 px), and mapping again costs some 15 s and scatters the map by about as
+/// much over the plate, so a smaller bound would map again for nothing.
+const RECHECK_TOLERANCE: f64 = 1.5e-6;
+
 /// Settings of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Options {
@@ -71,6 +83,10 @@ pub struct Options {
     /// radius, to pass a touching neighbour that blocks the straight approach; keep it
     /// below the membrane's tear limit with room for the tip error.
     pub max_off_centre: f64,
+    /// s of device time between two re-checks of the background and the
+    /// image-to-stage map (the bench drifts with temperature); 0: only after a fault.
+    /// A fault on a cell always brings a re-check before the next one.
+    pub recheck_every: f64,
 }
 
 impl Default for Options {
@@ -88,6 +104,7 @@ impl Default for Options {
             stage_deadline: 2.0,
             hysteresis_samples: 20_000,
             max_off_centre: 0.3,
+            recheck_every: 300.0,
         }
     }
 }
@@ -131,6 +148,13 @@ impl Options {
                 "--lift",
                 self.lift,
                 "must lie in [16 um, 1 mm] (above the largest cell's radius)",
+            );
+        }
+        if !(self.recheck_every.is_finite() && self.recheck_every >= 0.0) {
+            return bad(
+                "--recheck-every",
+                self.recheck_every,
+                "must be a finite number of seconds, 0 or more (0: re-check only after a fault)",
             );
         }
         if !(self.max_off_centre.is_finite() && (0.0..=0.6).contains(&self.max_off_centre)) {
@@ -345,9 +369,15 @@ pub trait Observer {
     fn proceed(&mut self) -> Result<(), String> {
         Ok(())
     }
-    /// The image is mapped to the stage (once per run, before the survey): where
-    /// things are in the microscope's frames.
+    /// The image is mapped to the stage (before the survey, and again when a re-check
+    /// finds the map off): where things are in the microscope's frames.
     fn mapped(&mut self, _map: &ImageMap) {}
+    /// A transition of the run outside its cells (calibrated, surveyed, a re-check and
+    /// its verdict, the end), after [`Observer::transition`]: to be recorded (an
+    /// `Err` stops the run: the records failed).
+    fn logged(&mut self, _t: &Transition) -> Result<(), String> {
+        Ok(())
+    }
     /// The tip's true distance to the cell (the twin), when the pulse starts.
     fn tip_error(&mut self, _target: &Target) -> Option<f64> {
         None
@@ -590,6 +620,10 @@ pub struct Workflow<'r, B: Backend> {
     dead_in_row: usize,
     survey_cells: Vec<Target>,
     background: Option<Background>,
+    /// s, device time at which the image map was last made or checked.
+    last_check: f64,
+    /// Why a re-check is due before the next cell (a fault), if one is.
+    check_due: Option<String>,
 }
 
 /// How a cell's procedure ended early.
@@ -660,6 +694,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
             dead_in_row: 0,
             survey_cells: Vec::new(),
             background: None,
+            last_check: 0.0,
+            check_due: None,
         })
     }
 
@@ -688,7 +724,10 @@ impl<'r, B: Backend> Workflow<'r, B> {
         obs.transition(&t);
         match into {
             Some(v) => v.push(t),
-            None => self.log.push(t),
+            None => {
+                obs.logged(&t).map_err(WorkflowError::Record)?;
+                self.log.push(t)
+            }
         }
         self.state = to;
         Ok(())
@@ -747,6 +786,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 stopped = Some(why);
                 break;
             }
+            if let Some(why) = self.recheck_due()
+                && let Some(fatal) = self.recheck(why, obs)?
+            {
+                stopped = Some(fatal);
+                break;
+            }
             if obs.done(target) {
                 self.fire(
                     Event::CellSkipped,
@@ -760,7 +805,20 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 continue;
             }
             match self.attempt(*target, obs)? {
-                (a, None) => attempts.push(a),
+                (a, None) => {
+                    if a.outcome != Outcome::Injected && a.contact {
+                        self.check_due = Some(format!(
+                            "after a fault on cell {} ({})",
+                            a.target.index, a.reason
+                        ));
+                    } else if a.outcome == Outcome::Skipped && !a.reason.starts_with(BLOCKED) {
+                        self.check_due = Some(format!(
+                            "after cell {} was skipped ({})",
+                            a.target.index, a.reason
+                        ));
+                    }
+                    attempts.push(a)
+                }
                 (a, Some(fatal)) => {
                     attempts.push(a);
                     stopped = Some(fatal);
@@ -1071,28 +1129,17 @@ impl<'r, B: Backend> Workflow<'r, B> {
             binning: 1,
             ..self.rig.camera.settings()
         });
-        // The background: the plate with the pipette one field width to its left.
-        let half = 0.5 * self.plate.pitch;
-        let x0 = self.plate.well_centre([0, 0])[0];
-        let fov = sw as f64 * self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
-            / self.rig.camera.settings().binning as f64;
-        let away = x0 - half - fov - 0.3e-3;
-        if let Err(e) = self.stage_to([Some(away), Some(lift), None])? {
+        if let Err(reason) = self.take_background()? {
             return Err(WorkflowError::Calibration {
                 what: "background",
-                reason: format!("the pipette cannot be moved out of view: {e}"),
+                reason,
             });
         }
-        let shot = self.shoot(None)?;
-        self.background = Some(Background {
-            pixels: shot.frame.pixels,
-            width: shot.frame.width as usize,
-            pixel_size: shot.frame.pixel_size,
-        });
         let mut last = String::new();
         for attempt in 0..2 {
             match self.map_image()? {
                 Ok(map) => {
+                    self.last_check = self.now();
                     why.push(format!(
                         "image mapped to the stage (4 points, rms {:.2} px){}",
                         map.residual_px,
@@ -1116,45 +1163,178 @@ impl<'r, B: Backend> Workflow<'r, B> {
 
     /// Maps the image to the stage: the tip located (lifted, over the plate) at four
     /// stage positions 200 um apart, and its motion under A1 and A3.
-    fn map_image(&mut self) -> Result<Result<ImageMap, String>, WorkflowError> {
-        let d: f64 = 200e-6;
-        let (hx, hz) = (self.home[0], self.home[2]);
-        // Centre of the plate, where the tip is surely in view.
-        // At the corners between four wells, in focus: no cell reaches there (a cell
-        // lies within its well, so its disc stays clear of the corner).
+    /// The background: a full frame of the plate with the pipette lifted one field
+    /// width to the plate's left (the tip is found against it, and the survey reads
+    /// it). Taken again at every re-check: a bench that drifts moves the plate's image
+    /// (a change of magnification of 1e-4 moves the walls at the edge of the field by
+    /// 0.1 px), and the stale edges would pull the tip detector.
+    fn take_background(&mut self) -> Result<Result<(), String>, WorkflowError> {
+        let lift = self.home[1];
+        let half = 0.5 * self.plate.pitch;
+        let x0 = self.plate.well_centre([0, 0])[0];
+        let full = self.settings_full.expect("full settings");
+        let fov = full.roi.width as f64 * self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
+            / self.rig.camera.settings().binning as f64;
+        let away = x0 - half - fov - 0.3e-3;
+        if let Err(e) = self.stage_to([None, Some(lift), None])? {
+            return Ok(Err(format!("the pipette cannot be lifted: {e}")));
+        }
+        if let Err(e) = self.stage_to([Some(away), Some(lift), None])? {
+            return Ok(Err(format!("the pipette cannot be moved out of view: {e}")));
+        }
+        let shot = self.shoot(None)?;
+        self.background = Some(Background {
+            pixels: shot.frame.pixels,
+            width: shot.frame.width as usize,
+            pixel_size: shot.frame.pixel_size,
+        });
+        Ok(Ok(()))
+    }
+
+    /// The image map's stage positions: at the corners between four wells near the
+    /// plate's centre, where the tip is surely in view and, in focus, touches no cell (a
+    /// cell lies within its well, so its disc stays clear of the corner): a corner and
+    /// its neighbours `d` (about 200 um, whole pitches) away in x, z and both.
+    fn map_points(&self) -> [[f64; 2]; 4] {
         let [cx, cz] = self
             .plate
             .well_centre([self.plate.rows / 2, self.plate.cols / 2]);
         let q = 0.5 * self.plate.pitch;
-        let d = self.plate.pitch.max(d.min(2.0 * self.plate.pitch));
+        let d = self.plate.pitch.max(200e-6f64.min(2.0 * self.plate.pitch));
         let d = (d / self.plate.pitch).round() * self.plate.pitch;
         let (cx, cz) = (cx - q, cz - q);
+        [(0.0, 0.0), (d, 0.0), (0.0, d), (d, d)].map(|(dx, dz)| [cx + dx, cz + dz])
+    }
+
+    /// The tip's full-frame pixel with the stage at `s` (x, z) and the pipette in
+    /// focus there (lowered from the lift height, lifted again after).
+    fn tip_at(&mut self, s: [f64; 2]) -> Result<Result<[f64; 2], String>, WorkflowError> {
         let lift = self.home[1];
-        let mut pts = Vec::new();
-        for (dx, dz) in [(0.0, 0.0), (d, 0.0), (0.0, d), (d, d)] {
-            let s = [cx + dx, cz + dz];
-            for p in [
-                [None, Some(lift), None],
-                [Some(s[0]), None, Some(s[1])],
-                [None, Some(self.options.focus), None],
-            ] {
-                if let Err(e) = self.stage_to(p)? {
-                    return Ok(Err(e));
-                }
-            }
-            let Some(px) = self.tip_full(3)? else {
-                return Ok(Err(format!(
-                    "the tip was not found in the image with the stage at ({:.0}, {:.0}) um",
-                    s[0] * 1e6,
-                    s[1] * 1e6
-                )));
-            };
-            pts.push((s, px));
-            if let Err(e) = self.stage_to([None, Some(lift), None])? {
+        for p in [
+            [None, Some(lift), None],
+            [Some(s[0]), None, Some(s[1])],
+            [None, Some(self.options.focus), None],
+        ] {
+            if let Err(e) = self.stage_to(p)? {
                 return Ok(Err(e));
             }
         }
-        let _ = (hx, hz);
+        let Some(px) = self.tip_full(3)? else {
+            return Ok(Err(format!(
+                "the tip was not found in the image with the stage at ({:.0}, {:.0}) um",
+                s[0] * 1e6,
+                s[1] * 1e6
+            )));
+        };
+        if let Err(e) = self.stage_to([None, Some(lift), None])? {
+            return Ok(Err(e));
+        }
+        Ok(Ok(px))
+    }
+
+    /// Whether it is time to re-check the image map, and why.
+    fn recheck_due(&mut self) -> Option<String> {
+        if let Some(why) = self.check_due.take() {
+            return Some(why);
+        }
+        let (every, since) = (self.options.recheck_every, self.now() - self.last_check);
+        (every > 0.0 && since >= every).then(|| {
+            format!("{since:.0} s after the image map was made or checked (every {every:.0} s)")
+        })
+    }
+
+    /// Re-checks the calibrations between cells (`why`: what made it due): the
+    /// background is taken again, and the resting tip is located at two of the map's
+    /// stage positions (a diagonal apart) and compared with the map's prediction, in
+    /// position and in scale. Within [`RECHECK_TOLERANCE`] the map is kept; else (or
+    /// if the tip was not found) the image is mapped again, twice at most. Returns why
+    /// the run must stop, if it must.
+    fn recheck(
+        &mut self,
+        why: String,
+        obs: &mut dyn Observer,
+    ) -> Result<Option<String>, WorkflowError> {
+        self.fire(Event::Recheck, format!("re-check {why}"), obs, None)?;
+        let t0 = self.now();
+        let stop = |w: &mut Self, r: String, obs: &mut dyn Observer| {
+            w.fire(Event::Fatal, r.clone(), obs, None).map(|()| Some(r))
+        };
+        if let Err(e) = self.take_background()? {
+            return stop(
+                self,
+                format!("the background could not be taken again: {e}"),
+                obs,
+            );
+        }
+        let map = self.map.expect("map");
+        let pts = self.map_points();
+        let (s0, s1) = (pts[0], pts[3]);
+        let mut verdict = None;
+        let mut measured = [[0.0; 2]; 2];
+        for (k, s) in [s0, s1].into_iter().enumerate() {
+            match self.tip_at(s)? {
+                Ok(px) => measured[k] = px,
+                Err(e) => {
+                    verdict = Some(e);
+                    break;
+                }
+            }
+        }
+        let verdict = match verdict {
+            Some(e) => e,
+            None => {
+                let off =
+                    |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]) * map.pixel_size;
+                let worst =
+                    off(measured[0], map.pixel_of(s0)).max(off(measured[1], map.pixel_of(s1)));
+                let said = format!(
+                    "background taken again; the resting tip is {:.2} um from where the map puts it (worst of two points {:.0} um apart)",
+                    worst * 1e6,
+                    (s1[0] - s0[0]).hypot(s1[1] - s0[1]) * 1e6,
+                );
+                if worst <= RECHECK_TOLERANCE {
+                    self.last_check = self.now();
+                    let r = format!("{said}: the map holds (re-check {:.1} s)", self.now() - t0);
+                    self.fire(Event::Rechecked, r, obs, None)?;
+                    return Ok(None);
+                }
+                format!("{said}, more than {:.1} um", RECHECK_TOLERANCE * 1e6)
+            }
+        };
+        let mut last = String::new();
+        for _ in 0..2 {
+            match self.map_image()? {
+                Ok(m) => {
+                    self.map = Some(m);
+                    obs.mapped(&m);
+                    self.last_check = self.now();
+                    let r = format!(
+                        "{verdict}: image mapped to the stage again (4 points, rms {:.2} px; re-check {:.1} s)",
+                        m.residual_px,
+                        self.now() - t0
+                    );
+                    self.fire(Event::Rechecked, r, obs, None)?;
+                    return Ok(None);
+                }
+                Err(reason) => last = reason,
+            }
+        }
+        stop(
+            self,
+            format!("{verdict}; mapping the image again failed twice: {last}"),
+            obs,
+        )
+    }
+
+    fn map_image(&mut self) -> Result<Result<ImageMap, String>, WorkflowError> {
+        let mut pts = Vec::new();
+        for s in self.map_points() {
+            match self.tip_at(s)? {
+                Ok(px) => pts.push((s, px)),
+                Err(e) => return Ok(Err(e)),
+            }
+        }
+        let lift = self.home[1];
         // Affine least squares px = p0 + B (s - s0) with s0 the first point.
         let s0 = pts[0].0;
         let mut b = [[0.0; 2]; 2];
@@ -1648,7 +1828,7 @@ impl<B: Backend> Workflow<'_, B> {
             let (k, gap) = blocked.unwrap_or((0, 0.0));
             let other = self.survey_cells[k];
             return Err(Fail::Cell(format!(
-                "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
+                "{BLOCKED} by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
                 other.index,
                 other.well[0],
                 other.well[1],
