@@ -160,8 +160,9 @@ impl Default for JointParams {
     }
 }
 
-/// Temperature drift (off by default).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+/// Temperature drift: by default the prototype's lab, warming by 1 K an hour (see
+/// `configs/prototype.toml`); `drift_rate = 0` turns it off.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ThermalParams {
     /// K/s, rate of change of the ambient temperature.
     pub drift_rate: f64,
@@ -172,6 +173,16 @@ pub struct ThermalParams {
     /// `−magnification · ΔT` of itself, while the frames still report the nominal
     /// pixel size.
     pub magnification: f64,
+}
+
+impl Default for ThermalParams {
+    fn default() -> Self {
+        ThermalParams {
+            drift_rate: 2.78e-4,
+            expansion: 3.0e-7,
+            magnification: 1.0e-3,
+        }
+    }
 }
 
 impl ThermalParams {

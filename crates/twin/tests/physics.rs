@@ -28,6 +28,7 @@ fn quiet(approach: Approach) -> TwinParams {
         s.creep.gamma = 0.0;
     }
     p.sim.joints.stick_slip_angle = 0.0;
+    p.sim.thermal.drift_rate = 0.0;
     p
 }
 

@@ -1182,7 +1182,24 @@ impl<'r, B: Backend> Workflow<'r, B> {
         if let Err(e) = self.stage_to([Some(away), Some(lift), None])? {
             return Ok(Err(format!("the pipette cannot be moved out of view: {e}")));
         }
-        let shot = self.shoot(None)?;
+        let mean = |p: &[u16]| p.iter().map(|&v| v as f64).sum::<f64>() / p.len().max(1) as f64;
+        // A background taken again must be lit like the first (a flicker of the lamp
+        // would make every later tip a guess): up to 60 frames (20 s) of patience.
+        let reference = self.background.as_ref().map(|b| mean(&b.pixels));
+        let mut shot = self.shoot(None)?;
+        if let Some(r) = reference {
+            let mut tries = 0;
+            while mean(&shot.frame.pixels) < 0.5 * r {
+                tries += 1;
+                if tries >= 60 {
+                    return Ok(Err(format!(
+                        "the image stayed dark for {tries} frames (mean level {:.0} against {r:.0} when the run started)",
+                        mean(&shot.frame.pixels)
+                    )));
+                }
+                shot = self.shoot(None)?;
+            }
+        }
         self.background = Some(Background {
             pixels: shot.frame.pixels,
             width: shot.frame.width as usize,
