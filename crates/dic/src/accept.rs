@@ -11,7 +11,8 @@
 //! eliminated, grows without bound as the texture disappears. It counts only the
 //! texture above the image noise (the noise's own gradients carry no information on
 //! the displacement, so they are subtracted from the information matrix) and weighs
-//! each pixel by its own residual (a sandwich estimate), so a patch whose only texture
+//! each pixel by its own and its neighbours' residuals (a sandwich estimate robust to
+//! residuals that keep their sign along an edge), so a patch whose only texture
 //! is noise or rounding steps, or whose residual sits on one sharp edge, is refused
 //! rather than reported with the σ a speckle of the same gradient energy would have.
 
@@ -186,7 +187,7 @@ mod tests {
 
     /// A faint texture (three sinusoids of 3 grey levels) under noise of σ = 2 grey
     /// levels, shifted exactly by (0.3, −0.2) px, in 200 noise realisations: the RMS
-    /// error (0.090 px) and the RMS predicted σ (0.101 px) agree. The noise's own
+    /// error (0.090 px) and the RMS predicted σ (0.090 px) agree. The noise's own
     /// gradients carry about as much energy as the texture's here; counted as texture,
     /// they made the predicted σ half the scatter (0.045 px). With 1.5 grey levels the
     /// old σ was 5 times too small, the new one is infinite in some realisations.
@@ -238,5 +239,20 @@ mod tests {
             (ss / (2.0 * runs as f64)).sqrt()
         );
         assert!((0.8..1.25).contains(&ratio), "rms error / rms σ = {ratio}");
+    }
+
+    /// `DERIVATIVE_NOISE_GAIN` is `6√3 − 9` and the mean of `|D(ω)|²` over the band.
+    #[test]
+    fn the_derivative_noise_gain_is_the_spline_derivative_power() {
+        let n = 100_000;
+        let mean = (0..n)
+            .map(|i| {
+                let w = std::f64::consts::PI * ((i as f64 + 0.5) / n as f64);
+                (6.0 * w.sin() / (4.0 + 2.0 * w.cos())).powi(2)
+            })
+            .sum::<f64>()
+            / n as f64;
+        assert!((icgn::DERIVATIVE_NOISE_GAIN - mean).abs() < 1e-9, "{mean}");
+        assert!((icgn::DERIVATIVE_NOISE_GAIN - (6.0 * 3f64.sqrt() - 9.0)).abs() < 1e-15);
     }
 }
