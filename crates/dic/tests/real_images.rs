@@ -12,6 +12,9 @@
 //! central differences of the original and σ the noise the test adds (rounding
 //! included), is at most 0.01 px in x and in y. The mean gradient is removed because
 //! ZNSSD's offset and gain make a linear ramp of grey levels carry no information.
+//! A grid point whose subset, moved by the known shift, comes within 2 px of the edge
+//! of the current image (the cubic spline's support and its margin) is not counted:
+//! whatever its texture, its match is not in the image.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -139,7 +142,14 @@ struct Run {
     rms_sigma: f64,
 }
 
-fn run(name: &'static str, img: &Image, shift: (f64, f64), noise: f64, seed: u64) -> Run {
+fn run(
+    name: &'static str,
+    img: &Image,
+    shift: (f64, f64),
+    noise: f64,
+    seed: u64,
+    step: usize,
+) -> Run {
     let (w, h) = (img.width(), img.height());
     let mut rng = Rng::new(seed, 1);
     let r = if noise > 0.0 {
@@ -148,7 +158,10 @@ fn run(name: &'static str, img: &Image, shift: (f64, f64), noise: f64, seed: u64
         img.clone()
     };
     let c = expose(&fourier_shift(img, shift.0, shift.1), w, h, noise, &mut rng);
-    let opts = FieldOptions::default();
+    let opts = FieldOptions {
+        step,
+        ..FieldOptions::default()
+    };
     let f = field(&r, &c, &opts).unwrap();
     // The current image's rounding, and the added noise in both images.
     let sigma = (noise * noise + 1.0 / 12.0).sqrt();
@@ -159,7 +172,11 @@ fn run(name: &'static str, img: &Image, shift: (f64, f64), noise: f64, seed: u64
         let (x, y) = (f.x0 + (k % f.nx) * f.step, f.y0 + (k / f.nx) * f.step);
         let (tx, ty) = texture(img, x, y, m);
         let limit = std::f64::consts::SQRT_2 * sigma / tx.min(ty).sqrt();
-        if limit <= 0.01 {
+        let inside = |c: usize, d: f64, n: usize| {
+            let (lo, hi) = (c as f64 - m as f64 + d, (c + m) as f64 + d);
+            lo >= 2.0 && hi <= n as f64 - 3.0
+        };
+        if limit <= 0.01 && inside(x, shift.0, w) && inside(y, shift.1, h) {
             textured += 1;
             textured_kept += usize::from(p.is_some());
         }
@@ -197,22 +214,17 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Issue 20, point 6: on photographs shifted by known sub-pixel amounts, no point more
-/// than 0.1 px off is reported, at least 90 % of the textured grid points are kept,
-/// and the predicted σ is within a factor of two of the RMS error. Prints one line per
-/// photograph, shift and noise (`cargo test -p cellinject-dic --test real_images --
-/// --include-ignored --nocapture`).
-#[test]
-#[ignore = "issue 20 point 6 is not met yet in the low-texture parts of camera and astronaut (see the printed table)"]
-fn photographs_shifted_by_known_amounts() {
+/// Every photograph, shift and noise level on a grid of `step` pixels, one printed line
+/// each and a summary.
+fn all_runs(step: usize) -> Vec<Run> {
     let mut runs = Vec::new();
     for name in PHOTOS {
         let img = load(name);
         for (k, &shift) in SHIFTS.iter().enumerate() {
             for noise in [0.0, 2.0] {
-                let r = run(name, &img, shift, noise, 7 + k as u64);
+                let r = run(name, &img, shift, noise, 7 + k as u64, step);
                 println!(
-                    "{:16} shift ({:5.2}, {:5.2}) noise {}: kept {:4} of {} ({:3} dropped), worst {:.3} px, {:3} over 0.1 px, textured {:4} kept {:5.1} %, rms error {:.4} px, rms σ {:.4} px, ratio {:.2}",
+                    "{:16} shift ({:5.2}, {:5.2}) noise {}: kept {:4} of {} ({:4} dropped), worst {:.3} px, {:3} over 0.1 px, textured {:4} kept {:5.1} %, rms error {:.4} px, rms σ {:.4} px, ratio {:.2}",
                     r.name,
                     r.shift.0,
                     r.shift.1,
@@ -249,6 +261,29 @@ fn photographs_shifted_by_known_amounts() {
         median(worst.clone()),
         worst.iter().copied().fold(0.0, f64::max)
     );
+    runs
+}
+
+fn assert_sigma_within_two(r: &Run) {
+    let ratio = r.rms_error / r.rms_sigma;
+    assert!(
+        (0.5..=2.0).contains(&ratio),
+        "{} {:?} noise {}: rms error / rms σ {ratio}",
+        r.name,
+        r.shift,
+        r.noise
+    );
+}
+
+/// Issue 20, point 6: on photographs shifted by known sub-pixel amounts, no point more
+/// than 0.1 px off is reported, at least 90 % of the textured grid points are kept,
+/// and the predicted σ is within a factor of two of the RMS error. Prints one line per
+/// photograph, shift and noise (`cargo test -p cellinject-dic --release --test
+/// real_images -- --include-ignored --nocapture`).
+#[test]
+#[ignore = "issue 20 point 6 is not met yet: the σ holds, but 4 points in camera_sky_coat are kept 0.10-0.115 px off, and fewer than 90 % of the textured points are kept (the cubic spline's interpolation bias on camera_field's aliased grass, the affine subset's cost on weak texture)"]
+fn photographs_shifted_by_known_amounts() {
+    let runs = all_runs(5);
     for r in &runs {
         let at = format!("{} {:?} noise {}", r.name, r.shift, r.noise);
         assert_eq!(r.wrong, 0, "{at}: kept points over 0.1 px off");
@@ -260,11 +295,25 @@ fn photographs_shifted_by_known_amounts() {
                 r.textured
             );
         }
-        let ratio = r.rms_error / r.rms_sigma;
-        assert!(
-            (0.5..=2.0).contains(&ratio),
-            "{at}: rms error / rms σ {ratio}"
-        );
+        assert_sigma_within_two(r);
+    }
+}
+
+/// The part of point 6 that holds, on a coarse grid (fast in a debug build): the
+/// predicted σ of the kept points is within a factor of two of their RMS error on
+/// every photograph, shift and noise level, and with camera noise (σ = 2 grey levels)
+/// no kept point is more than 0.1 px off.
+#[test]
+fn the_predicted_sigma_holds_on_photographs() {
+    for r in &all_runs(20) {
+        assert_sigma_within_two(r);
+        if r.noise > 0.0 {
+            assert_eq!(
+                r.wrong, 0,
+                "{} {:?} noise {}: kept points over 0.1 px off",
+                r.name, r.shift, r.noise
+            );
+        }
     }
 }
 
