@@ -7,14 +7,23 @@
 //! the same reader and fit as `cellinject hysteresis fit` (default model and size), the
 //! fitted model is inverted for a decaying sinusoid, and the true actuator is driven
 //! with the result. The acceptance: tracking RMS at most 1.2 % of the stroke
-//! and at most a quarter of a linear inverse's, worst case over five seeds (1 to 5).
+//! and at most a quarter of a linear inverse's, worst case over a sweep of recording
+//! seeds ([`SEEDS`]: 1 to 5 and the four worst of 1 to 50 before the fit was
+//! smoothed).
 //!
 //! The Bouc-Wen operator is not of the Preisach class (its minor loops do not close),
-//! so the default 20 x 20 Preisach model misfits it by about 250 nm RMS whatever the
-//! data's defects (the same recordings without dwells, quantisation or noise fit no
-//! better). The ratio to the linear inverse depends on the random excitation: over
-//! seeds 1 to 20 (`over_twenty_seeds`, ignored) its median is 0.19 and two seeds
-//! exceed 0.25 (0.29 and 0.31), while every seed stays within 1.0 % of the stroke.
+//! so the default 20 x 20 Preisach model misfits it by about 250-320 nm RMS whatever
+//! the data's defects (the same recordings without dwells, quantisation or noise fit
+//! no better). The tracking error is that misfit along the trajectory (the inversion
+//! is exact to the model): with the weights identified by least squares with a ridge
+//! only, they came out spiky (many 0 next to large ones) and the decaying oscillation's nested
+//! loops summed the spikes into a bias of up to 400 nm, so that the tracking RMS
+//! ranged from 0.47 % to 1.36 % of the stroke and the ratio to the linear inverse from
+//! 0.12 to 0.42 over seeds 1 to 50 (median 0.18; seeds 6, 17, 21, 25, 28, 41 and 46
+//! above 0.25). With the smoothness penalty and the path-length weights of the fit
+//! (`cellinject_hysteresis::preisach::SMOOTHNESS`, `Prepared::weights`): 0.43 % to
+//! 0.72 % of the stroke, ratio median 0.16 and worst 0.22 (seed 17) over the same 50
+//! (`over_fifty_seeds`, ignored).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -151,10 +160,19 @@ fn rms(e: impl Iterator<Item = f64>) -> f64 {
     (s / n as f64).sqrt()
 }
 
+/// The tracking errors of the true actuator driven with `volts`.
+fn errors(volts: &[f64], desired: &[f64]) -> Vec<f64> {
+    let mut a = BoucWen::new();
+    volts
+        .iter()
+        .zip(desired)
+        .map(|(v, yd)| a.apply(*v) - yd)
+        .collect()
+}
+
 /// The RMS tracking error of the true actuator driven with `volts`.
 fn tracking(volts: &[f64], desired: &[f64]) -> f64 {
-    let mut a = BoucWen::new();
-    rms(volts.iter().zip(desired).map(|(v, yd)| a.apply(*v) - yd))
+    rms(errors(volts, desired).into_iter())
 }
 
 /// (feedforward RMS / stroke, feedforward RMS / linear inverse's RMS) for one seed.
@@ -190,7 +208,11 @@ fn run(seed: u64) -> (f64, f64) {
     let stroke = BoucWen::new().apply(top);
     let desired = trajectory(stroke);
     let inv = invert(&f.model, &desired).unwrap();
-    let ff = tracking(&inv.volts, &desired);
+    let e = errors(&inv.volts, &desired);
+    let ff = rms(e.iter().copied());
+    // The error's mean over the last second (small loops about mid-stroke): a bias
+    // there is the model's, summed over the cells the nested loops cut.
+    let late = e[2000..].iter().sum::<f64>() / 1000.0;
     // The linear inverse: the least-squares line of displacement against voltage.
     let n = volts.len() as f64;
     let (mv, my) = (volts.iter().sum::<f64>() / n, disp.iter().sum::<f64>() / n);
@@ -206,7 +228,7 @@ fn run(seed: u64) -> (f64, f64) {
         .collect();
     let lin = tracking(&linear, &desired);
     eprintln!(
-        "seed {seed}: {} rows ({} in dwells), {} fitted, {} reversals; fit RMS {:.2} nm; tracking RMS {:.2} nm = {:.3} % of the {:.2} µm stroke, linear inverse {:.1} nm, ratio {:.3}",
+        "seed {seed}: {} rows ({} in dwells), {} fitted, {} reversals; fit RMS {:.2} nm; tracking RMS {:.2} nm = {:.3} % of the {:.2} µm stroke, linear inverse {:.1} nm, ratio {:.3}; mean error over the last second {:.0} nm",
         rec.rows,
         rec.dwell_rows,
         f.samples,
@@ -216,7 +238,8 @@ fn run(seed: u64) -> (f64, f64) {
         100.0 * ff / stroke,
         stroke * 1e6,
         lin * 1e9,
-        ff / lin
+        ff / lin,
+        late * 1e9
     );
     (ff / stroke, ff / lin)
 }
@@ -231,10 +254,16 @@ fn worst(v: &[f64]) -> f64 {
     v.iter().copied().fold(0.0, f64::max)
 }
 
+/// The recording seeds of the acceptance test: 1 to 5 (on which it was first tuned)
+/// and the four worst of 1 to 50 before the fit was smoothed: 6, 17, 28 and 41, whose
+/// ratio to the linear inverse was 0.31, 0.29, 0.40 and 0.42 (and tracking RMS 1.36 %
+/// and 1.29 % of the stroke for 28 and 41). About 4.5 s a seed in a debug build.
+const SEEDS: [u64; 9] = [1, 2, 3, 4, 5, 6, 17, 28, 41];
+
 /// Runs `seeds` and prints the median and worst of both figures.
-fn over(seeds: std::ops::RangeInclusive<u64>) -> (Vec<f64>, Vec<f64>) {
-    let n = seeds.clone().count();
+fn over(seeds: impl Iterator<Item = u64>) -> (Vec<f64>, Vec<f64>) {
     let (rel, ratio): (Vec<f64>, Vec<f64>) = seeds.map(run).unzip();
+    let n = rel.len();
     eprintln!(
         "tracking RMS over {n} seeds: median {:.3} %, worst {:.3} % of stroke (at most 1.2 %); ratio to the linear inverse: median {:.3}, worst {:.3} (at most 0.25)",
         100.0 * median(&rel),
@@ -260,15 +289,16 @@ fn a_real_recording_of_a_bouc_wen_actuator_is_fitted_and_inverted_to_a_fraction_
         100.0 * width
     );
     assert!((0.09..=0.16).contains(&width), "{width}");
-    let (rel, ratio) = over(1..=5);
+    let (rel, ratio) = over(SEEDS.into_iter());
     assert!(worst(&rel) <= 0.012, "{rel:?}");
     assert!(worst(&ratio) <= 0.25, "{ratio:?}");
 }
 
-/// The same over 20 seeds, for the record (`cargo test -p cellinject-core --test
-/// hysteresis_recording -- --ignored --nocapture`): no assertion.
+/// The same over seeds 1 to 50, for the record (`cargo test --release -p
+/// cellinject-core --test hysteresis_recording -- --ignored --nocapture`): no
+/// assertion.
 #[test]
-#[ignore = "slow: the distribution over 20 seeds, printed"]
-fn over_twenty_seeds() {
-    over(1..=20);
+#[ignore = "slow: the distribution over 50 seeds, printed"]
+fn over_fifty_seeds() {
+    over(1..=50);
 }

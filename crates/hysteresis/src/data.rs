@@ -15,7 +15,13 @@
 //! 4. consecutive samples with the same input are one state of a rate-independent
 //!    model (a dwell: only creep and noise change the output), merged into one sample
 //!    whose output is their mean, so that a hold weighs in the least squares like any
-//!    other state and not by how long it lasted.
+//!    other state and not by how long it lasted;
+//! 5. each sample is weighted by the input path it stands for (half the way from the
+//!    sample before, half the way to the sample after, [`Prepared::weights`]), so that
+//!    a branch weighs in the least squares by the span of input it covers, not by how
+//!    many samples the logger took of it: a ramp slower than the DAC gives one sample
+//!    per DAC level, 6 to 20 times as many per volt as a fast one (unweighted, the
+//!    slow twentieth of a recording's branches gave a quarter of its samples).
 //!
 //! The data that cannot identify a loop are refused with the numbers: too few samples,
 //! an input that never moves beyond its noise, fewer than two reversals.
@@ -68,6 +74,10 @@ pub struct Prepared {
     pub inputs: Vec<f64>,
     /// Outputs (the mean over each merged run).
     pub outputs: Vec<f64>,
+    /// Each sample's weight in a least-squares fit: the input path it stands for (half
+    /// the step from the sample before plus half the step to the sample after) over the
+    /// mean of that path, so the weights' mean is 1.
+    pub weights: Vec<f64>,
     /// What was done.
     pub summary: DataSummary,
 }
@@ -167,6 +177,30 @@ fn highest(inputs: &[f64], from: usize, to: usize) -> usize {
     (from..=to).fold(from, |b, k| if inputs[k] > inputs[b] { k } else { b })
 }
 
+/// The weight of each of `inputs` (a prepared sequence: no two consecutive equal): the
+/// input path it stands for, half the step from the one before plus half the step to
+/// the one after, over the mean of that path (1 each if the input never moves).
+pub fn path_weights(inputs: &[f64]) -> Vec<f64> {
+    let n = inputs.len();
+    let step = |i: usize| (inputs[i + 1] - inputs[i]).abs();
+    let mut w: Vec<f64> = (0..n)
+        .map(|i| {
+            let before = if i > 0 { step(i - 1) } else { 0.0 };
+            let after = if i + 1 < n { step(i) } else { 0.0 };
+            0.5 * (before + after)
+        })
+        .collect();
+    let mean = w.iter().sum::<f64>() / n.max(1) as f64;
+    if mean > 0.0 && mean.is_finite() {
+        for x in &mut w {
+            *x /= mean;
+        }
+    } else {
+        w.fill(1.0);
+    }
+    w
+}
+
 /// Checks a recording (input, output) in time order and prepares it for
 /// identification on `range` (see the module's documentation); refuses data that
 /// cannot identify a hysteresis loop.
@@ -260,9 +294,11 @@ pub fn prepare(
             min: MIN_SAMPLES,
         });
     }
+    let weights = path_weights(&ins);
     Ok(Prepared {
         inputs: ins,
         outputs: outs,
+        weights,
         summary: DataSummary {
             rows,
             samples,

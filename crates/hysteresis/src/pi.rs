@@ -159,7 +159,8 @@ impl PrandtlIshlinskii {
 
     /// Identifies offset, weights (≥ 0) and, if `asymmetric`, the quadratic term (≥ 0)
     /// for `n` evenly spaced plays, by non-negative least squares with a ridge, from
-    /// data prepared by [`crate::prepare`] (dwells merged, noise wiggles held).
+    /// data prepared by [`crate::prepare`] (dwells merged, noise wiggles held, each
+    /// sample weighted by the input path it stands for).
     pub fn identify(
         range: Range,
         n: usize,
@@ -181,7 +182,7 @@ impl PrandtlIshlinskii {
         let mut h = DVector::<f64>::zeros(k);
         let mut state = vec![0.0; n];
         let mut row = vec![0.0; k];
-        for (&u, &y) in data.inputs.iter().zip(&data.outputs) {
+        for ((&u, &y), &w) in data.inputs.iter().zip(&data.outputs).zip(&data.weights) {
             let x = range.normalise(u);
             row[0] = 1.0;
             row[1] = if asymmetric { x * x } else { 0.0 };
@@ -190,9 +191,10 @@ impl PrandtlIshlinskii {
                 row[2 + i] = state[i];
             }
             for a in 0..k {
-                h[a] += row[a] * y;
+                let wa = w * row[a];
+                h[a] += wa * y;
                 for b in 0..k {
-                    g[(a, b)] += row[a] * row[b];
+                    g[(a, b)] += wa * row[b];
                 }
             }
         }

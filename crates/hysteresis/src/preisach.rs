@@ -12,7 +12,8 @@
 //! S⁺ = ∪ₖ {α ≤ Mₖ, β < mₖ}, mₖ the extremum after Mₖ (+∞ for the running maximum).
 //! The output is continuous in the input (areas, not relay counts), so the inverse is
 //! found by bisection to machine precision. The weights are identified from any rich
-//! excitation by non-negative least squares with a ridge (Lawson-Hanson).
+//! excitation by non-negative least squares (Lawson-Hanson) with a ridge and a
+//! smoothness penalty on neighbouring cells ([`SMOOTHNESS`]).
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -22,6 +23,24 @@ use crate::{HysteresisError, Model, Range};
 /// Largest number of remembered extrema; beyond it the innermost (smallest) loop is
 /// merged away, an approximation below the grid's resolution.
 pub const MEMORY: usize = 64;
+
+/// Weight of the smoothness penalty of [`Preisach::identify`], relative to the data's
+/// scale (the mean diagonal of the normal equations, like the ridge): the squared
+/// difference of every two neighbouring cells' weights is added to the least squares
+/// with this factor.
+///
+/// Without it the weights are ill-determined (a cell's weight trades off against its
+/// neighbours' on every branch that crosses both) and come out spiky, many 0 next to
+/// large ones; the fit to the data hardly tells, but a trajectory whose staircase
+/// cuts the cells differently from the data's (nested loops about one level, as a
+/// decaying oscillation makes) sums the spikes into a bias. On a Bouc-Wen actuator
+/// (not of the Preisach class) recorded with 200 random reversals (`cellinject-core`'s
+/// `hysteresis_recording` test), that bias made the feedforward's tracking RMS range
+/// from 0.47 % to 1.36 % of the stroke over 50 recordings, and its ratio to a linear
+/// inverse's from 0.12 to 0.42; smoothed (with [`crate::Prepared::weights`]), 0.43 %
+/// to 0.72 % and 0.12 to 0.22, for a fit about 12 % worse on the data. The worst
+/// ratio is 0.24, 0.22 and 0.22 for 3e-4, 1e-3 and 3e-3.
+pub const SMOOTHNESS: f64 = 1e-3;
 
 /// The memory of alternating dominant extrema on the normalised input [0, 1].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -280,8 +299,10 @@ impl Preisach {
     /// Identifies the weights from samples of (input, output) in time order, starting
     /// from the relaxed state at the bottom of `range`, on an `n` x `n` grid, with a ridge
     /// `lambda` (relative to the data's scale) that keeps weights the data cannot see
-    /// small. The data go through [`crate::prepare`] first: held inputs (dwells) merge
-    /// into one sample, wiggles within the input's noise are holds, and data without
+    /// small and a smoothness penalty ([`SMOOTHNESS`]) that keeps neighbouring cells
+    /// alike. The data go through [`crate::prepare`] first: held inputs (dwells) merge
+    /// into one sample, wiggles within the input's noise are holds, each sample weighs
+    /// by the input path it stands for ([`crate::Prepared::weights`]), and data without
     /// two reversals larger than the noise are refused.
     pub fn identify(
         range: Range,
@@ -302,21 +323,29 @@ impl Preisach {
         let mut h = DVector::<f64>::zeros(k);
         let mut memory = Memory::default();
         let mut row = vec![0.0; k];
-        for (&u, &y) in data.inputs.iter().zip(&data.outputs) {
+        // The regressors that are not 0 (cells down are), and the lower triangle of the
+        // symmetric normal equations only, mirrored after.
+        let mut up = Vec::with_capacity(k);
+        for ((&u, &y), &w) in data.inputs.iter().zip(&data.outputs).zip(&data.weights) {
             memory.apply(range.normalise(u));
             let x = memory.input();
             Self::regressors(n, &memory, &mut row[3..]);
             row[0] = 1.0;
             row[1] = x;
             row[2] = x * x;
-            for a in 0..k {
-                if row[a] == 0.0 {
-                    continue;
+            up.clear();
+            up.extend((0..k).filter(|&a| row[a] != 0.0));
+            for (i, &a) in up.iter().enumerate() {
+                let wa = w * row[a];
+                h[a] += wa * y;
+                for &b in &up[i..] {
+                    g[(b, a)] += wa * row[b];
                 }
-                h[a] += row[a] * y;
-                for b in 0..k {
-                    g[(a, b)] += row[a] * row[b];
-                }
+            }
+        }
+        for a in 0..k {
+            for b in a + 1..k {
+                g[(a, b)] = g[(b, a)];
             }
         }
         // The ridge scales with the weights' own regressors (not the offset's column,
@@ -324,6 +353,25 @@ impl Preisach {
         let scale = ((1..k).map(|a| g[(a, a)]).sum::<f64>() / (k - 1) as f64).max(1e-300);
         for a in 1..k {
             g[(a, a)] += lambda * scale;
+        }
+        // Smoothness: SMOOTHNESS·scale·(wₚ − w_q)² for every two cells p, q sharing a
+        // side (α or β neighbours inside the triangle).
+        let s = SMOOTHNESS * scale;
+        let index = |i: usize, j: usize| 3 + i * (i + 1) / 2 + j;
+        for i in 0..n {
+            for j in 0..=i {
+                let p = index(i, j);
+                let next = [
+                    (i + 1 < n).then(|| index(i + 1, j)),
+                    (j < i).then(|| index(i, j + 1)),
+                ];
+                for q in next.into_iter().flatten() {
+                    g[(p, p)] += s;
+                    g[(q, q)] += s;
+                    g[(p, q)] -= s;
+                    g[(q, p)] -= s;
+                }
+            }
         }
         let x = cellinject_numeric::nnls_gram(&g, &h, &[0])
             .map_err(|e| HysteresisError::Solver(e.to_string()))?;
