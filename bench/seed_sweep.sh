@@ -40,7 +40,7 @@ case $seeds in
   *) echo "seed_sweep.sh: --seeds takes FIRST-LAST, got '$seeds'" >&2; exit 2 ;;
 esac
 cargo build --release --quiet --locked
-bin=$PWD/target/release/cellinject
+bin=${CARGO_TARGET_DIR:-$PWD/target}/release/cellinject
 work=$PWD/target/seed-sweep
 rm -rf "$work"
 mkdir -p "$work"
