@@ -11,7 +11,8 @@
 #      twin's own): its exit code, the mean tip error of its injections (twin's truth)
 #      and the worst mean of a tenth of the run (in order: drift would show as a trend).
 # Then it prints, per approach, the failure count and every failure's reason, and the
-# median and worst of each figure. Results go to target/seed-sweep/results.tsv.
+# median and worst of each figure. Results go to target/seed-sweep/results.tsv (or
+# $SWEEP_DIR/results.tsv: two sweeps at once need two directories).
 #
 # Usage: bash bench/seed_sweep.sh [--seeds FIRST-LAST] [--approaches "1 2"] [--repeat N] [--run] [--jobs J]
 # e.g.   bash bench/seed_sweep.sh --seeds 1-200                 # the calibration sweep
@@ -31,7 +32,7 @@ while [ $# -gt 0 ]; do
     --repeat) repeat=$2; shift 2 ;;
     --run) run=1; shift ;;
     --jobs) jobs=$2; shift 2 ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
     *) echo "seed_sweep.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -41,7 +42,7 @@ case $seeds in
 esac
 cargo build --release --quiet --locked
 bin=${CARGO_TARGET_DIR:-$PWD/target}/release/cellinject
-work=$PWD/target/seed-sweep
+work=${SWEEP_DIR:-$PWD/target/seed-sweep}
 rm -rf "$work"
 mkdir -p "$work"
 export bin work repeat run
@@ -62,7 +63,8 @@ one() {
 import json, sys
 d = json.load(open(sys.argv[1]))
 t = d["true_max_error_m"]
-print(f"{max(t) * 1e9:.1f}\t{d[\"camera_vs_truth_m\"] * 1e9:.1f}\t{d[\"unsettled_runs\"]}")
+c = d["camera_vs_truth_m"]
+print("%.1f\t%.1f\t%d" % (max(t) * 1e9, c * 1e9, d["unsettled_runs"]))
 ' "$d/rep.json")"
     else
       line="$line	fail: $(tail -1 "$d/rep.err" | tr '\t' ' ')		"
