@@ -12,7 +12,9 @@
 #      and the worst mean of a tenth of the run (in order: drift would show as a trend).
 # Then it prints, per approach, the failure count and every failure's reason, and the
 # median and worst of each figure. Results go to target/seed-sweep/results.tsv (or
-# $SWEEP_DIR/results.tsv: two sweeps at once need two directories).
+# $SWEEP_DIR/results.tsv: two sweeps at once need two directories). With $SWEEP_BIN set to
+# a cellinject binary, nothing is built and that binary runs (a sweep of an hour keeps
+# one version while the workspace is rebuilt).
 #
 # Usage: bash bench/seed_sweep.sh [--seeds FIRST-LAST] [--approaches "1 2"] [--repeat N] [--run] [--jobs J]
 # e.g.   bash bench/seed_sweep.sh --seeds 1-200                 # the calibration sweep
@@ -32,7 +34,7 @@ while [ $# -gt 0 ]; do
     --repeat) repeat=$2; shift 2 ;;
     --run) run=1; shift ;;
     --jobs) jobs=$2; shift 2 ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
     *) echo "seed_sweep.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -40,8 +42,13 @@ case $seeds in
   *-*) first=${seeds%-*}; last=${seeds#*-} ;;
   *) echo "seed_sweep.sh: --seeds takes FIRST-LAST, got '$seeds'" >&2; exit 2 ;;
 esac
-cargo build --release --quiet --locked
-bin=${CARGO_TARGET_DIR:-$PWD/target}/release/cellinject
+if [ -n "${SWEEP_BIN:-}" ]; then
+  bin=$SWEEP_BIN
+  [ -x "$bin" ] || { echo "seed_sweep.sh: SWEEP_BIN='$bin' is not an executable file" >&2; exit 2; }
+else
+  cargo build --release --quiet --locked
+  bin=${CARGO_TARGET_DIR:-$PWD/target}/release/cellinject
+fi
 work=${SWEEP_DIR:-$PWD/target/seed-sweep}
 rm -rf "$work"
 mkdir -p "$work"
