@@ -201,6 +201,37 @@ fn detect(
     };
     let r = detect_and_score(&plate, &f.pixels, f.width as usize, f.height as usize, at)
         .map_err(|e| anyhow::anyhow!("cell detection: {e}"))?;
+    if r.true_cells == 0 && r.found_cells == 0 {
+        // Nothing to score: say where the frame and the plate are instead of NaN.
+        let fx = [g.x0, g.x0 + (f.width as f64 - 1.0) * g.pitch];
+        let fy = [g.z0, g.z0 + (f.height as f64 - 1.0) * g.pitch];
+        let half = 0.5 * plate.pitch;
+        let px = [
+            plate.origin[0] - half,
+            plate.origin[0] - half + plate.cols as f64 * plate.pitch,
+        ];
+        let py = [
+            plate.origin[1] - half,
+            plate.origin[1] - half + plate.rows as f64 * plate.pitch,
+        ];
+        let mm = |v: [f64; 2]| format!("[{:.3}, {:.3}] mm", v[0] * 1e3, v[1] * 1e3);
+        anyhow::bail!(
+            "no cell in view at {zoom}x: the frame covers stage x {}, y {}, and `{}`'s wells span x {}, y {}{}",
+            mm(fx),
+            mm(fy),
+            plate_path.display(),
+            mm(px),
+            mm(py),
+            if plate.cells.is_empty() {
+                " (the plate holds no cell)".to_string()
+            } else {
+                format!(
+                    " ({} cells, none wholly in the frame: set the plate's origin inside the frame)",
+                    plate.cells.len()
+                )
+            }
+        );
+    }
     if args.format() == Format::Json {
         return print_json(&r, &[]);
     }
@@ -222,13 +253,15 @@ fn detect(
         r.debris_called_cells,
         r.false_negatives
     );
+    let ratio = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
+    let um = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{:.3} µm", v * 1e6));
     outln!(
-        "precision {:.3}, recall {:.3}; centre error median {:.3} µm, 95th percentile {:.3} µm; diameter error median {:.3} µm",
-        r.precision,
-        r.recall,
-        r.centre_error_m[0] * 1e6,
-        r.centre_error_m[1] * 1e6,
-        r.diameter_error_m * 1e6
+        "precision {}, recall {}; centre error median {}, 95th percentile {}; diameter error median {}",
+        ratio(r.precision),
+        ratio(r.recall),
+        um(r.centre_error_m.map(|c| c[0])),
+        um(r.centre_error_m.map(|c| c[1])),
+        um(r.diameter_error_m)
     );
     Ok(())
 }

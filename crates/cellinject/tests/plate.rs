@@ -114,6 +114,11 @@ fn bad_plate_files_are_refused_naming_the_file_and_the_key() {
         ),
         // A missing key.
         (GOOD.replace("pitch = 150e-6", "#"), "plate.pitch"),
+        // A pitch typed in mm (160 mm is no feeder's): refused with a units hint.
+        (
+            GOOD.replace("pitch = 150e-6", "pitch = 0.16"),
+            "did you mean 0.16 mm",
+        ),
         // TOML syntax.
         (GOOD.replace("rows = 4", "rows = [4"), "not valid TOML"),
     ];
@@ -206,6 +211,39 @@ fn plate_detect_finds_every_cell_and_no_debris_on_generated_plates() {
     assert_eq!(found, cells);
     // Doublets were split.
     assert!(splits >= 4, "{splits}");
+}
+
+/// A plate that lies outside the frame: exit 1 with a sentence saying where the frame
+/// and the wells are, not a report of NaN.
+#[test]
+fn plate_detect_with_no_cell_in_view_says_where_the_plate_is() {
+    let d = dir("detect-none");
+    let o = run(
+        &d,
+        &[
+            "plate",
+            "generate",
+            "--origin=5e-3,5e-3",
+            "--out",
+            "far.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    for format in ["text", "json"] {
+        let o = run(
+            &d,
+            &["plate", "detect", "--plate", "far.toml", "--format", format],
+        );
+        assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+        let e = err(&o);
+        assert!(
+            e.contains("no cell in view") && e.contains("far.toml"),
+            "{e}"
+        );
+        assert!(e.contains("[4.925, 5.825] mm"), "the wells' span: {e}");
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(!out.contains("NaN") && !e.contains("NaN"), "{out}{e}");
+    }
 }
 
 /// The pipette's tip found from the image alone, in focus, against the twin's truth.

@@ -55,14 +55,14 @@ pub struct DetectionReport {
     pub debris_called_cells: usize,
     /// True cells not found.
     pub false_negatives: usize,
-    /// `true_positives / found_cells`.
-    pub precision: f64,
-    /// `true_positives / true_cells`.
-    pub recall: f64,
-    /// m, median and 95th percentile of the matched centres' errors.
-    pub centre_error_m: [f64; 2],
-    /// m, median of |found − true diameter| over the matches.
-    pub diameter_error_m: f64,
+    /// `true_positives / found_cells` (`None`: no cell found).
+    pub precision: Option<f64>,
+    /// `true_positives / true_cells` (`None`: no cell in the frame).
+    pub recall: Option<f64>,
+    /// m, median and 95th percentile of the matched centres' errors (`None`: no match).
+    pub centre_error_m: Option<[f64; 2]>,
+    /// m, median of |found − true diameter| over the matches (`None`: no match).
+    pub diameter_error_m: Option<f64>,
     /// Every cell found.
     pub cells: Vec<Found>,
 }
@@ -169,15 +169,12 @@ pub fn detect_and_score(
     }
     let tp = errors.len();
     let found = cells.len();
-    let quantile = |v: &mut Vec<f64>, q: f64| {
-        if v.is_empty() {
-            return f64::NAN;
-        }
-        v.sort_by(f64::total_cmp);
-        v[((v.len() - 1) as f64 * q).round() as usize]
-    };
-    let centre_error_m = [quantile(&mut errors, 0.5), quantile(&mut errors, 0.95)];
-    let diameter_error_m = quantile(&mut diameter_errors, 0.5);
+    errors.sort_by(f64::total_cmp);
+    diameter_errors.sort_by(f64::total_cmp);
+    let quantile = |v: &[f64], q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    let centre_error_m =
+        (!errors.is_empty()).then(|| [quantile(&errors, 0.5), quantile(&errors, 0.95)]);
+    let diameter_error_m = (!diameter_errors.is_empty()).then(|| quantile(&diameter_errors, 0.5));
     Ok(DetectionReport {
         true_cells: truth.len(),
         true_debris: debris.len(),
@@ -187,16 +184,8 @@ pub fn detect_and_score(
         false_positives: found - tp,
         debris_called_cells,
         false_negatives: truth.len() - tp,
-        precision: if found > 0 {
-            tp as f64 / found as f64
-        } else {
-            f64::NAN
-        },
-        recall: if truth.is_empty() {
-            f64::NAN
-        } else {
-            tp as f64 / truth.len() as f64
-        },
+        precision: (found > 0).then(|| tp as f64 / found as f64),
+        recall: (!truth.is_empty()).then(|| tp as f64 / truth.len() as f64),
         centre_error_m,
         diameter_error_m,
         cells,

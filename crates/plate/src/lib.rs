@@ -158,6 +158,19 @@ impl Plate {
                 ),
             ));
         }
+        if self.pitch > PITCH_MAX {
+            return Err(invalid(
+                "plate.pitch",
+                format!(
+                    "{} m ({:.0} mm) is not a matrix feeder's pitch (above {} µm, at most {} mm){}",
+                    self.pitch,
+                    self.pitch * 1e3,
+                    CELL_MAX * 1e6,
+                    PITCH_MAX * 1e3,
+                    units_hint(self.pitch)
+                ),
+            ));
+        }
         for (i, v) in self.origin.iter().enumerate() {
             if !v.is_finite() {
                 return Err(invalid(
@@ -256,6 +269,26 @@ impl Plate {
 
 /// Largest number of rows or columns.
 pub const MAX_SIDE: u32 = 1000;
+
+/// Largest pitch of a feeder, m: a 96-well plate's wells are 9 mm apart, and no
+/// single-cell feeder spaces its wells wider (a larger number is a unit mistake).
+pub const PITCH_MAX: f64 = 10e-3;
+
+/// For a length that is out of a feeder's class, what it would be if it had been typed
+/// in mm or µm instead of metres (the files are in metres): `"; plate files are in
+/// metres: did you mean 0.16 mm, 160e-6?"`, or nothing when neither fits.
+fn units_hint(v: f64) -> String {
+    [(1e-3, "mm"), (1e-6, "µm")]
+        .into_iter()
+        .find(|(scale, _)| v * scale > CELL_MAX && v * scale <= PITCH_MAX)
+        .map(|(scale, unit)| {
+            format!(
+                "; plate files are in metres: did you mean {v} {unit}, that is {:e}?",
+                v * scale
+            )
+        })
+        .unwrap_or_default()
+}
 
 /// How [`generate`] makes a plate.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -439,6 +472,29 @@ mod tests {
             Err(PlateError::Invalid { key, .. }) => key,
             Ok(()) => "ok".into(),
         }
+    }
+
+    #[test]
+    fn a_pitch_out_of_a_feeders_class_is_refused_with_a_units_hint() {
+        // 0.16 typed for 0.16 mm: 160 mm is no feeder's pitch.
+        let mut p = plate();
+        p.pitch = 0.16;
+        let e = p.check().unwrap_err().to_string();
+        assert!(e.contains("plate.pitch"), "{e}");
+        assert!(e.contains("did you mean 0.16 mm, that is 1.6e-4"), "{e}");
+        // 150 typed for 150 µm.
+        p.pitch = 150.0;
+        let e = p.check().unwrap_err().to_string();
+        assert!(e.contains("did you mean 150 µm, that is 1.5e-4"), "{e}");
+        // Out of class either way: no hint.
+        p.pitch = 1e6;
+        let e = p.check().unwrap_err().to_string();
+        assert!(!e.contains("did you mean"), "{e}");
+        // A 96-well plate's 9 mm is a feeder's pitch.
+        let mut p = plate();
+        p.pitch = 9e-3;
+        p.debris.clear();
+        assert_eq!(p.check(), Ok(()));
     }
 
     #[test]
