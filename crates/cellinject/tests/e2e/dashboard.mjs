@@ -2,7 +2,7 @@
 //
 //   node dashboard.mjs URL [SCREENSHOT_DIR [CELLS]]
 //
-// Loads the page, sees frames arrive (and counts them while a run goes), starts a run
+// Loads the page, checks the plate map's well labels ([row, col] from 0), sees frames arrive (and counts them while a run goes), starts a run
 // on the twin, waits for the pipette to be in a cell's procedure, presses ABORT, and
 // checks through the API that the pipette is retracted and the run recorded aborted.
 // With SCREENSHOT_DIR, the page is photographed once CELLS cells are done (default 1)
@@ -37,6 +37,16 @@ try {
   await page.goto(url);
   await page.waitForFunction(() => window.cellinject && window.cellinject.frames >= 5, null, { timeout: 20000 });
   await page.waitForFunction(() => window.cellinject.status && window.cellinject.status.state === 'idle', null, { timeout: 5000 });
+
+  // The plate map numbers wells as the files and the command line do: [row, col] from 0.
+  await page.waitForFunction(() => window.cellinject.plateLabels, null, { timeout: 5000 });
+  out.plate_labels = await page.evaluate(() => window.cellinject.plateLabels);
+  const want = (n) => Array.from({ length: n }, (_, i) => String(i));
+  const st0 = (await api('/api/status')).body;
+  if (JSON.stringify(out.plate_labels.rows) !== JSON.stringify(want(st0.plate.rows))
+    || JSON.stringify(out.plate_labels.cols) !== JSON.stringify(want(st0.plate.cols))) {
+    fail(`the plate map's labels are ${JSON.stringify(out.plate_labels)}, not rows and columns from 0`);
+  }
 
   await page.click('#start');
   // The run goes: wait for the pipette to work on a cell (A3 driven forward).
