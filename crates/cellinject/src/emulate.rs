@@ -37,7 +37,7 @@ pub struct GcsArgs {
     #[arg(long, value_name = "FILE.toml")]
     plate: Option<PathBuf>,
     /// Faults on the plate's cells (as `cellinject run --fault`).
-    #[arg(long, value_name = "KIND@CELL")]
+    #[arg(long, value_name = "KIND@ROW,COL[,K]")]
     fault: Vec<String>,
     /// Pre-tensioning approach of the twin (default: the description's).
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
@@ -77,6 +77,10 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
     let plate = match &a.plate {
         None => None,
         Some(p) => Some(crate::run::read_plate(p)?.0),
+    };
+    let faults = match &plate {
+        Some(p) => crate::run::resolve_faults(&a.fault, &faults, p)?,
+        None => Vec::new(),
     };
     let gcs = bind("--bind", &a.bind)?;
     let gcs_addr = gcs.local_addr()?;

@@ -143,7 +143,7 @@ enum Command {
     Plate(plate::PlateCommand),
     /// The unattended injection workflow: every cell of a plate found, injected and checked, recorded in a database (the default command).
     #[command(
-        after_help = "Examples:\n  cellinject run\n  cellinject run --plate plate.toml --db runs.sqlite --format json\n  cellinject run --resume\n  cellinject run --fault clog@5"
+        after_help = "Examples:\n  cellinject run\n  cellinject run --plate plate.toml --db runs.sqlite --format json\n  cellinject run --resume\n  cellinject run --fault clog@1,0"
     )]
     Run(run::RunArgs),
     /// The run records: list the runs, show one as JSON, export its attempts.

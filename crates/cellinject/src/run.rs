@@ -9,7 +9,7 @@ use cellinject_core::calibrate::HysteresisCalibration;
 use cellinject_core::inject::{Attempt, ImageMap, Observer, Options, Target, Transition, Workflow};
 use cellinject_plate::{GenerateOptions, Plate, generate};
 use cellinject_records::{AttemptRow, EventRow, Records, RecordsError, RunRow};
-use cellinject_twin::{Fault, SharedTwin};
+use cellinject_twin::{Fault, FaultAt, SharedTwin};
 use clap::{Args, Subcommand};
 use serde::Serialize;
 
@@ -49,9 +49,10 @@ pub struct RunArgs {
     /// after a fault on a cell, which always brings one.
     #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
     recheck_every: f64,
-    /// Inject a fault into the twin: KIND@CELL, KIND one of clog, hard-clog, break,
-    /// move, dark, stall; CELL the plate file's cell index (repeatable).
-    #[arg(long, value_name = "KIND@CELL")]
+    /// Inject a fault into the twin: KIND@ROW,COL (the cell in well [ROW, COL], from 0
+    /// as in the plate file) or KIND@ROW,COL,K (the K-th cell of that well, top first,
+    /// from 0); KIND one of clog, hard-clog, break, move, dark, stall (repeatable).
+    #[arg(long, value_name = "KIND@ROW,COL[,K]")]
     fault: Vec<String>,
     #[command(flatten)]
     backend: crate::backend::BackendArgs,
@@ -104,26 +105,32 @@ pub enum RunsCommand {
     },
 }
 
-pub(crate) fn parse_fault(s: &str) -> Result<Fault> {
-    let bad = || {
-        InputError(format!(
-            "--fault `{s}`: expected KIND@CELL with KIND one of clog, hard-clog, break, move, dark, stall (e.g. clog@3)"
-        ))
-    };
-    let (kind, cell) = s.split_once('@').ok_or_else(bad)?;
-    let cell: usize = cell.parse().map_err(|_| bad())?;
-    Ok(match kind {
-        "clog" => Fault::Clog { cell, hard: false },
-        "hard-clog" => Fault::Clog { cell, hard: true },
-        "break" => Fault::Break { cell, length: 6e-6 },
-        "move" => Fault::CellMoves {
-            cell,
-            by: [3e-6, 2e-6],
-        },
-        "dark" => Fault::Dark { cell, frames: 40 },
-        "stall" => Fault::StageStall { cell },
-        _ => return Err(bad().into()),
-    })
+/// Reads `--fault KIND@ROW,COL[,K]`; exit 2 naming the option and what is wrong.
+pub(crate) fn parse_fault(s: &str) -> Result<FaultAt> {
+    s.parse::<FaultAt>()
+        .map_err(|e| InputError(format!("--fault {e}")).into())
+}
+
+/// The faults on `plate`'s cells; exit 2 naming the fault whose well or cell the plate
+/// does not have.
+pub(crate) fn resolve_faults(
+    specs: &[String],
+    faults: &[FaultAt],
+    plate: &Plate,
+) -> Result<Vec<Fault>> {
+    specs
+        .iter()
+        .zip(faults)
+        .map(|(s, f)| {
+            f.resolve(plate).map_err(|e| {
+                InputError(format!(
+                    "--fault `{s}`: {}",
+                    e.to_string().trim_start_matches("key `fault`: ")
+                ))
+                .into()
+            })
+        })
+        .collect()
 }
 
 /// The default plate: 8 x 12 wells of 150 um centred in the 2.5x field of view.
@@ -549,7 +556,20 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     // The plate is read and checked before the database is touched.
     let given_plate = match &args.plate {
         None => None,
-        Some(p) => Some(read_plate(p)?.1),
+        Some(p) => Some(read_plate(p)?),
+    };
+    // So are the faults on a new run's plate: a fault naming a well or cell the plate
+    // does not have leaves no run behind.
+    let fresh = if args.resume {
+        None
+    } else {
+        let seed = args.seed.unwrap_or(d.sim.seed);
+        let (plate, text) = match &given_plate {
+            Some(p) => p.clone(),
+            None => default_plate_text(seed)?,
+        };
+        let resolved = resolve_faults(&args.fault, &faults, &plate)?;
+        Some((plate, text, seed, resolved))
     };
     // A controller that cannot be reached leaves no run behind: it is opened before
     // the database.
@@ -563,9 +583,9 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         )?)
     };
     let mut db = Records::open(&args.db).map_err(records_error)?;
-    let (run_id, plate_text, seed, previous, base) = if args.resume {
+    let (run_id, plate_text, seed, previous, base, faults) = if args.resume {
         let r = db.run(None).map_err(records_error)?;
-        if let (Some(p), Some(text)) = (&args.plate, &given_plate) {
+        if let (Some(p), Some((_, text))) = (&args.plate, &given_plate) {
             if *text != r.plate {
                 return Err(InputError(format!(
                     "--plate `{}` is not the plate of run {} (resume takes the plate from the database: leave --plate out)",
@@ -601,6 +621,11 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             outln!("run {} is finished: nothing to resume", r.id);
             return Ok(());
         }
+        // The faults act on the run's own plate (checked before the records change).
+        let resolved = match cellinject_config::plate::parse(&r.plate) {
+            Ok(p) => resolve_faults(&args.fault, &faults, &p)?,
+            Err(_) => Vec::new(), // refused below, naming the run's plate
+        };
         let (dropped, interrupted) = db.prepare_resume(r.id).map_err(records_error)?;
         if dropped + interrupted > 0 {
             eprintln!(
@@ -615,13 +640,10 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             r.seed.unwrap_or(d.sim.seed),
             previous,
             (r.sim_time_s, r.cell_time_s),
+            resolved,
         )
     } else {
-        let seed = args.seed.unwrap_or(d.sim.seed);
-        let text = match &args.plate {
-            Some(_) => given_plate.clone().unwrap_or_default(),
-            None => default_plate_text(seed)?.1,
-        };
+        let (_, text, seed, resolved) = fresh.expect("a new run's plate is read first");
         let settings = serde_json::json!({ "options": options, "faults": args.fault });
         let id = new_run(
             &mut db,
@@ -630,7 +652,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             &args.backend.backend,
             &settings,
         )?;
-        (id, text, seed, Vec::new(), (0.0, 0.0))
+        (id, text, seed, Vec::new(), (0.0, 0.0), resolved)
     };
     let plate = cellinject_config::plate::parse(&plate_text).map_err(|e| {
         InputError(format!(

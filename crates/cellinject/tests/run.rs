@@ -129,7 +129,10 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
     assert!(err(&o).contains("--db notes.sqlite"), "{}", err(&o));
     assert_eq!(fs::read(d.join("notes.sqlite")).unwrap(), before);
     for (args, needle) in [
-        (vec!["run", "--fault", "melt@1"], "--fault"),
+        (vec!["run", "--fault", "melt@1,0"], "--fault"),
+        // Cells are named by their well, as in the plate file and the outputs.
+        (vec!["run", "--fault", "clog@5"], "no longer names a cell"),
+        (vec!["run", "--fault", "clog@1,x"], "the column `x`"),
         (vec!["run", "--dose", "NaN"], "--dose"),
         (vec!["run", "--dose", "0.5"], "--dose"),
         (vec!["run", "--max-off-centre", "0.7"], "--max-off-centre"),
@@ -142,6 +145,32 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
         let o = run(&d, &args);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", err(&o));
         assert!(err(&o).contains(needle), "{args:?}: {}", err(&o));
+    }
+    // A fault the plate cannot hold is refused before anything is recorded: no database
+    // is created.
+    plate(&d);
+    for (fault, needle) in [
+        ("clog@3,0", "well [3, 0] is not on the 3x4 plate"),
+        ("clog@1,0,1", "well [1, 0] holds 1 cell: no cell 1 there"),
+    ] {
+        let o = run(
+            &d,
+            &[
+                "run",
+                "--plate",
+                "p.toml",
+                "--fault",
+                fault,
+                "--db",
+                "none.sqlite",
+            ],
+        );
+        assert_eq!(o.status.code(), Some(2), "{fault}: {}", err(&o));
+        assert!(err(&o).contains(needle), "{fault}: {}", err(&o));
+        assert!(
+            !d.join("none.sqlite").exists(),
+            "{fault}: a database was created"
+        );
     }
 }
 
@@ -186,22 +215,31 @@ fn transitions(d: &Path, db: &str) -> String {
 #[test]
 fn each_fault_ends_safe_with_its_reason_recorded() {
     let d = bench("faults");
-    // The plate's cell 5 (file order) is the one each fault is tied to.
+    // Each fault is tied to the cell in well [1, 0].
     let cases: [(&str, Option<i32>, &str); 6] = [
-        ("clog@5", Some(0), "clogged"),
-        ("hard-clog@5", Some(1), "blocked"),
-        ("break@5", Some(1), "broken"),
-        ("move@5", Some(0), ""),
-        ("dark@5", Some(0), "lost tracking"),
-        ("stall@5", Some(1), "deadline"),
+        ("clog@1,0", Some(0), "clogged"),
+        ("hard-clog@1,0", Some(1), "blocked"),
+        ("break@1,0", Some(1), "broken"),
+        ("move@1,0", Some(0), ""),
+        ("dark@1,0", Some(0), "lost tracking"),
+        ("stall@1,0", Some(1), "deadline"),
     ];
     for (fault, code, needle) in cases {
-        let db = format!("{}.sqlite", fault.replace('@', "-"));
+        let db = format!("{}.sqlite", fault.replace(['@', ','], "-"));
         let (c, s, e) = json_run(&d, &["--fault", fault, "--db", &db]);
         assert_eq!(c, code, "{fault}: {e}");
         let attempts = s["attempts"].as_array().unwrap();
         let all = serde_json::to_string(&s).unwrap();
         assert!(all.contains(needle), "{fault}: no `{needle}` in {all}");
+        if fault.starts_with("clog") {
+            // The cell the fault names is the one that failed, by the same numbering.
+            let clogged: Vec<_> = attempts
+                .iter()
+                .filter(|a| a["reason"].as_str().is_some_and(|r| r.contains("clogged")))
+                .map(|a| a["well"].clone())
+                .collect();
+            assert_eq!(clogged, [serde_json::json!([1, 0])], "{fault}: {all}");
+        }
         if code == Some(1) {
             // Stopped: in the safe state, with the reason recorded.
             assert_eq!(s["status"], "stopped", "{fault}");

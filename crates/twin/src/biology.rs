@@ -11,8 +11,10 @@
 use cellinject_numeric::Rng;
 use cellinject_rig::pipette::cell_volume;
 use cellinject_simparams::CellBiology;
+use thiserror::Error;
 
 use crate::camera::{CellLook, TipPose};
+use crate::world::TwinError;
 
 /// Why a cell died.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -147,6 +149,151 @@ impl Fault {
             | Fault::Dark { cell, .. }
             | Fault::StageStall { cell } => cell,
         }
+    }
+}
+
+/// What a fault does, without the cell it is tied to (`--fault KIND@...`'s KIND).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// `clog`: a clog a clearing pulse clears.
+    Clog,
+    /// `hard-clog`: a clog that does not clear.
+    HardClog,
+    /// `break`: the tip breaks 6 µm shorter on touching the cell.
+    Break,
+    /// `move`: the cell moves by (3, 2) µm when the pipette arrives.
+    Move,
+    /// `dark`: the light goes out for 40 frames when the pipette arrives.
+    Dark,
+    /// `stall`: the stage jams on its next move.
+    Stall,
+}
+
+impl FaultKind {
+    /// Every kind, by its name on the command line.
+    pub const ALL: [(&'static str, FaultKind); 6] = [
+        ("clog", FaultKind::Clog),
+        ("hard-clog", FaultKind::HardClog),
+        ("break", FaultKind::Break),
+        ("move", FaultKind::Move),
+        ("dark", FaultKind::Dark),
+        ("stall", FaultKind::Stall),
+    ];
+
+    /// The fault of this kind on the plate file's cell `cell`.
+    pub fn on(self, cell: usize) -> Fault {
+        match self {
+            FaultKind::Clog => Fault::Clog { cell, hard: false },
+            FaultKind::HardClog => Fault::Clog { cell, hard: true },
+            FaultKind::Break => Fault::Break { cell, length: 6e-6 },
+            FaultKind::Move => Fault::CellMoves {
+                cell,
+                by: [3e-6, 2e-6],
+            },
+            FaultKind::Dark => Fault::Dark { cell, frames: 40 },
+            FaultKind::Stall => Fault::StageStall { cell },
+        }
+    }
+}
+
+/// A fault addressed as the files, records and outputs number cells: the well
+/// `[row, col]` (from 0) and the cell's rank in that well, `0` for the top one (the
+/// smallest plate y, then the smallest x: the order in which the workflow works
+/// through a well). Written `KIND@ROW,COL` or `KIND@ROW,COL,K`, e.g. `clog@0,3` or
+/// `break@2,5,1` (the second cell of a doublet).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FaultAt {
+    /// What happens.
+    pub kind: FaultKind,
+    /// `[row, col]` of the well.
+    pub well: [u32; 2],
+    /// The cell's rank in its well, top first.
+    pub nth: usize,
+}
+
+/// A `--fault` that does not read as `KIND@ROW,COL[,K]`.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[error(
+    "`{spec}`: {reason}; expected KIND@ROW,COL or KIND@ROW,COL,K (the K-th cell of the well, top first, from 0) with KIND one of clog, hard-clog, break, move, dark, stall, e.g. clog@0,3"
+)]
+pub struct FaultSpecError {
+    /// What was given.
+    pub spec: String,
+    /// What is wrong with it.
+    pub reason: String,
+}
+
+impl std::str::FromStr for FaultAt {
+    type Err = FaultSpecError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = |reason: &str| FaultSpecError {
+            spec: s.to_string(),
+            reason: reason.to_string(),
+        };
+        let (kind, at) = s.split_once('@').ok_or_else(|| bad("no `@`"))?;
+        let kind = FaultKind::ALL
+            .iter()
+            .find(|(name, _)| *name == kind)
+            .map(|(_, k)| *k)
+            .ok_or_else(|| bad(&format!("unknown kind `{kind}`")))?;
+        let parts: Vec<&str> = at.split(',').map(str::trim).collect();
+        let number = |t: &str, what: &str| {
+            t.parse::<u32>()
+                .map_err(|_| bad(&format!("{what} `{t}` is not a whole number from 0")))
+        };
+        match parts.as_slice() {
+            [one] if one.parse::<u32>().is_ok() => Err(bad(
+                "a single number no longer names a cell: cells are named by their well, as in the plate file, the records and the outputs",
+            )),
+            [row, col] | [row, col, _] => Ok(FaultAt {
+                kind,
+                well: [number(row, "the row")?, number(col, "the column")?],
+                nth: match parts.get(2) {
+                    Some(k) => number(k, "the cell's rank in its well")? as usize,
+                    None => 0,
+                },
+            }),
+            _ => Err(bad("the cell is ROW,COL or ROW,COL,K")),
+        }
+    }
+}
+
+impl FaultAt {
+    /// The fault on the plate's cell this address names; refused, naming the well,
+    /// when the plate has no such well or no such cell in it.
+    pub fn resolve(&self, plate: &cellinject_plate::Plate) -> Result<Fault, TwinError> {
+        let [row, col] = self.well;
+        if row >= plate.rows || col >= plate.cols {
+            return Err(TwinError::Invalid {
+                key: "fault".into(),
+                reason: format!(
+                    "well [{row}, {col}] is not on the {}x{} plate (rows and columns count from 0)",
+                    plate.rows, plate.cols
+                ),
+            });
+        }
+        let mut here: Vec<(usize, &cellinject_plate::Object)> = plate
+            .cells
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.well == self.well)
+            .collect();
+        here.sort_by(|(_, a), (_, b)| {
+            a.offset[1]
+                .total_cmp(&b.offset[1])
+                .then(a.offset[0].total_cmp(&b.offset[0]))
+        });
+        let (index, _) = here.get(self.nth).ok_or_else(|| TwinError::Invalid {
+            key: "fault".into(),
+            reason: format!(
+                "well [{row}, {col}] holds {} cell{}: no cell {} there (counted from 0, top first)",
+                here.len(),
+                if here.len() == 1 { "" } else { "s" },
+                self.nth
+            ),
+        })?;
+        Ok(self.kind.on(*index))
     }
 }
 
@@ -360,6 +507,56 @@ impl Biology {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_fault_names_its_cell_by_well_and_rank_top_first() {
+        use cellinject_plate::{Object, Plate};
+        let cell = |well, offset: [f64; 2]| Object {
+            well,
+            offset,
+            diameter: 12e-6,
+        };
+        // File order: the doublet's lower cell is listed first.
+        let plate = Plate {
+            rows: 2,
+            cols: 3,
+            pitch: 150e-6,
+            origin: [0.0, 0.0],
+            cells: vec![
+                cell([0, 0], [0.0, 0.0]),
+                cell([1, 2], [0.0, 10e-6]),
+                cell([1, 2], [0.0, -10e-6]),
+            ],
+            debris: vec![],
+        };
+        let at = |s: &str| s.parse::<FaultAt>().unwrap().resolve(&plate);
+        assert_eq!(
+            at("clog@0,0").unwrap(),
+            Fault::Clog {
+                cell: 0,
+                hard: false
+            }
+        );
+        // Top first: rank 0 is the cell with the smaller y (file index 2).
+        assert_eq!(at("stall@1,2").unwrap(), Fault::StageStall { cell: 2 });
+        assert_eq!(at("stall@1,2,1").unwrap(), Fault::StageStall { cell: 1 });
+        let e = at("stall@1,2,2").unwrap_err().to_string();
+        assert!(e.contains("holds 2 cells: no cell 2"), "{e}");
+        let e = at("dark@2,0").unwrap_err().to_string();
+        assert!(e.contains("well [2, 0] is not on the 2x3 plate"), "{e}");
+        let e = at("dark@0,1").unwrap_err().to_string();
+        assert!(e.contains("holds 0 cells"), "{e}");
+        for (bad, why) in [
+            ("clog@3", "no longer names a cell"),
+            ("melt@0,0", "unknown kind `melt`"),
+            ("clog", "no `@`"),
+            ("clog@0,-1", "the column `-1`"),
+            ("clog@0,1,2,3", "ROW,COL or ROW,COL,K"),
+        ] {
+            let e = bad.parse::<FaultAt>().unwrap_err().to_string();
+            assert!(e.contains(why) && e.contains(bad), "{bad}: {e}");
+        }
+    }
 
     fn one_cell() -> Biology {
         let mut rng = Rng::new(1, 99);

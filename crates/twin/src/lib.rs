@@ -25,7 +25,7 @@ pub use cellinject_numeric::rng;
 /// The twin's simulation-only parameters (crate `cellinject-simparams`).
 pub use cellinject_simparams as params;
 
-pub use biology::{Biology, CellState, Death, Fault};
+pub use biology::{Biology, CellState, Death, Fault, FaultAt, FaultKind, FaultSpecError};
 pub use camera::{CellLook, Grid, Microscope, TipPose};
 pub use devices::{
     SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, dyn_rig, guarded, rig,
