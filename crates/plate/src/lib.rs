@@ -18,6 +18,8 @@
 //! **Architecture invariant:** pure data and computation: no files, no TOML (the
 //! description file is `cellinject-config`'s), no clock.
 
+pub mod fields;
+
 use cellinject_numeric::rng::Rng;
 use thiserror::Error;
 
