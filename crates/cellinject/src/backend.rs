@@ -197,6 +197,7 @@ pub fn open_with(
         },
         side_camera: Box::new(bench.camera(ViewName::Side).map_err(bench_err)?),
         stage: Box::new(bench.stage().map_err(bench_err)?) as Box<dyn Stage>,
+        feeder: Box::new(bench.feeder().map_err(bench_err)?) as Box<dyn Stage>,
         injector: Box::new(bench.injector().map_err(bench_err)?) as Box<dyn Injector>,
         optics: Box::new(bench.optics().map_err(bench_err)?) as Box<dyn Optics>,
         clock: Box::new(bench.clock().map_err(bench_err)?) as Box<dyn Clock>,

@@ -442,6 +442,7 @@ fn lost_frames_are_rejected_and_hold_the_command_instead_of_steering_it() {
         camera: lossy(d.camera),
         side_camera: lossy(d.side_camera),
         stage: d.stage,
+        feeder: d.feeder,
         injector: d.injector,
         optics: d.optics,
         clock: d.clock,

@@ -31,6 +31,25 @@ pub(crate) fn with<'a, T>(
     }
 }
 
+/// A stage's motion (`[stage]`, `[feeder_stage]`): speed, acceleration, encoder,
+/// settling.
+fn stage_motion(
+    s: &mut Section<'_>,
+    d: cellinject_simparams::StageParams,
+) -> Result<cellinject_simparams::StageParams, ConfigError> {
+    Ok(cellinject_simparams::StageParams {
+        max_speed: s.num("max_speed", d.max_speed, Check::Positive)?,
+        max_accel: s.num("max_accel", d.max_accel, Check::Positive)?,
+        encoder_resolution: s.num("encoder_resolution", d.encoder_resolution, Check::Positive)?,
+        settling_time: s.num("settling_time", d.settling_time, Check::Positive)?,
+        settling_amplitude: s.num(
+            "settling_amplitude",
+            d.settling_amplitude,
+            Check::NonNegative,
+        )?,
+    })
+}
+
 /// `[actuators.Ax.amplifier|hysteresis|creep]`: the amplifier's range (rig) and the
 /// stack's simulation.
 pub(crate) fn stack(a: &mut Section<'_>) -> Result<(AmplifierRange, StackParams), ConfigError> {
@@ -135,21 +154,12 @@ pub(crate) fn bench(
     let mut stage_travel = r.stage_travel;
     let stage = with(top, "stage", d.stage, |s, d| {
         stage_travel = s.num("travel", stage_travel, Check::Positive)?;
-        Ok(cellinject_simparams::StageParams {
-            max_speed: s.num("max_speed", d.max_speed, Check::Positive)?,
-            max_accel: s.num("max_accel", d.max_accel, Check::Positive)?,
-            encoder_resolution: s.num(
-                "encoder_resolution",
-                d.encoder_resolution,
-                Check::Positive,
-            )?,
-            settling_time: s.num("settling_time", d.settling_time, Check::Positive)?,
-            settling_amplitude: s.num(
-                "settling_amplitude",
-                d.settling_amplitude,
-                Check::NonNegative,
-            )?,
-        })
+        stage_motion(s, d)
+    })?;
+    let mut feeder_travel = r.feeder_travel;
+    let feeder_stage = with(top, "feeder_stage", d.feeder_stage, |s, d| {
+        feeder_travel = s.num("travel", feeder_travel, Check::Between(1e-3, 1.0))?;
+        stage_motion(s, d)
     })?;
     let camera = with(top, "camera", d.camera, |s, d| {
         let bits = s.int("bit_depth", d.bit_depth as u64, 8, 12)?;
@@ -274,6 +284,7 @@ pub(crate) fn bench(
         amplifiers,
         safety,
         stage_travel,
+        feeder_travel,
         injector_max_pressure,
         pipette,
         optics,
@@ -288,6 +299,7 @@ pub(crate) fn bench(
         thermal,
         sensors,
         stage,
+        feeder_stage,
         camera,
         lens,
         feeder,

@@ -378,6 +378,7 @@ pub fn instrument(
         camera,
         side_camera,
         stage,
+        feeder,
         injector,
         optics,
         clock,
@@ -419,6 +420,7 @@ pub fn instrument(
             inner: stage,
             t: t.clone(),
         }),
+        feeder,
         injector: injector as Box<dyn Injector>,
         optics: Box::new(TapOptics {
             inner: optics,

@@ -34,6 +34,27 @@ pub enum ViewName {
     Side,
 }
 
+/// Which of the bench's stages a stage request addresses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StageUnit {
+    /// The macro stage carrying the micromanipulator (x, y, z); the default, so
+    /// requests without a `unit` keep their meaning.
+    #[default]
+    Macro,
+    /// The feeder stage carrying the plate (plate x, y).
+    Feeder,
+}
+
+impl StageUnit {
+    fn name(self) -> &'static str {
+        match self {
+            StageUnit::Macro => "stage",
+            StageUnit::Feeder => "feeder stage",
+        }
+    }
+}
+
 /// One request of the bench protocol.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "op", rename_all = "snake_case", deny_unknown_fields)]
@@ -63,6 +84,9 @@ pub enum Request {
     },
     /// Starts a stage move.
     StageMove {
+        /// Which stage (default: the macro stage).
+        #[serde(default)]
+        unit: StageUnit,
         /// Axis 0..3.
         axis: usize,
         /// m.
@@ -70,15 +94,31 @@ pub enum Request {
     },
     /// An axis's encoder, m.
     StagePosition {
+        /// Which stage (default: the macro stage).
+        #[serde(default)]
+        unit: StageUnit,
         /// Axis.
         axis: usize,
     },
     /// Whether the stage moves.
-    StageBusy,
+    StageBusy {
+        /// Which stage (default: the macro stage).
+        #[serde(default)]
+        unit: StageUnit,
+    },
     /// An axis's travel, m.
     StageTravel {
+        /// Which stage (default: the macro stage).
+        #[serde(default)]
+        unit: StageUnit,
         /// Axis.
         axis: usize,
+    },
+    /// The number of axes of a stage.
+    StageAxes {
+        /// Which stage.
+        #[serde(default)]
+        unit: StageUnit,
     },
     /// A pressure pulse.
     Pulse {
@@ -271,19 +311,29 @@ impl Bench {
         Ok(c)
     }
 
-    /// The stage.
+    /// The macro stage.
     pub fn stage(&self) -> Result<BenchStage, HwError> {
-        let travel = [0, 1, 2]
-            .iter()
-            .map(|&axis| {
-                let v = self.request(&Request::StageTravel { axis })?;
+        self.stage_unit(StageUnit::Macro)
+    }
+
+    /// The feeder stage.
+    pub fn feeder(&self) -> Result<BenchStage, HwError> {
+        self.stage_unit(StageUnit::Feeder)
+    }
+
+    fn stage_unit(&self, unit: StageUnit) -> Result<BenchStage, HwError> {
+        let axes = self.number(&Request::StageAxes { unit })?;
+        let travel = (0..axes as usize)
+            .map(|axis| {
+                let v = self.request(&Request::StageTravel { unit, axis })?;
                 serde_json::from_value::<[f64; 2]>(v)
                     .map(|t| (t[0], t[1]))
-                    .map_err(|e| device("stage", e))
+                    .map_err(|e| device(unit.name(), e))
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(BenchStage {
             bench: self.clone(),
+            unit,
             travel,
         })
     }
@@ -377,9 +427,10 @@ impl Camera for BenchCamera {
     }
 }
 
-/// The emulated bench's macro stage.
+/// One of the emulated bench's stages (the macro stage or the feeder stage).
 pub struct BenchStage {
     bench: Bench,
+    unit: StageUnit,
     travel: Vec<(f64, f64)>,
 }
 
@@ -393,17 +444,24 @@ impl Stage for BenchStage {
     fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
         let (lo, hi) = self.travel(axis);
         check_range("stage position", position, lo, hi)?;
+        let unit = self.unit;
         self.bench
-            .request(&Request::StageMove { axis, position })
+            .request(&Request::StageMove {
+                unit,
+                axis,
+                position,
+            })
             .map(|_| ())
     }
     fn position(&mut self, axis: usize) -> Result<f64, HwError> {
-        self.bench.number(&Request::StagePosition { axis })
+        let unit = self.unit;
+        self.bench.number(&Request::StagePosition { unit, axis })
     }
     fn is_busy(&mut self) -> Result<bool, HwError> {
-        let v = self.bench.request(&Request::StageBusy)?;
+        let unit = self.unit;
+        let v = self.bench.request(&Request::StageBusy { unit })?;
         v.as_bool()
-            .ok_or_else(|| device("stage", format!("busy: expected a boolean, got {v}")))
+            .ok_or_else(|| device(unit.name(), format!("busy: expected a boolean, got {v}")))
     }
 }
 

@@ -267,6 +267,16 @@ fn serve_bench(s: &Shared, stream: TcpStream, d: &mut cellinject_rig::Devices<Tw
     }
 }
 
+fn stage_of(
+    d: &mut cellinject_rig::Devices<TwinBackend>,
+    unit: bench::StageUnit,
+) -> &mut cellinject_twin::devices::TwinStage {
+    match unit {
+        bench::StageUnit::Macro => &mut d.stage,
+        bench::StageUnit::Feeder => &mut d.feeder,
+    }
+}
+
 fn camera(d: &mut cellinject_rig::Devices<TwinBackend>, v: ViewName) -> &mut TwinCamera {
     if view_of(v) == 0 {
         &mut d.camera
@@ -359,34 +369,42 @@ fn handle_bench(
             *payload = Some(bytes);
             bench::ok(serde_json::to_value(h).unwrap_or_default())
         }
-        Request::StageMove { axis, position } => {
+        Request::StageMove {
+            unit,
+            axis,
+            position,
+        } => {
             let _c = s.sync();
-            if axis >= d.stage.axes() {
+            let stage = stage_of(d, unit);
+            if axis >= stage.axes() {
                 return bench::error(format!(
-                    "stage axis {axis} does not exist (0..{})",
-                    d.stage.axes()
+                    "{unit:?} stage axis {axis} does not exist (0..{})",
+                    stage.axes()
                 ));
             }
-            r(d.stage.move_to(axis, position).map(|()| json!(null)))
+            r(stage.move_to(axis, position).map(|()| json!(null)))
         }
-        Request::StagePosition { axis } => {
+        Request::StagePosition { unit, axis } => {
             let _c = s.sync();
-            if axis >= d.stage.axes() {
-                return bench::error(format!("stage axis {axis} does not exist"));
+            let stage = stage_of(d, unit);
+            if axis >= stage.axes() {
+                return bench::error(format!("{unit:?} stage axis {axis} does not exist"));
             }
-            r(d.stage.position(axis).map(|p| json!(p)))
+            r(stage.position(axis).map(|p| json!(p)))
         }
-        Request::StageBusy => {
+        Request::StageBusy { unit } => {
             let _c = s.sync();
-            r(d.stage.is_busy().map(|b| json!(b)))
+            r(stage_of(d, unit).is_busy().map(|b| json!(b)))
         }
-        Request::StageTravel { axis } => {
-            if axis >= d.stage.axes() {
-                return bench::error(format!("stage axis {axis} does not exist"));
+        Request::StageTravel { unit, axis } => {
+            let stage = stage_of(d, unit);
+            if axis >= stage.axes() {
+                return bench::error(format!("{unit:?} stage axis {axis} does not exist"));
             }
-            let (lo, hi) = d.stage.travel(axis);
+            let (lo, hi) = stage.travel(axis);
             bench::ok(json!([lo, hi]))
         }
+        Request::StageAxes { unit } => bench::ok(json!(stage_of(d, unit).axes())),
         Request::Pulse { pressure, duration } => {
             let res = {
                 let _c = s.sync();

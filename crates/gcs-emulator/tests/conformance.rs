@@ -357,3 +357,38 @@ fn closed_loop_moves_settle_and_stay_on_target_every_time() {
     );
     e.shutdown();
 }
+
+/// The bench endpoint serves both stages: the feeder's two axes and their travel, a
+/// move that arrives, one past the travel refused, and requests without a `unit`
+/// still addressing the macro stage.
+#[test]
+fn the_bench_serves_the_feeder_stage_beside_the_macro_stage() {
+    use cellinject_gcs_emulator::bench::Bench;
+    use cellinject_hw::{Clock, Stage};
+    let e = emulator();
+    let bench = Bench::connect(&e.bench.unwrap().to_string(), Duration::from_secs(2)).unwrap();
+    let mut feeder = bench.feeder().unwrap();
+    let mut stage = bench.stage().unwrap();
+    assert_eq!((feeder.axes(), stage.axes()), (2, 3));
+    assert_eq!(feeder.travel(1), (-0.025, 0.025));
+    assert_eq!(stage.travel(0), (-0.0125, 0.0125));
+    feeder.move_to(1, 2e-3).unwrap();
+    let mut clock = bench.clock().unwrap();
+    let t0 = Instant::now();
+    while feeder.is_busy().unwrap() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the feeder never arrived"
+        );
+        clock.sleep(0.05).unwrap();
+    }
+    assert!((feeder.position(1).unwrap() - 2e-3).abs() < 0.2e-6);
+    // The macro stage did not move.
+    assert!(stage.position(0).unwrap().abs() < 0.2e-6);
+    assert!(feeder.move_to(0, 0.03).is_err());
+    // An old client's request, without `unit`, is the macro stage's.
+    let v = bench
+        .request(&serde_json::from_str(r#"{"op": "stage_travel", "axis": 2}"#).unwrap())
+        .unwrap();
+    assert_eq!(v, serde_json::json!([-0.0125, 0.0125]));
+}

@@ -30,6 +30,13 @@ pub enum Record {
         /// m.
         position: f64,
     },
+    /// The feeder stage's `move_to(axis, position)`.
+    Feeder {
+        /// Axis.
+        axis: usize,
+        /// m.
+        position: f64,
+    },
     /// `pulse(pressure, duration)`.
     Pulse {
         /// Pa.
@@ -187,24 +194,33 @@ pub struct FakeStage {
     log: Log,
     travel: (f64, f64),
     position: [f64; 3],
+    /// The feeder stage (2 axes, logged as [`Record::Feeder`]).
+    feeder: bool,
 }
 
 impl Stage for FakeStage {
     fn axes(&self) -> usize {
-        3
+        if self.feeder { 2 } else { 3 }
     }
     fn travel(&self, _axis: usize) -> (f64, f64) {
         self.travel
     }
     fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
-        check_range("stage axis", axis as f64, 0.0, 2.0)?;
+        check_range("stage axis", axis as f64, 0.0, (self.axes() - 1) as f64)?;
         check_range("stage position", position, self.travel.0, self.travel.1)?;
-        push(&self.log, Record::Stage { axis, position });
+        push(
+            &self.log,
+            if self.feeder {
+                Record::Feeder { axis, position }
+            } else {
+                Record::Stage { axis, position }
+            },
+        );
         self.position[axis] = position;
         Ok(())
     }
     fn position(&mut self, axis: usize) -> Result<f64, HwError> {
-        check_range("stage axis", axis as f64, 0.0, 2.0)?;
+        check_range("stage axis", axis as f64, 0.0, (self.axes() - 1) as f64)?;
         Ok(self.position[axis])
     }
     fn is_busy(&mut self) -> Result<bool, HwError> {
@@ -321,6 +337,13 @@ pub fn devices(rig: &RigParams) -> (Devices<FakeBackend>, Log) {
             log: log.clone(),
             travel: rig.stage_limits(),
             position: [0.0; 3],
+            feeder: false,
+        },
+        feeder: FakeStage {
+            log: log.clone(),
+            travel: rig.feeder_limits(),
+            position: [0.0; 3],
+            feeder: true,
         },
         injector: FakeInjector {
             log: log.clone(),

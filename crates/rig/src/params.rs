@@ -71,6 +71,9 @@ pub struct RigParams {
     pub safety: SafetyMargins,
     /// m, travel of each macro-stage axis, centred on 0 (`stage.travel`).
     pub stage_travel: f64,
+    /// m, travel of each of the feeder stage's two axes (plate x and y), centred on 0
+    /// (`feeder_stage.travel`).
+    pub feeder_travel: f64,
     /// Pa, largest gauge pressure of the injector (`injector.max_pressure`).
     pub injector_max_pressure: f64,
     /// The mounted pipette and the injected solution (`[injector]`).
@@ -91,6 +94,7 @@ impl Default for RigParams {
             amplifiers: [AmplifierRange::default(); 3],
             safety: SafetyMargins::default(),
             stage_travel: 0.025,
+            feeder_travel: 0.05,
             injector_max_pressure: 2.0e5,
             pipette: crate::pipette::PipetteParams::default(),
             optics: OpticsSetup::default(),
@@ -103,5 +107,10 @@ impl RigParams {
     /// The stage's limits of every axis, m.
     pub fn stage_limits(&self) -> (f64, f64) {
         (-0.5 * self.stage_travel, 0.5 * self.stage_travel)
+    }
+
+    /// The feeder stage's limits of each axis, m.
+    pub fn feeder_limits(&self) -> (f64, f64) {
+        (-0.5 * self.feeder_travel, 0.5 * self.feeder_travel)
     }
 }

@@ -43,6 +43,8 @@ pub struct Devices<B: Backend> {
     pub side_camera: B::Camera,
     /// Stage.
     pub stage: B::Stage,
+    /// The feeder stage carrying the plate (axis 0: plate x, axis 1: plate y).
+    pub feeder: B::Stage,
     /// Injector.
     pub injector: B::Injector,
     /// Zoom lens.
@@ -83,6 +85,7 @@ where
             camera: Box::new(self.camera),
             side_camera: Box::new(self.side_camera),
             stage: Box::new(self.stage),
+            feeder: Box::new(self.feeder),
             injector: Box::new(self.injector),
             optics: Box::new(self.optics),
             clock: Box::new(self.clock),
@@ -128,6 +131,8 @@ pub struct Rig<B: Backend> {
     pub side_camera: B::Camera,
     /// Stage within the rig's travel.
     pub stage: GuardedStage<B::Stage>,
+    /// The feeder stage within the rig's feeder travel.
+    pub feeder: GuardedStage<B::Stage>,
     /// Injector below the rig's pressure limit.
     pub injector: GuardedInjector<B::Injector>,
     /// Zoom within the rig's range.
@@ -170,6 +175,8 @@ impl<B: Backend> Rig<B> {
         let [a1, a2, a3] = devices.piezo;
         let limits = rig.stage_limits();
         let axes = devices.stage.axes();
+        let feeder_limits = rig.feeder_limits();
+        let feeder_axes = devices.feeder.axes();
         Ok(Rig {
             piezo: [
                 GuardedPiezo::new(a1, 0, guard.clone()),
@@ -181,6 +188,7 @@ impl<B: Backend> Rig<B> {
             camera: devices.camera,
             side_camera: devices.side_camera,
             stage: GuardedStage::new(devices.stage, Some(vec![limits; axes])),
+            feeder: GuardedStage::new(devices.feeder, Some(vec![feeder_limits; feeder_axes])),
             injector: GuardedInjector::new(devices.injector, rig.injector_max_pressure),
             optics: GuardedOptics::new(
                 devices.optics,

@@ -226,6 +226,20 @@ pub struct StageParams {
     pub settling_amplitude: f64,
 }
 
+impl StageParams {
+    /// The feeder stage's: a motorised XY microscope stage carrying the plate (5 mm/s,
+    /// 50 mm/s², 0.1 µm encoders, 0.1 s to settle within 0.3 µm).
+    pub fn feeder() -> Self {
+        StageParams {
+            max_speed: 5.0e-3,
+            max_accel: 5.0e-2,
+            encoder_resolution: 0.1e-6,
+            settling_time: 0.1,
+            settling_amplitude: 0.3e-6,
+        }
+    }
+}
+
 impl Default for StageParams {
     fn default() -> Self {
         StageParams {
@@ -407,6 +421,8 @@ pub struct SimParams {
     pub sensors: SensorParams,
     /// Macro stage motion.
     pub stage: StageParams,
+    /// The feeder stage that carries the plate under the objective (x, y).
+    pub feeder_stage: StageParams,
     /// Camera sensor.
     pub camera: CameraParams,
     /// Zoom lens blur.
@@ -429,6 +445,7 @@ impl Default for SimParams {
             thermal: ThermalParams::default(),
             sensors: SensorParams::default(),
             stage: StageParams::default(),
+            feeder_stage: StageParams::feeder(),
             camera: CameraParams::default(),
             lens: LensParams::default(),
             feeder: FeederParams::default(),

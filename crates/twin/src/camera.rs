@@ -196,6 +196,9 @@ pub struct Microscope {
     /// The magnification over its nominal value (thermal drift), in steps of
     /// [`SCALE_STEP`].
     scale: f64,
+    /// m, where the feeder stage has moved the plate (object x, z): the plate's
+    /// walls, cells and debris are drawn this far from the scene's positions.
+    plate_offset: [f64; 2],
 }
 
 /// Resolution of the magnification's thermal drift: the static layer is drawn again
@@ -237,6 +240,30 @@ impl Microscope {
             looks: Vec::new(),
             dark_frames: 0,
             scale: 1.0,
+            plate_offset: [0.0; 2],
+        }
+    }
+
+    /// The plate moved by the feeder stage to `offset` (m, object x and z) from the
+    /// scene's positions; the static layer is drawn again when it changed.
+    pub fn set_plate_offset(&mut self, offset: [f64; 2]) {
+        if offset != self.plate_offset {
+            self.plate_offset = offset;
+            self.static_grid = None;
+        }
+    }
+
+    /// Where the plate is drawn from the scene's positions, m.
+    pub fn plate_offset(&self) -> [f64; 2] {
+        self.plate_offset
+    }
+
+    /// The grid `g` in the plate's frame: the scene's plate positions map onto it.
+    fn plate_grid(&self, g: &Grid) -> Grid {
+        Grid {
+            x0: g.x0 - self.plate_offset[0],
+            z0: g.z0 - self.plate_offset[1],
+            ..*g
         }
     }
 
@@ -431,6 +458,8 @@ impl Microscope {
         }
         let blur2 = self.optics.focus_blur.powi(2) + g.pitch * g.pitch / 12.0;
         let sigma = blur2.sqrt();
+        // The plate's walls, cells and debris, where the feeder has moved them.
+        let g = &self.plate_grid(g);
         let f = self.scene.feeder;
         // Feeder walls: faint lines between the wells.
         let wall_sigma = (0.6e-6f64.powi(2) + blur2).sqrt();
@@ -548,6 +577,7 @@ impl Microscope {
         let blur2 = self.optics.focus_blur.powi(2) + g.pitch * g.pitch / 12.0;
         let sigma = blur2.sqrt();
         let ring_w2 = 2.0 * (0.5e-6f64.powi(2) + blur2);
+        let g = &self.plate_grid(g);
         for (k, look) in &self.looks {
             let Some(c) = self.scene.cells.get(*k) else {
                 continue;

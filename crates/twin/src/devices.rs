@@ -141,7 +141,12 @@ impl Twin {
     }
 
     fn interact(&mut self) {
-        let tip = self.tip();
+        // The cells lie where the feeder has moved the plate: the tip in the plate's
+        // frame meets them there.
+        let mut tip = self.tip();
+        let o = self.plate_offset();
+        tip.x -= o[0];
+        tip.z -= o[1];
         if let Some(b) = self.biology.as_mut() {
             let fx = b.interact(&tip);
             if fx.dark_frames > 0 {
@@ -203,6 +208,15 @@ impl Twin {
             pulse_rng: Rng::new(sim.seed, crate::world::stream::PULSES),
             peeks: 0,
         })
+    }
+
+    /// Where the feeder stage has moved the plate now, m (object x and z: plate x and
+    /// y), residual vibration included.
+    pub fn plate_offset(&self) -> [f64; 2] {
+        [
+            self.world.feeder.true_position(0),
+            self.world.feeder.true_position(1),
+        ]
     }
 
     /// Where the pipette tip is in the object plane now (stage plus end-effector,
@@ -301,11 +315,13 @@ impl Twin {
         }
         let thermal = self.world.params().sim.thermal;
         let drift = thermal.magnification * thermal.delta_t(e.start);
+        let plate = self.plate_offset();
         let cam = match view {
             View::Top => &mut self.camera,
             View::Side => &mut self.side,
         };
         cam.set_magnification_drift(drift);
+        cam.set_plate_offset(plate);
         cam.render(&pose, e.start, e.index, seed, frame);
         self.last_frame[v] = Some(e.index);
     }
@@ -352,6 +368,7 @@ impl Twin {
         let seed = self.world.params().sim.seed;
         let thermal = self.world.params().sim.thermal;
         cam.set_magnification_drift(thermal.magnification * thermal.delta_t(now));
+        cam.set_plate_offset(self.plate_offset());
         cam.render(&pose, now, self.peeks, seed, frame);
         cam.grid()
     }
@@ -481,38 +498,61 @@ impl Camera for TwinCamera {
     }
 }
 
-/// The twin's macro stage.
+/// One of the twin's stages: the macro stage carrying the micromanipulator (x, the
+/// optical axis y, z) or the feeder stage carrying the plate (plate x, plate y).
 pub struct TwinStage {
     twin: SharedTwin,
+    feeder: bool,
+}
+
+impl TwinStage {
+    fn sim(t: &mut Twin, feeder: bool) -> &mut crate::stage::StageSim {
+        if feeder {
+            &mut t.world.feeder
+        } else {
+            &mut t.world.stage
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        if self.feeder { "feeder stage" } else { "stage" }
+    }
 }
 
 impl Stage for TwinStage {
     fn axes(&self) -> usize {
-        3
+        if self.feeder { 2 } else { 3 }
     }
     fn travel(&self, _axis: usize) -> (f64, f64) {
-        lock(&self.twin).world.stage.travel()
+        let t = lock(&self.twin);
+        if self.feeder {
+            t.world.feeder.travel()
+        } else {
+            t.world.stage.travel()
+        }
     }
     fn move_to(&mut self, axis: usize, position: f64) -> Result<(), HwError> {
         let (lo, hi) = self.travel(axis);
-        check_range("stage axis", axis as f64, 0.0, 2.0)?;
-        check_range("stage position", position, lo, hi)?;
+        let name = self.name();
+        check_range(name, axis as f64, 0.0, (self.axes() - 1) as f64)?;
+        check_range(name, position, lo, hi)?;
         let mut t = lock(&self.twin);
         if let Some(b) = t.biology.as_mut()
             && b.stall_pending
+            && !self.feeder
         {
             b.stall_pending = false;
             t.world.stage.stall();
         }
-        t.world.stage.move_to(axis, position);
+        Self::sim(&mut t, self.feeder).move_to(axis, position);
         Ok(())
     }
     fn position(&mut self, axis: usize) -> Result<f64, HwError> {
-        check_range("stage axis", axis as f64, 0.0, 2.0)?;
-        Ok(lock(&self.twin).world.stage.encoder(axis))
+        check_range(self.name(), axis as f64, 0.0, (self.axes() - 1) as f64)?;
+        Ok(Self::sim(&mut lock(&self.twin), self.feeder).encoder(axis))
     }
     fn is_busy(&mut self) -> Result<bool, HwError> {
-        Ok(lock(&self.twin).world.stage.busy())
+        Ok(Self::sim(&mut lock(&self.twin), self.feeder).busy())
     }
 }
 
@@ -603,7 +643,14 @@ pub fn devices(twin: &SharedTwin) -> Devices<TwinBackend> {
             twin: twin.clone(),
             view: View::Side,
         },
-        stage: TwinStage { twin: twin.clone() },
+        stage: TwinStage {
+            twin: twin.clone(),
+            feeder: false,
+        },
+        feeder: TwinStage {
+            twin: twin.clone(),
+            feeder: true,
+        },
         injector: TwinInjector { twin: twin.clone() },
         optics: TwinOptics { twin: twin.clone() },
         clock: TwinClock { twin: twin.clone() },

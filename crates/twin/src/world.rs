@@ -163,6 +163,9 @@ pub struct World {
     joint_rng: Rng,
     /// The macro stage.
     pub stage: StageSim,
+    /// The feeder stage carrying the plate: axis 0 moves it along plate x, axis 1
+    /// along plate y (axis 2 is not used).
+    pub feeder: StageSim,
     pulses: Vec<Pulse>,
 }
 
@@ -228,6 +231,7 @@ impl World {
         let a3 = Oscillator::new(a3_omega, d.damping_ratio, dt);
         Ok(World {
             stage: StageSim::new(params.sim.stage, params.rig.stage_travel),
+            feeder: StageSim::new(params.sim.feeder_stage, params.rig.feeder_travel),
             params,
             mechanism,
             assembly,
@@ -405,6 +409,7 @@ impl World {
         self.tilt.step(&f);
         self.a3.step(self.a3_omega2 * self.stacks[2].extension());
         self.stage.advance_to(self.time());
+        self.feeder.advance_to(self.time());
     }
 
     /// Advances until simulated time `t` (to the nearest step).

@@ -3,7 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use cellinject_hw::{Camera, Clock, Frame, HwError, Injector, PiezoChannel, SafetyError, Stage};
+use cellinject_hw::{
+    Camera, Clock, Frame, HwError, Injector, Optics, PiezoChannel, SafetyError, Stage,
+};
 use cellinject_model::{Approach, prototype};
 use cellinject_twin::{SharedTwin, Twin, TwinParams, rig};
 use proptest::prelude::*;
@@ -187,6 +189,104 @@ fn the_stage_moves_the_pipette_in_the_image() {
     assert!((x - 20e-6).abs() <= 0.05e-6 + 1e-15, "{x}");
     let tip = t.lock().unwrap().tip();
     assert!((tip.x - 20e-6).abs() < 0.2e-6, "{}", tip.x);
+}
+
+/// The feeder stage moves the plate, not the pipette: a cell's image moves by the
+/// feeder's displacement and the tip does not. Moves past the feeder's travel are
+/// refused and reach nothing.
+#[test]
+fn the_feeder_moves_the_plate_under_the_objective() {
+    use cellinject_plate::{Object, Plate};
+    let t = twin(Approach::JointDeflection, 1);
+    let plate = Plate {
+        rows: 1,
+        cols: 1,
+        pitch: 150e-6,
+        origin: [0.0, 0.0],
+        cells: vec![Object {
+            well: [0, 0],
+            offset: [0.0, 0.0],
+            diameter: 20e-6,
+        }],
+        debris: vec![],
+    };
+    t.lock().unwrap().load_plate(&plate);
+    let mut dev = rig(&t).unwrap();
+    dev.optics.set_zoom(2.5).unwrap();
+    // The pipette out of the way, and a flat field: a frame with the plate 5 mm off.
+    dev.stage.move_to(0, -3e-3).unwrap();
+    dev.feeder.move_to(0, 5e-3).unwrap();
+    while dev.stage.is_busy().unwrap() || dev.feeder.is_busy().unwrap() {
+        dev.clock.sleep(0.01).unwrap();
+    }
+    let flat = dev.camera.grab().unwrap();
+    dev.feeder.move_to(0, 0.0).unwrap();
+    // The centroid of the darkness (1 − frame / flat, four frames) within 15 µm of
+    // `near` (the 20 µm cell and its blur), m, and that darkness.
+    let cell_at = |dev: &mut cellinject_rig::Rig<cellinject_twin::TwinBackend>, near: [f64; 2]| {
+        let frames: Vec<Frame> = (0..4).map(|_| dev.camera.grab().unwrap()).collect();
+        let g = t.lock().unwrap().camera.grid();
+        let w = g.width;
+        let steps = (15e-6 / g.pitch).ceil() as i64;
+        let (ci, cj) = (
+            ((near[0] - g.x0) / g.pitch).round() as i64,
+            ((near[1] - g.z0) / g.pitch).round() as i64,
+        );
+        let (mut sx, mut sz, mut n) = (0.0, 0.0, 0.0);
+        for dj in -steps..=steps {
+            for di in -steps..=steps {
+                let (i, j) = (ci + di, cj + dj);
+                let (x, z) = (g.x0 + i as f64 * g.pitch, g.z0 + j as f64 * g.pitch);
+                if (x - near[0]).hypot(z - near[1]) > 15e-6 {
+                    continue;
+                }
+                let k = j as usize * w + i as usize;
+                let v = frames.iter().map(|f| f.pixels[k] as f64).sum::<f64>() / 4.0;
+                let d = 1.0 - v / flat.pixels[k] as f64;
+                sx += x * d;
+                sz += z * d;
+                n += d;
+            }
+        }
+        ([sx / n, sz / n], n)
+    };
+    while dev.feeder.is_busy().unwrap() {
+        dev.clock.sleep(0.01).unwrap();
+    }
+    let (before, dark) = cell_at(&mut dev, [0.0, 0.0]);
+    // (The nucleus, off-centre, pulls the darkness's centroid by up to a micrometre.)
+    assert!(before[0].hypot(before[1]) < 1.5e-6, "{before:?}");
+    let tip_before = t.lock().unwrap().tip();
+    dev.feeder.move_to(0, 120e-6).unwrap();
+    dev.feeder.move_to(1, -80e-6).unwrap();
+    while dev.feeder.is_busy().unwrap() {
+        dev.clock.sleep(0.01).unwrap();
+    }
+    assert!((dev.feeder.position(0).unwrap() - 120e-6).abs() <= 0.05e-6 + 1e-15);
+    let (after, dark_after) = cell_at(&mut dev, [120e-6, -80e-6]);
+    let moved = [after[0] - before[0], after[1] - before[1]];
+    // The same cell, whole, where the feeder put it.
+    assert!(
+        (dark_after / dark - 1.0).abs() < 0.05,
+        "{dark} then {dark_after}"
+    );
+    assert!(
+        (moved[0] - 120e-6).abs() < 0.3e-6 && (moved[1] + 80e-6).abs() < 0.3e-6,
+        "the cell's image moved {moved:?}, the plate {:?}",
+        t.lock().unwrap().plate_offset()
+    );
+    let tip_after = t.lock().unwrap().tip();
+    assert!((tip_after.x - tip_before.x).abs() < 0.1e-6);
+    assert_eq!(
+        t.lock().unwrap().plate_offset().map(|v| (v * 1e9).round()),
+        [120e3, -80e3]
+    );
+    // Past the feeder's ±25 mm: refused, nothing moves.
+    let e = dev.feeder.move_to(1, 0.03).unwrap_err();
+    assert!(matches!(e, HwError::Refused(_)), "{e:?}");
+    assert!(dev.feeder.move_to(2, 0.0).is_err());
+    dev.clock.sleep(0.5).unwrap();
+    assert!((dev.feeder.position(1).unwrap() + 80e-6).abs() <= 0.05e-6 + 1e-15);
 }
 
 /// FNV-1a over the bits of a fixed scenario's trajectory and frames.

@@ -16,6 +16,7 @@ use proptest::prelude::*;
 enum Command {
     Volts(usize, f64),
     Stage(usize, f64),
+    Feeder(usize, f64),
     Pulse(f64, f64),
     Zoom(f64),
 }
@@ -24,6 +25,8 @@ fn command() -> impl Strategy<Value = Command> {
     prop_oneof![
         4 => (0usize..3, -20.0f64..130.0).prop_map(|(c, v)| Command::Volts(c, v)),
         1 => (0usize..3, -0.02f64..0.02).prop_map(|(a, x)| Command::Stage(a, x)),
+        // The feeder's ±25 mm, and past it; axis 2 does not exist.
+        1 => (0usize..3, -0.04f64..0.04).prop_map(|(a, x)| Command::Feeder(a, x)),
         1 => (-1e5f64..4e5, 0.0f64..0.5).prop_map(|(p, d)| Command::Pulse(p, d)),
         1 => (1.0f64..12.0).prop_map(Command::Zoom),
     ]
@@ -33,6 +36,7 @@ fn send<B: Backend>(rig: &mut Rig<B>, c: Command) -> Result<(), HwError> {
     match c {
         Command::Volts(ch, v) => rig.piezo[ch].set_voltage(v),
         Command::Stage(a, x) => rig.stage.move_to(a, x),
+        Command::Feeder(a, x) => rig.feeder.move_to(a, x),
         Command::Pulse(p, d) => rig.injector.pulse(p, d),
         Command::Zoom(z) => rig.optics.set_zoom(z),
     }
@@ -42,6 +46,7 @@ fn record_of(c: Command) -> Record {
     match c {
         Command::Volts(channel, volts) => Record::Voltage { channel, volts },
         Command::Stage(axis, position) => Record::Stage { axis, position },
+        Command::Feeder(axis, position) => Record::Feeder { axis, position },
         Command::Pulse(pressure, duration) => Record::Pulse { pressure, duration },
         Command::Zoom(zoom) => Record::Zoom { zoom },
     }
