@@ -582,6 +582,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             &args.backend,
         )?)
     };
+    let db_existed = args.db.exists();
     let mut db = Records::open(&args.db).map_err(records_error)?;
     let (run_id, plate_text, seed, previous, base, faults) = if args.resume {
         let r = db.run(None).map_err(records_error)?;
@@ -710,6 +711,19 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
                 | cellinject_core::inject::WorkflowError::TooHigh { .. }
         )
     {
+        // Bad input leaves no record: a new run refused before any cell goes, and so
+        // does the database file if this command created it.
+        if !args.resume {
+            db.discard_run(run_id).map_err(records_error)?;
+            if !db_existed {
+                drop(db);
+                for suffix in ["", "-wal", "-shm"] {
+                    let mut p = args.db.clone().into_os_string();
+                    p.push(suffix);
+                    let _ = std::fs::remove_file(p);
+                }
+            }
+        }
         return Err(InputError(e.to_string()).into());
     }
     if args.format == Format::Json {

@@ -174,6 +174,82 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
     }
 }
 
+/// A plate too near the top of the image is refused with the move that fixes it, in
+/// stage coordinates ("move the plate down" did not say which way), and leaves no
+/// record: no database file when there was none, no run in one that exists.
+#[test]
+fn a_plate_too_high_in_the_image_is_refused_saying_which_way_to_move_it() {
+    let d = bench("too-high");
+    // Row 0's wall at -0.775 mm; the image's top edge at about -0.825 mm: 50 µm of
+    // the 200 µm the tip finder needs.
+    let o = run(
+        &d,
+        &[
+            "plate",
+            "generate",
+            "--rows",
+            "2",
+            "--cols",
+            "2",
+            "--origin=0,-0.7e-3",
+            "--out",
+            "high.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let o = run(
+        &d,
+        &["run", "--plate", "high.toml", "--calibration", "hy.json"],
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    let e = err(&o);
+    let by: f64 = e
+        .split("by at least +")
+        .nth(1)
+        .and_then(|t| t.split(" um in stage y").next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no move in stage y: {e}"));
+    assert!((140.0..=160.0).contains(&by), "{by}: {e}");
+    assert!(
+        !d.join("runs.sqlite").exists(),
+        "the refused run left a database"
+    );
+    // In a database that holds a run, the refused one leaves nothing either.
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--plate",
+            "p.toml",
+            "--calibration",
+            "hy.json",
+            "--db",
+            "r.sqlite",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--plate",
+            "high.toml",
+            "--calibration",
+            "hy.json",
+            "--db",
+            "r.sqlite",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    let o = run(
+        &d,
+        &["runs", "list", "--db", "r.sqlite", "--format", "json"],
+    );
+    let runs: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(runs.as_array().unwrap().len(), 1, "{runs}");
+    assert_eq!(runs[0]["status"], "finished", "{runs}");
+}
+
 /// A directory with the small plate and a hysteresis calibration (so that each run
 /// skips the identification).
 fn bench(name: &str) -> PathBuf {

@@ -69,6 +69,16 @@ pub enum RecordsError {
     /// The database holds no run.
     #[error("the database holds no run yet")]
     Empty,
+    /// A run that touched cells cannot be discarded.
+    #[error(
+        "run {run} has {attempts} attempts: only a run that never touched a cell can be discarded"
+    )]
+    NotDiscardable {
+        /// Run id.
+        run: i64,
+        /// Its attempts.
+        attempts: usize,
+    },
     /// Any other SQLite failure.
     #[error("run database: {0}")]
     Sql(#[from] rusqlite::Error),
@@ -376,6 +386,28 @@ impl Records {
         Ok(())
     }
 
+    /// Removes a run that was refused before it touched any cell (its events with it),
+    /// in one transaction: bad input leaves no record. Refused for a run with attempts.
+    pub fn discard_run(&mut self, run: i64) -> Result<(), RecordsError> {
+        let tx = self.conn.transaction()?;
+        let attempts: i64 =
+            tx.query_row("SELECT COUNT(*) FROM attempts WHERE run = ?1", [run], |r| {
+                r.get(0)
+            })?;
+        if attempts > 0 {
+            return Err(RecordsError::NotDiscardable {
+                run,
+                attempts: attempts as usize,
+            });
+        }
+        tx.execute("DELETE FROM events WHERE run = ?1", [run])?;
+        if tx.execute("DELETE FROM runs WHERE id = ?1", [run])? == 0 {
+            return Err(RecordsError::NoRun(run));
+        }
+        tx.commit()?;
+        Ok(())
+    }
+
     /// Prepares a killed run for resuming, in one transaction: attempts that never
     /// reached the cell are dropped (retried), those that may have touched it become
     /// `interrupted`; the run counts one more resume. Returns (dropped, interrupted).
@@ -564,6 +596,31 @@ mod tests {
         assert_eq!(a[1].outcome, "interrupted");
         assert_eq!(r.run(None).unwrap().resumed, 1);
         assert_eq!(r.run(None).unwrap().seed, Some(7));
+    }
+
+    #[test]
+    fn only_a_run_that_touched_no_cell_is_discarded() {
+        let p = tmp("discard.sqlite");
+        let mut r = Records::open(&p).unwrap();
+        let kept = r
+            .create_run("[plate]", None, "twin", &serde_json::json!({}), 0)
+            .unwrap();
+        r.write_attempt(kept, None, &attempt("injected")).unwrap();
+        let refused = r
+            .create_run("[plate]", None, "twin", &serde_json::json!({}), 1)
+            .unwrap();
+        let e = r.discard_run(kept).unwrap_err();
+        assert!(
+            matches!(e, RecordsError::NotDiscardable { attempts: 1, .. }),
+            "{e}"
+        );
+        r.discard_run(refused).unwrap();
+        assert_eq!(r.runs().unwrap().len(), 1);
+        assert_eq!(r.run(None).unwrap().id, kept);
+        assert!(matches!(
+            r.discard_run(refused),
+            Err(RecordsError::NoRun(_))
+        ));
     }
 
     #[test]

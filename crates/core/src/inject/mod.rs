@@ -221,7 +221,7 @@ pub enum WorkflowError {
     /// The plate sits too close to the top of the image: the pipette, coming from
     /// the top, would show too little of itself above its tip.
     #[error(
-        "the plate's top edge is {top_um:.0} um from the top of the image; the tip finder needs {need_um:.0} um of the pipette in view above the top row: move the plate down (its origin) or use fewer rows"
+        "the plate's top edge is {top_um:.0} um from the top of the image; the tip finder needs {need_um:.0} um of the pipette in view above the top row: move the plate's origin by at least +{:.0} um in stage y (towards the bottom of the image: plate.origin[1] larger) or use fewer rows", need_um - top_um
     )]
     TooHigh {
         /// um from the image's top edge.
