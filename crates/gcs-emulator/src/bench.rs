@@ -42,7 +42,7 @@ pub enum StageUnit {
     /// requests without a `unit` keep their meaning.
     #[default]
     Macro,
-    /// The feeder stage carrying the plate (plate x, y).
+    /// The feeder stage carrying the plate (plate x, y, height).
     Feeder,
 }
 

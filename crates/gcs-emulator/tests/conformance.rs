@@ -369,7 +369,7 @@ fn the_bench_serves_the_feeder_stage_beside_the_macro_stage() {
     let bench = Bench::connect(&e.bench.unwrap().to_string(), Duration::from_secs(2)).unwrap();
     let mut feeder = bench.feeder().unwrap();
     let mut stage = bench.stage().unwrap();
-    assert_eq!((feeder.axes(), stage.axes()), (2, 3));
+    assert_eq!((feeder.axes(), stage.axes()), (3, 3));
     assert_eq!(feeder.travel(1), (-0.025, 0.025));
     assert_eq!(stage.travel(0), (-0.0125, 0.0125));
     feeder.move_to(1, 2e-3).unwrap();

@@ -194,13 +194,13 @@ pub struct FakeStage {
     log: Log,
     travel: (f64, f64),
     position: [f64; 3],
-    /// The feeder stage (2 axes, logged as [`Record::Feeder`]).
+    /// The feeder stage (logged as [`Record::Feeder`]).
     feeder: bool,
 }
 
 impl Stage for FakeStage {
     fn axes(&self) -> usize {
-        if self.feeder { 2 } else { 3 }
+        3
     }
     fn travel(&self, _axis: usize) -> (f64, f64) {
         self.travel

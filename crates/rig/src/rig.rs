@@ -43,7 +43,8 @@ pub struct Devices<B: Backend> {
     pub side_camera: B::Camera,
     /// Stage.
     pub stage: B::Stage,
-    /// The feeder stage carrying the plate (axis 0: plate x, axis 1: plate y).
+    /// The feeder stage carrying the plate (axis 0: plate x, axis 1: plate y, axis 2:
+    /// the plate's height along the optical axis, its focus).
     pub feeder: B::Stage,
     /// Injector.
     pub injector: B::Injector,

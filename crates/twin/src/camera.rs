@@ -64,8 +64,9 @@ fn cell_factor(
     dx: f64,
     dz: f64,
     sigma: f64,
-    ring_w2: f64,
+    ring: (f64, f32),
 ) -> f32 {
+    let (ring_w2, ring_gain) = ring;
     let (dx, dz) = (dx - look.offset[0], dz - look.offset[1]);
     let radius = c.radius * look.scale;
     let rho = (dx * dx + dz * dz).sqrt();
@@ -80,7 +81,9 @@ fn cell_factor(
     } else {
         (1.0, 1.0, 1.0)
     };
-    1.0 - (0.10 + look.dye as f32) * k_in * inside - 0.32 * k_ring * ring - 0.22 * k_nuc * nucleus
+    1.0 - (0.10 + look.dye as f32) * k_in * inside
+        - 0.32 * ring_gain * k_ring * ring
+        - 0.22 * k_nuc * nucleus
 }
 
 const REST: CellLook = CellLook {
@@ -196,9 +199,10 @@ pub struct Microscope {
     /// The magnification over its nominal value (thermal drift), in steps of
     /// [`SCALE_STEP`].
     scale: f64,
-    /// m, where the feeder stage has moved the plate (object x, z): the plate's
-    /// walls, cells and debris are drawn this far from the scene's positions.
-    plate_offset: [f64; 2],
+    /// m, where the feeder stage has moved the plate (object x, z, and depth along the
+    /// optical axis): the plate's walls, cells and debris are drawn this far from the
+    /// scene's positions, defocused by the depth.
+    plate_offset: [f64; 3],
 }
 
 /// Resolution of the magnification's thermal drift: the static layer is drawn again
@@ -240,13 +244,14 @@ impl Microscope {
             looks: Vec::new(),
             dark_frames: 0,
             scale: 1.0,
-            plate_offset: [0.0; 2],
+            plate_offset: [0.0; 3],
         }
     }
 
-    /// The plate moved by the feeder stage to `offset` (m, object x and z) from the
-    /// scene's positions; the static layer is drawn again when it changed.
-    pub fn set_plate_offset(&mut self, offset: [f64; 2]) {
+    /// The plate moved by the feeder stage to `offset` (m: object x, z, and depth
+    /// from the focal plane) from the scene's positions; the static layer is drawn
+    /// again when it changed.
+    pub fn set_plate_offset(&mut self, offset: [f64; 3]) {
         if offset != self.plate_offset {
             self.plate_offset = offset;
             self.static_grid = None;
@@ -254,8 +259,21 @@ impl Microscope {
     }
 
     /// Where the plate is drawn from the scene's positions, m.
-    pub fn plate_offset(&self) -> [f64; 2] {
+    pub fn plate_offset(&self) -> [f64; 3] {
         self.plate_offset
+    }
+
+    /// The blur of the plate's features, m: the lens's, plus its defocus rate times
+    /// the plate's depth from the focal plane (as the pipette's).
+    fn plate_blur(&self) -> f64 {
+        self.optics.focus_blur + self.optics.defocus_rate * self.plate_offset[2].abs()
+    }
+
+    /// The membrane ring's contrast relative to in focus: a defocused ring spreads its
+    /// darkness (a line's profile keeps its integral), 1 exactly in focus.
+    fn ring_gain(&self) -> f32 {
+        let (w, f) = (0.5e-6f64, self.optics.focus_blur);
+        ((w * w + f * f) / (w * w + self.plate_blur().powi(2))).sqrt() as f32
     }
 
     /// The grid `g` in the plate's frame: the scene's plate positions map onto it.
@@ -456,7 +474,7 @@ impl Microscope {
                 *o = gz * x;
             }
         }
-        let blur2 = self.optics.focus_blur.powi(2) + g.pitch * g.pitch / 12.0;
+        let blur2 = self.plate_blur().powi(2) + g.pitch * g.pitch / 12.0;
         let sigma = blur2.sqrt();
         // The plate's walls, cells and debris, where the feeder has moved them.
         let g = &self.plate_grid(g);
@@ -487,13 +505,13 @@ impl Microscope {
             let reach = c.radius + 4.0 * sigma + 2e-6;
             let (i0, i1) = span(g.x0, g.pitch, g.width, c.x - reach, c.x + reach);
             let (j0, j1) = span(g.z0, g.pitch, g.height, c.z - reach, c.z + reach);
-            let ring_w2 = 2.0 * (0.5e-6f64.powi(2) + blur2);
+            let ring = (2.0 * (0.5e-6f64.powi(2) + blur2), self.ring_gain());
             for j in j0..j1 {
                 let dz = g.z0 + j as f64 * g.pitch - c.z;
                 let row = &mut self.static_layer[j * g.width..(j + 1) * g.width];
                 for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
                     let dx = g.x0 + i as f64 * g.pitch - c.x;
-                    *px *= cell_factor(c, &REST, dx, dz, sigma, ring_w2);
+                    *px *= cell_factor(c, &REST, dx, dz, sigma, ring);
                 }
             }
         }
@@ -574,9 +592,9 @@ impl Microscope {
         if self.looks.is_empty() {
             return;
         }
-        let blur2 = self.optics.focus_blur.powi(2) + g.pitch * g.pitch / 12.0;
+        let blur2 = self.plate_blur().powi(2) + g.pitch * g.pitch / 12.0;
         let sigma = blur2.sqrt();
-        let ring_w2 = 2.0 * (0.5e-6f64.powi(2) + blur2);
+        let ring = (2.0 * (0.5e-6f64.powi(2) + blur2), self.ring_gain());
         let g = &self.plate_grid(g);
         for (k, look) in &self.looks {
             let Some(c) = self.scene.cells.get(*k) else {
@@ -593,8 +611,8 @@ impl Microscope {
                 let row = &mut self.work[j * g.width..(j + 1) * g.width];
                 for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
                     let dx = g.x0 + i as f64 * g.pitch - c.x;
-                    let rest = cell_factor(c, &REST, dx, dz, sigma, ring_w2);
-                    *px *= cell_factor(c, look, dx, dz, sigma, ring_w2) / rest;
+                    let rest = cell_factor(c, &REST, dx, dz, sigma, ring);
+                    *px *= cell_factor(c, look, dx, dz, sigma, ring) / rest;
                 }
             }
         }

@@ -147,6 +147,7 @@ impl Twin {
         let o = self.plate_offset();
         tip.x -= o[0];
         tip.z -= o[1];
+        tip.depth -= o[2];
         if let Some(b) = self.biology.as_mut() {
             let fx = b.interact(&tip);
             if fx.dark_frames > 0 {
@@ -210,12 +211,14 @@ impl Twin {
         })
     }
 
-    /// Where the feeder stage has moved the plate now, m (object x and z: plate x and
-    /// y), residual vibration included.
-    pub fn plate_offset(&self) -> [f64; 2] {
+    /// Where the feeder stage has moved the plate now, m: object x and z (plate x and
+    /// y) and depth (the plate's height along the optical axis, 0 in the focal
+    /// plane), residual vibration included.
+    pub fn plate_offset(&self) -> [f64; 3] {
         [
             self.world.feeder.true_position(0),
             self.world.feeder.true_position(1),
+            self.world.feeder.true_position(2),
         ]
     }
 
@@ -499,7 +502,8 @@ impl Camera for TwinCamera {
 }
 
 /// One of the twin's stages: the macro stage carrying the micromanipulator (x, the
-/// optical axis y, z) or the feeder stage carrying the plate (plate x, plate y).
+/// optical axis y, z) or the feeder stage carrying the plate (plate x, plate y, and
+/// its height along the optical axis: the plate's focus).
 pub struct TwinStage {
     twin: SharedTwin,
     feeder: bool,
@@ -521,7 +525,7 @@ impl TwinStage {
 
 impl Stage for TwinStage {
     fn axes(&self) -> usize {
-        if self.feeder { 2 } else { 3 }
+        3
     }
     fn travel(&self, _axis: usize) -> (f64, f64) {
         let t = lock(&self.twin);

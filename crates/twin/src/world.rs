@@ -164,7 +164,7 @@ pub struct World {
     /// The macro stage.
     pub stage: StageSim,
     /// The feeder stage carrying the plate: axis 0 moves it along plate x, axis 1
-    /// along plate y (axis 2 is not used).
+    /// along plate y, axis 2 along the optical axis (the plate's focus).
     pub feeder: StageSim,
     pulses: Vec<Pulse>,
 }

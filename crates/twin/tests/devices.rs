@@ -232,7 +232,7 @@ fn the_feeder_moves_the_plate_under_the_objective() {
             ((near[0] - g.x0) / g.pitch).round() as i64,
             ((near[1] - g.z0) / g.pitch).round() as i64,
         );
-        let (mut sx, mut sz, mut n) = (0.0, 0.0, 0.0);
+        let (mut sx, mut sz, mut n, mut peak) = (0.0, 0.0, 0.0, 0.0f64);
         for dj in -steps..=steps {
             for di in -steps..=steps {
                 let (i, j) = (ci + di, cj + dj);
@@ -243,17 +243,18 @@ fn the_feeder_moves_the_plate_under_the_objective() {
                 let k = j as usize * w + i as usize;
                 let v = frames.iter().map(|f| f.pixels[k] as f64).sum::<f64>() / 4.0;
                 let d = 1.0 - v / flat.pixels[k] as f64;
+                peak = peak.max(d);
                 sx += x * d;
                 sz += z * d;
                 n += d;
             }
         }
-        ([sx / n, sz / n], n)
+        ([sx / n, sz / n], n, peak)
     };
     while dev.feeder.is_busy().unwrap() {
         dev.clock.sleep(0.01).unwrap();
     }
-    let (before, dark) = cell_at(&mut dev, [0.0, 0.0]);
+    let (before, dark, sharp) = cell_at(&mut dev, [0.0, 0.0]);
     // (The nucleus, off-centre, pulls the darkness's centroid by up to a micrometre.)
     assert!(before[0].hypot(before[1]) < 1.5e-6, "{before:?}");
     let tip_before = t.lock().unwrap().tip();
@@ -263,7 +264,7 @@ fn the_feeder_moves_the_plate_under_the_objective() {
         dev.clock.sleep(0.01).unwrap();
     }
     assert!((dev.feeder.position(0).unwrap() - 120e-6).abs() <= 0.05e-6 + 1e-15);
-    let (after, dark_after) = cell_at(&mut dev, [120e-6, -80e-6]);
+    let (after, dark_after, _) = cell_at(&mut dev, [120e-6, -80e-6]);
     let moved = [after[0] - before[0], after[1] - before[1]];
     // The same cell, whole, where the feeder put it.
     assert!(
@@ -279,12 +280,23 @@ fn the_feeder_moves_the_plate_under_the_objective() {
     assert!((tip_after.x - tip_before.x).abs() < 0.1e-6);
     assert_eq!(
         t.lock().unwrap().plate_offset().map(|v| (v * 1e9).round()),
-        [120e3, -80e3]
+        [120e3, -80e3, 0.0]
+    );
+    // 100 µm out of the focal plane (axis 2, the plate's height), the cell blurs: its
+    // darkness spreads and the peak falls.
+    dev.feeder.move_to(2, 100e-6).unwrap();
+    while dev.feeder.is_busy().unwrap() {
+        dev.clock.sleep(0.01).unwrap();
+    }
+    let (_, _, blurred) = cell_at(&mut dev, [120e-6, -80e-6]);
+    assert!(
+        blurred < 0.8 * sharp,
+        "peak darkness {sharp} in focus, {blurred} out of it"
     );
     // Past the feeder's ±25 mm: refused, nothing moves.
     let e = dev.feeder.move_to(1, 0.03).unwrap_err();
     assert!(matches!(e, HwError::Refused(_)), "{e:?}");
-    assert!(dev.feeder.move_to(2, 0.0).is_err());
+    assert!(dev.feeder.move_to(3, 0.0).is_err());
     dev.clock.sleep(0.5).unwrap();
     assert!((dev.feeder.position(1).unwrap() + 80e-6).abs() <= 0.05e-6 + 1e-15);
 }

@@ -25,8 +25,8 @@ fn command() -> impl Strategy<Value = Command> {
     prop_oneof![
         4 => (0usize..3, -20.0f64..130.0).prop_map(|(c, v)| Command::Volts(c, v)),
         1 => (0usize..3, -0.02f64..0.02).prop_map(|(a, x)| Command::Stage(a, x)),
-        // The feeder's ±25 mm, and past it; axis 2 does not exist.
-        1 => (0usize..3, -0.04f64..0.04).prop_map(|(a, x)| Command::Feeder(a, x)),
+        // The feeder's ±25 mm, and past it; axis 3 does not exist.
+        1 => (0usize..4, -0.04f64..0.04).prop_map(|(a, x)| Command::Feeder(a, x)),
         1 => (-1e5f64..4e5, 0.0f64..0.5).prop_map(|(p, d)| Command::Pulse(p, d)),
         1 => (1.0f64..12.0).prop_map(Command::Zoom),
     ]
