@@ -16,6 +16,7 @@
 //! plate file's cells are never read (only its grid).
 
 pub mod machine;
+pub mod window;
 
 use cellinject_cells::{Kind as BlobKind, Options as DetectOptions};
 use cellinject_control::{Controller, Feedforward, Measurement, SensorGains, SensorLoop, Stacks};
