@@ -123,7 +123,12 @@ pub fn points(
     options: &PointOptions,
     acceptance: &Acceptance,
 ) -> Result<Vec<PointReport>, DicError> {
-    let res = correlate_points(reference, current, at, options)?;
+    // The subset grows by the same rule the results are judged by.
+    let options = PointOptions {
+        acceptance: *acceptance,
+        ..*options
+    };
+    let res = correlate_points(reference, current, at, &options)?;
     Ok(at
         .iter()
         .zip(&res)
