@@ -430,8 +430,9 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
     let elapsed = t0.elapsed().as_secs_f64();
     drop(progress);
     let f = &report.field;
-    let mut csv =
-        String::from("x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v\n");
+    let mut csv = String::from(
+        "x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v,subset\n",
+    );
     let found = report.found;
     for (k, p) in f.points.iter().enumerate() {
         let (x, y) = report.position(k);
@@ -439,7 +440,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
             Some(p) => {
                 let _ = writeln!(
                     csv,
-                    "{x},{y},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{:.6},{},{},{:.6},{:.6}",
+                    "{x},{y},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{:.6},{},{},{:.6},{:.6},{}",
                     p.u,
                     p.v,
                     p.gradients[0],
@@ -450,11 +451,12 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
                     p.iterations,
                     p.converged,
                     p.sigma_u,
-                    p.sigma_v
+                    p.sigma_v,
+                    p.subset
                 );
             }
             None => {
-                let _ = writeln!(csv, "{x},{y},,,,,,,,0,false,,");
+                let _ = writeln!(csv, "{x},{y},,,,,,,,0,false,,,");
             }
         }
     }

@@ -21,6 +21,7 @@ use serde::Serialize;
 /// | `converged` | | whether IC-GN converged |
 /// | `sigma_u`, `sigma_v` | px | predicted standard deviation from the noise |
 /// | `sigma_noise` | grey levels | noise estimated from the residual |
+/// | `subset` | px | side of the subset that gave the match: `--subset`, or larger where the self-adaptive subset grew it |
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum PointReport {
@@ -54,6 +55,8 @@ pub enum PointReport {
         sigma_v: f64,
         /// Grey levels.
         sigma_noise: f64,
+        /// Subset side used, px.
+        subset: usize,
     },
     /// No trustworthy match.
     Missing {
@@ -96,6 +99,7 @@ impl PointReport {
                 sigma_u: p.sigma_u,
                 sigma_v: p.sigma_v,
                 sigma_noise: p.sigma_noise,
+                subset: p.subset,
             },
             None => PointReport::Missing {
                 x,
@@ -123,7 +127,12 @@ pub fn points(
     options: &PointOptions,
     acceptance: &Acceptance,
 ) -> Result<Vec<PointReport>, DicError> {
-    let res = correlate_points(reference, current, at, options)?;
+    // The subset grows by the same rule the results are judged by.
+    let options = PointOptions {
+        acceptance: *acceptance,
+        ..*options
+    };
+    let res = correlate_points(reference, current, at, &options)?;
     Ok(at
         .iter()
         .zip(&res)

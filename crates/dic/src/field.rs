@@ -5,6 +5,9 @@
 //! grid is cut into tiles, each grown from its own seed, in parallel with rayon; the
 //! tiling does not depend on the number of threads, so results are reproducible.
 //!
+//! Every point is computed by [`measure`], as in the point mode: a point whose predicted
+//! σ is too large for the rule is tried again with larger subsets (the self-adaptive
+//! subset, [`FieldOptions::adaptive_subset`]; each result records its subset size).
 //! Every computed point goes through [`judge`], the rule of the point mode: a point it
 //! rejects is not reported, and is counted in [`Field::dropped`]; one that did not
 //! converge or has a low ZNCC is not used as a starting guess either. (A neighbour's guess lets IC-GN converge where the point mode's
@@ -16,8 +19,8 @@ use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
-use crate::accept::{Acceptance, Dropped, Rejection, judge};
-use crate::icgn::{self, IcgnOptions, PointResult, Shape};
+use crate::accept::{Acceptance, Dropped, Rejection, judge, measure};
+use crate::icgn::{IcgnOptions, PointResult, Shape};
 use crate::search;
 use crate::{DicError, Image, check_subset};
 
@@ -28,6 +31,10 @@ pub struct FieldOptions {
     pub step: usize,
     /// Odd subset size, pixels.
     pub subset: usize,
+    /// Self-adaptive subset: a point whose result the acceptance rule rejects only for
+    /// its predicted σ is tried again with larger subsets, up to twice the size
+    /// ([`crate::accept::measure`]; each result says which size it used).
+    pub adaptive_subset: bool,
     /// Shape function.
     pub shape: Shape,
     /// Largest displacement the seeds search for, pixels.
@@ -48,6 +55,7 @@ impl Default for FieldOptions {
         FieldOptions {
             step: 5,
             subset: 31,
+            adaptive_subset: true,
             shape: Shape::Affine,
             search_radius: 64,
             acceptance: Acceptance::default(),
@@ -155,7 +163,7 @@ impl Tile {
 
 /// Computes the displacement field between two images.
 pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<Field, DicError> {
-    let subset = check_subset(opts.subset)?;
+    check_subset(opts.subset)?;
     if (reference.width(), reference.height()) != (current.width(), current.height()) {
         return Err(DicError::SizeMismatch {
             a: (reference.width(), reference.height()),
@@ -185,10 +193,26 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         pr,
         pc,
         floor,
+        step: q,
     } = crate::Prepared::new(reference, current, opts.search_radius, opts.prefilter);
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
+        quantisation_step: opts.icgn.quantisation_step.max(q),
         ..opts.icgn
+    };
+    let refine = |px: usize, py: usize, init: [f64; 6]| {
+        measure(
+            &r,
+            &s,
+            px,
+            py,
+            opts.subset,
+            opts.adaptive_subset,
+            opts.shape,
+            init,
+            &icgn_opts,
+            &opts.acceptance,
+        )
     };
     let tile = opts.tile.max(4);
     let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(tile))
@@ -224,7 +248,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                 );
                 let Some(hit) = hit else { continue };
                 let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
-                let res = icgn::refine(&r, &s, px, py, subset, opts.shape, init, &icgn_opts);
+                let res = refine(px, py, init);
                 let k = j * tw + i;
                 done[k] = true;
                 if let Some(p) = res
@@ -264,9 +288,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                         vx,
                         vy,
                     ];
-                    if let Some(p) =
-                        icgn::refine(&r, &s, px, py, subset, opts.shape, init, &icgn_opts)
-                    {
+                    if let Some(p) = refine(px, py, init) {
                         work.keep(k, p, &opts.acceptance);
                     }
                 }

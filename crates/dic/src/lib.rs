@@ -108,6 +108,13 @@ pub fn check_subset(size: usize) -> Result<Subset, DicError> {
 pub struct PointOptions {
     /// Odd subset size, pixels.
     pub subset: usize,
+    /// Self-adaptive subset: a point whose result `acceptance` rejects only for its
+    /// predicted σ is tried again with larger subsets, up to twice the size
+    /// ([`accept::measure`]).
+    pub adaptive_subset: bool,
+    /// The rule that decides when the subset grows (the caller judges the results with
+    /// it too).
+    pub acceptance: Acceptance,
     /// Shape function.
     pub shape: Shape,
     /// Largest displacement searched for, pixels.
@@ -122,6 +129,8 @@ impl Default for PointOptions {
     fn default() -> Self {
         PointOptions {
             subset: 31,
+            adaptive_subset: true,
+            acceptance: Acceptance::default(),
             shape: Shape::Affine,
             search_radius: 64,
             prefilter: 0.0,
@@ -140,6 +149,10 @@ pub(crate) struct Prepared {
     /// Variance of the rounding noise of both images after the prefilter, grey levels²:
     /// the floor of the residual variance ([`IcgnOptions::residual_floor`]).
     pub(crate) floor: f64,
+    /// Quantisation step of the current image's grey levels, 0 if not quantised or
+    /// prefiltered ([`IcgnOptions::quantisation_step`]: the rounding is simulated on
+    /// unfiltered data only).
+    pub(crate) step: f64,
 }
 
 impl Prepared {
@@ -152,6 +165,11 @@ impl Prepared {
         search_radius: usize,
         prefilter: f64,
     ) -> Self {
+        let step = if prefilter > 0.0 {
+            0.0
+        } else {
+            (12.0 * image::quantisation_variance(current)).sqrt()
+        };
         let floor = (image::quantisation_variance(reference)
             + image::quantisation_variance(current))
             * image::blur_noise_gain(prefilter);
@@ -170,6 +188,7 @@ impl Prepared {
             s: BSpline::new(&current),
             r: Reference::new(reference),
             floor,
+            step,
         }
     }
 }
@@ -217,9 +236,11 @@ pub fn correlate_points(
         pr,
         pc,
         floor,
+        step,
     } = Prepared::new(reference, current, opts.search_radius, opts.prefilter);
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
+        quantisation_step: opts.icgn.quantisation_step.max(step),
         ..opts.icgn
     };
     Ok(points
@@ -229,15 +250,17 @@ pub fn correlate_points(
             let m = (opts.subset / 2) as i64;
             let hit = search::search_pyramid(&pr, &pc, xi, yi, m, opts.search_radius as i64)?;
             let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
-            let mut res = icgn::refine(
+            let mut res = accept::measure(
                 &r,
                 &s,
                 xi as usize,
                 yi as usize,
-                subset,
+                opts.subset,
+                opts.adaptive_subset,
                 opts.shape,
                 init,
                 &icgn_opts,
+                &opts.acceptance,
             )?;
             let (dx, dy) = (x - xi as f64, y - yi as f64);
             let [ux, uy, vx, vy] = res.gradients;

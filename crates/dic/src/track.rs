@@ -173,6 +173,8 @@ impl Tracker {
                 max_iterations: 20,
                 // Every frame is rounded like the first.
                 residual_floor: 2.0 * crate::image::quantisation_variance(first),
+                // At camera rate the rounding is not simulated (`refine_prepared`).
+                quantisation_step: 0.0,
             },
             last: None,
             velocity: (0.0, 0.0),
