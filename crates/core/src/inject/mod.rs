@@ -41,9 +41,6 @@ const RETRACT_TIMEOUT: f64 = 2.0;
 /// the line between two wells stays clear of every cell (they lie within their wells).
 const A3_PROBE: f64 = 20e-6;
 
-/// How a skip for a blocked approach begins (no re-check follows it: nothing was off).
-const BLOCKED: &str = "the approach is blocked";
-
 /// m, farthest the resting tip may be from where the image map puts it (in the object
 /// plane, at either of the re-check's two stage positions) before the image is mapped
 /// again. The map only brings the tip to the start of the approach; the cell is found
@@ -631,10 +628,24 @@ pub struct Workflow<'r, B: Backend> {
     check_due: Option<String>,
 }
 
+/// Why an attempt was skipped (the cell not touched), for what follows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Skip {
+    /// A neighbour blocks the approach even off-centre: nothing was off, so no re-check
+    /// follows.
+    Blocked,
+    /// A fault before contact (the tip or the cell lost, a stage move refused, ...): the
+    /// calibrations are re-checked before the next cell.
+    Fault,
+}
+
 /// How a cell's procedure ended early.
 enum Fail {
     /// A fault on this cell; the run goes on.
     Cell(String),
+    /// The approach to this cell is blocked by a neighbour (the cell is skipped); the
+    /// run goes on.
+    Blocked(String),
     /// A fault the run stops on.
     Fatal(String),
     /// The operator stopped the run (an abort): the run stops; a touched cell is
@@ -810,13 +821,13 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 continue;
             }
             match self.attempt(*target, obs)? {
-                (a, None) => {
+                (a, skip, None) => {
                     if a.outcome != Outcome::Injected && a.contact {
                         self.check_due = Some(format!(
                             "after a fault on cell {} ({})",
                             a.target.index, a.reason
                         ));
-                    } else if a.outcome == Outcome::Skipped && !a.reason.starts_with(BLOCKED) {
+                    } else if skip == Some(Skip::Fault) {
                         self.check_due = Some(format!(
                             "after cell {} was skipped ({})",
                             a.target.index, a.reason
@@ -824,7 +835,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                     }
                     attempts.push(a)
                 }
-                (a, Some(fatal)) => {
+                (a, _, Some(fatal)) => {
                     attempts.push(a);
                     stopped = Some(fatal);
                     break;
@@ -1192,8 +1203,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let half = 0.5 * self.plate.pitch;
         let x0 = self.plate.well_centre([0, 0])[0];
         let full = self.settings_full.expect("full settings");
-        let fov = full.roi.width as f64 * self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
-            / self.rig.camera.settings().binning as f64;
+        // m per pixel of the full frames: the last background's (taken with them), or on
+        // the first call a frame's at the current binning.
+        let pixel = match &self.background {
+            Some(b) => b.pixel_size,
+            None => {
+                self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
+                    / self.rig.camera.settings().binning as f64
+            }
+        };
+        let fov = full.roi.width as f64 * pixel;
         let away = x0 - half - fov - 0.3e-3;
         if let Err(e) = self.stage_to([None, Some(lift), None])? {
             return Ok(Err(format!("the pipette cannot be lifted: {e}")));
@@ -1713,12 +1732,13 @@ impl<B: Backend> Workflow<'_, B> {
     }
 
     /// One cell: an attempt from the stage move to the verification. Returns the
-    /// attempt and, if the run must stop, why.
+    /// attempt, why it was skipped if it was (and the run goes on), and, if the run
+    /// must stop, why.
     fn attempt(
         &mut self,
         target: Target,
         obs: &mut dyn Observer,
-    ) -> Result<(Attempt, Option<String>), WorkflowError> {
+    ) -> Result<(Attempt, Option<Skip>, Option<String>), WorkflowError> {
         let mut a = Attempt {
             target,
             outcome: Outcome::Skipped,
@@ -1745,10 +1765,11 @@ impl<B: Backend> Workflow<'_, B> {
         self.fire(Event::CellChosen, why, obs, Some(&mut a.transitions))?;
         let result = self.procedure(&mut a, obs);
         let mut fatal = None;
+        let blocked = matches!(result, Err(Fail::Blocked(_)));
         match result {
             Ok(()) => self.consecutive_faults = 0,
             Err(Fail::Error(e)) => return Err(e),
-            Err(Fail::Cell(reason)) => {
+            Err(Fail::Cell(reason) | Fail::Blocked(reason)) => {
                 self.consecutive_faults += 1;
                 self.fire(
                     Event::CellFault,
@@ -1801,7 +1822,12 @@ impl<B: Backend> Workflow<'_, B> {
         }
         a.t[1] = self.now();
         obs.finished(&a).map_err(WorkflowError::Record)?;
-        Ok((a, fatal))
+        let skip = (fatal.is_none() && a.outcome == Outcome::Skipped).then_some(if blocked {
+            Skip::Blocked
+        } else {
+            Skip::Fault
+        });
+        Ok((a, skip, fatal))
     }
 
     /// A cell's procedure ended in a fault the run stops on (`by_operator`: an
@@ -1877,8 +1903,8 @@ impl<B: Backend> Workflow<'_, B> {
         let Some(shift) = shift else {
             let (k, gap) = blocked.unwrap_or((0, 0.0));
             let other = self.survey_cells[k];
-            return Err(Fail::Cell(format!(
-                "{BLOCKED} by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
+            return Err(Fail::Blocked(format!(
+                "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
                 other.index,
                 other.well[0],
                 other.well[1],
