@@ -17,6 +17,7 @@
 
 pub mod machine;
 
+use cellinject_cells::tip::Tip;
 use cellinject_cells::{Kind as BlobKind, Options as DetectOptions};
 use cellinject_control::{Controller, Feedforward, Measurement, SensorGains, SensorLoop, Stacks};
 use cellinject_hw::{Camera, CameraSettings, Clock, HwError, Injector, Optics, PiezoChannel};
@@ -54,6 +55,14 @@ const RECHECK_TOLERANCE: f64 = 1.5e-6;
 /// decides a step: a single frame's tip stands 2-4 px behind the true one along the
 /// pipette about once in 50 frames.
 const TIP_FRAMES: usize = 5;
+
+/// Frames of the resting tip whose fitted blurs measure the tip's blur before any
+/// position is taken ([`Workflow::blur`]).
+const BLUR_MIN: usize = 15;
+
+/// The latest frames of the resting tip whose fitted blurs make the tip's blur (a
+/// re-check's frames renew a part of them: the focus can drift).
+const BLUR_FRAMES: usize = 60;
 
 /// Settings of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -561,10 +570,11 @@ impl Shot {
     fn local(&self, p: [f64; 2]) -> [f64; 2] {
         [p[0] - self.origin[0], p[1] - self.origin[1]]
     }
-    /// The tip, found in this frame divided by the background (the same view with the
-    /// pipette out of it: the feeder's walls and the cells divide out, the pipette
-    /// stays).
-    fn tip(&self, background: &Background) -> Option<[f64; 2]> {
+    /// This frame divided by the background (the same view with the pipette out of
+    /// it: the feeder's walls and the cells divide out, the pipette stays), scaled to
+    /// 2000; `None` for a frame far darker or brighter than the background (the light
+    /// off, a bubble, a flash), which shows nothing to trust.
+    fn normalised(&self, background: &Background) -> Option<Vec<u16>> {
         let f = &self.frame;
         let (w, h) = (f.width as usize, f.height as usize);
         let (ox, oy) = (self.origin[0] as usize, self.origin[1] as usize);
@@ -576,15 +586,28 @@ impl Shot {
                 norm.push(v.clamp(0.0, 65535.0) as u16);
             }
         }
-        // A frame far darker or brighter than the background (the light off, a
-        // bubble, a flash) shows nothing to trust.
         let mean = norm.iter().map(|&v| v as f64).sum::<f64>() / norm.len().max(1) as f64;
-        if !(1000.0..4000.0).contains(&mean) {
-            return None;
-        }
-        cellinject_cells::tip::locate(&norm, w, h, f.pixel_size)
+        (1000.0..4000.0).contains(&mean).then_some(norm)
+    }
+
+    /// The tip in `norm` (this frame [`Shot::normalised`]), in full-frame pixels;
+    /// `blur`: the tip's blur (pixels) if known, else it is fitted too.
+    fn locate(&self, norm: &[u16], blur: Option<f64>) -> Option<Tip> {
+        let f = &self.frame;
+        let (w, h) = (f.width as usize, f.height as usize);
+        cellinject_cells::tip::locate_with(norm, w, h, f.pixel_size, blur)
             .ok()
-            .map(|t| self.full([t.x, t.y]))
+            .map(|t| {
+                let [x, y] = self.full([t.x, t.y]);
+                Tip { x, y, ..t }
+            })
+    }
+
+    /// The tip, found in this frame divided by the background, with the tip's blur
+    /// (pixels) if known.
+    fn tip(&self, background: &Background, blur: Option<f64>) -> Option<[f64; 2]> {
+        let norm = self.normalised(background)?;
+        self.locate(&norm, blur).map(|t| [t.x, t.y])
     }
     /// Mean intensity of pixel (column, row) rounded, or None outside.
     fn at(&self, c: f64, r: f64) -> Option<f64> {
@@ -622,6 +645,9 @@ pub struct Workflow<'r, B: Backend> {
     dead_in_row: usize,
     survey_cells: Vec<Target>,
     background: Option<Background>,
+    /// Pixels, the blur of the resting tip's end in each of the latest [`BLUR_FRAMES`]
+    /// full frames of it (fitted with its position).
+    blurs: Vec<f64>,
     /// s, device time at which the image map was last made or checked.
     last_check: f64,
     /// Why a re-check is due before the next cell (a fault), if one is.
@@ -710,6 +736,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             dead_in_row: 0,
             survey_cells: Vec::new(),
             background: None,
+            blurs: Vec::new(),
             last_check: 0.0,
             check_due: None,
         })
@@ -1030,18 +1057,38 @@ impl<'r, B: Backend> Workflow<'r, B> {
     }
 
     /// The resting tip in full frames: the median of [`TIP_FRAMES`] frames' tips
-    /// (`tries`: frames without a tip tolerated on top). A single frame's tip can stand
-    /// 2-3 px behind the true one along the axis (the fit trades the end's blur
-    /// against its position in the noise), and the image map extrapolates each of its
-    /// points' errors over the plate: seed 15's map, two of its four points 2-3 px
-    /// off, put the first row's cells 7-11 um off along the pipette.
+    /// (`tries`: frames without a tip tolerated on top), each found with the tip's blur
+    /// known ([`Workflow::blur`]). Every frame also measures the blur (a free fit), and
+    /// the run's first call looks at the resting tip until [`BLUR_MIN`] frames have:
+    /// with the blur free, a frame's tip stood up to 5 px behind the true one along the
+    /// axis (the fit trades the end's blur against its position in the noise), and the
+    /// image map extrapolates each of its points' errors over the plate: seed 15's map,
+    /// two of its four points 2-3 px off, put the first row's cells 7-11 um off along
+    /// the pipette.
     fn tip_full(&mut self, tries: usize) -> Result<Option<[f64; 2]>, WorkflowError> {
         let mut seen = Vec::with_capacity(TIP_FRAMES);
         let mut misses = 0;
         while seen.len() < TIP_FRAMES && misses < tries {
             let shot = self.shoot(None)?;
-            match shot.tip(self.background.as_ref().expect("background")) {
-                Some(t) => seen.push(t),
+            let bg = self.background.as_ref().expect("background");
+            let Some(free) = shot.normalised(bg).and_then(|n| {
+                let free = shot.locate(&n, None)?;
+                Some((n, free))
+            }) else {
+                misses += 1;
+                continue;
+            };
+            let (norm, free) = free;
+            self.blurs.push(free.sigma);
+            if self.blurs.len() > BLUR_FRAMES {
+                self.blurs.remove(0);
+            }
+            let Some(blur) = self.blur() else {
+                // Still measuring the blur.
+                continue;
+            };
+            match shot.locate(&norm, Some(blur)) {
+                Some(t) => seen.push([t.x, t.y]),
                 None => misses += 1,
             }
         }
@@ -1051,6 +1098,14 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let xs: Vec<f64> = seen.iter().map(|t| t[0]).collect();
         let ys: Vec<f64> = seen.iter().map(|t| t[1]).collect();
         Ok(Some([median(xs), median(ys)]))
+    }
+
+    /// Pixels, the blur of the tip's end in focus: the median of the latest
+    /// [`BLUR_FRAMES`] free fits of the resting tip, once there are [`BLUR_MIN`] of
+    /// them. The optics' blur at the focus is the same in every frame taken there; a
+    /// single frame's free fit scatters from 0.3 to 6 px around it.
+    fn blur(&self) -> Option<f64> {
+        (self.blurs.len() >= BLUR_MIN).then(|| median(self.blurs.clone()))
     }
 
     fn calibrate(
@@ -1949,7 +2004,7 @@ impl<B: Backend> Workflow<'_, B> {
             if k > 0 {
                 shot = self.shoot(Some(roi_centre))?;
             }
-            tip = shot.tip(self.background.as_ref().expect("background"));
+            tip = shot.tip(self.background.as_ref().expect("background"), self.blur());
             if tip.is_some() {
                 break;
             }
@@ -2023,7 +2078,7 @@ impl<B: Backend> Workflow<'_, B> {
                 return Err(Fail::Cell(e));
             }
             shot = self.shoot(Some(roi_centre))?;
-            match shot.tip(self.background.as_ref().expect("background")) {
+            match shot.tip(self.background.as_ref().expect("background"), self.blur()) {
                 Some(t) => tip = t,
                 None => {
                     return Err(Fail::Cell(
@@ -2066,7 +2121,7 @@ impl<B: Backend> Workflow<'_, B> {
             let s = self.servo.as_mut().expect("servo");
             s.refs[0] = (s.refs[0] + 0.8 * alpha).clamp(0.0, 8e-6);
             shot = self.shoot(Some(roi_centre))?;
-            match shot.tip(self.background.as_ref().expect("background")) {
+            match shot.tip(self.background.as_ref().expect("background"), self.blur()) {
                 Some(t) => {
                     tip = t;
                     misses = 0;
@@ -2107,7 +2162,9 @@ impl<B: Backend> Workflow<'_, B> {
             let (mut laterals, mut betas) = (Vec::new(), Vec::new());
             for _ in 0..TIP_FRAMES + 2 {
                 shot = self.shoot(Some(roi_centre))?;
-                if let Some(t) = shot.tip(self.background.as_ref().expect("background")) {
+                if let Some(t) =
+                    shot.tip(self.background.as_ref().expect("background"), self.blur())
+                {
                     let (_, l, b) = offset(t);
                     laterals.push(l);
                     betas.push(b);
@@ -2211,7 +2268,8 @@ impl<B: Backend> Workflow<'_, B> {
         let mut aims = Vec::new();
         for _ in 0..TIP_FRAMES {
             let shot = self.shoot(Some(roi_centre))?;
-            let Some(t) = shot.tip(self.background.as_ref().expect("background")) else {
+            let Some(t) = shot.tip(self.background.as_ref().expect("background"), self.blur())
+            else {
                 continue;
             };
             let e = [
