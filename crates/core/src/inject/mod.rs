@@ -1246,8 +1246,6 @@ impl<'r, B: Backend> Workflow<'r, B> {
         })
     }
 
-    /// Maps the image to the stage: the tip located (lifted, over the plate) at four
-    /// stage positions 200 um apart, and its motion under A1 and A3.
     /// The background: a full frame of the plate with the pipette lifted one field
     /// width to the plate's left (the tip is found against it, and the survey reads
     /// it). Taken again at every re-check: a bench that drifts moves the plate's image
@@ -1301,19 +1299,32 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok(Ok(()))
     }
 
-    /// The image map's stage positions: at the corners between four wells near the
-    /// plate's centre, where the tip is surely in view and, in focus, touches no cell (a
-    /// cell lies within its well, so its disc stays clear of the corner): a corner and
-    /// its neighbours `d` (about 200 um, whole pitches) away in x, z and both.
+    /// The image map's stage positions: at corners between four wells, where the tip is
+    /// surely in view and, in focus, touches no cell (a cell lies within its well, so
+    /// its disc stays clear of the corner), as far apart as the plate allows: along
+    /// each axis the corners between its first two and its last two wells. The map is
+    /// extrapolated no further than the outer wells: from four points 150 um apart at
+    /// the plate's centre it was more than 5 um off at the corners of a 10 x 15 plate
+    /// (it called such a plate with 5 um to spare too large on 4 seeds of 5). A plate
+    /// of fewer than four wells along an
+    /// axis takes a corner near its centre and one `d` (about 200 um, whole pitches)
+    /// beyond it.
     fn map_points(&self) -> [[f64; 2]; 4] {
-        let [cx, cz] = self
-            .plate
-            .well_centre([self.plate.rows / 2, self.plate.cols / 2]);
-        let q = 0.5 * self.plate.pitch;
-        let d = self.plate.pitch.max(200e-6f64.min(2.0 * self.plate.pitch));
-        let d = (d / self.plate.pitch).round() * self.plate.pitch;
-        let (cx, cz) = (cx - q, cz - q);
-        [(0.0, 0.0), (d, 0.0), (0.0, d), (d, d)].map(|(dx, dz)| [cx + dx, cz + dz])
+        let p = &self.plate;
+        let q = 0.5 * p.pitch;
+        let d = p.pitch.max(200e-6f64.min(2.0 * p.pitch));
+        let d = (d / p.pitch).round() * p.pitch;
+        let span = |origin: f64, n: u32| {
+            if n >= 4 {
+                (origin + q, origin + (n - 2) as f64 * p.pitch + q)
+            } else {
+                let c = origin + (n / 2) as f64 * p.pitch - q;
+                (c, c + d)
+            }
+        };
+        let (x0, x1) = span(p.origin[0], p.cols);
+        let (z0, z1) = span(p.origin[1], p.rows);
+        [[x0, z0], [x1, z0], [x0, z1], [x1, z1]]
     }
 
     /// The tip's full-frame pixel with the stage at `s` (x, z) and the pipette in
@@ -1436,6 +1447,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
         )
     }
 
+    /// Maps the image to the stage: the tip located (in focus, over the plate) at the
+    /// four stage positions of [`Workflow::map_points`], and its motion under A1 and A3.
     fn map_image(&mut self) -> Result<Result<ImageMap, String>, WorkflowError> {
         let mut pts = Vec::new();
         for s in self.map_points() {
