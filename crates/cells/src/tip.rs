@@ -363,6 +363,64 @@ mod tests {
         assert!((phi(-2.0) - 0.022_750_131_948_179).abs() < 1e-12);
     }
 
+    /// A `w × h` frame (divided by its background, scaled to 2000) of a tube tapering
+    /// down to its tip at (`x0`, `y0`) px: 0.5 µm radius at the tip, growing by 0.12 of
+    /// the distance behind it, its end and walls blurred by `sigma` px, with noise of
+    /// `noise` counts.
+    fn tube(
+        x0: f64,
+        y0: f64,
+        sigma: f64,
+        noise: f64,
+        rng: &mut cellinject_numeric::Rng,
+    ) -> Vec<u16> {
+        let (w, h, pix) = (120usize, 160usize, 0.88e-6);
+        let mut px = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let behind = (y0 - j as f64).max(0.0);
+                let r = (0.5e-6 + 0.12 * behind * pix) / pix;
+                let d = (i as f64 - x0).abs();
+                let outer = phi((r - d) / sigma);
+                let inner = phi((0.65 * r - d) / sigma);
+                let fade = phi((y0 - j as f64) / sigma);
+                let dark = fade * (0.12 * outer + 0.45 * (outer - inner));
+                px.push((2000.0 * (1.0 - dark) + noise * rng.gaussian()).round() as u16);
+            }
+        }
+        px
+    }
+
+    #[test]
+    fn with_its_blur_known_the_tip_is_found_along_the_axis_in_every_frame() {
+        let mut rng = cellinject_numeric::Rng::new(7, 1);
+        let mut worst: f64 = 0.0;
+        for k in 0..30 {
+            let (x0, y0) = (60.0 + 0.37 * k as f64 % 1.0, 100.0 + 0.61 * k as f64 % 1.0);
+            let px = tube(x0, y0, 0.6, 50.0, &mut rng);
+            let t = locate_with(&px, 120, 160, 0.88e-6, Some(0.6)).expect("tip");
+            assert!(
+                (t.x - x0).abs() < 0.3,
+                "frame {k}: across {:.2} px off",
+                t.x - x0
+            );
+            worst = worst.max((t.y - y0).abs());
+        }
+        assert!(
+            worst < 1.0,
+            "a frame's tip {worst:.2} px off along the axis"
+        );
+    }
+
+    #[test]
+    fn a_blur_that_is_not_a_positive_number_is_refused() {
+        let px = vec![1000u16; 64 * 64];
+        assert!(matches!(
+            locate_with(&px, 64, 64, 1e-6, Some(0.0)),
+            Err(CellsError::Invalid { what: "blur", .. })
+        ));
+    }
+
     #[test]
     fn an_image_without_a_pipette_says_so() {
         let px = vec![1000u16; 64 * 64];
