@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The longest run the twin can hold (issue 20): the largest plate the microscope sees
-# whole at the run's zoom (2.5x: 10 rows x 15 columns of 150 um wells, 200 um of the
-# pipette in view above the top row), generated from each seed, injected with the
+# whole at the run's zoom (2.5x: 10 rows x 15 columns of 150 um wells, 205 um of the
+# pipette in view above the top row, where 200 are needed, and 5 um to spare below the
+# bottom row), generated from each seed, injected with the
 # prototype's description (temperature drift on: 1 K/h). For each seed it prints
 # whether the run completed, its mean and largest tip error at injection (the twin's
 # truth), the mean of each tenth of the run's injections in order (drift would show as
@@ -19,7 +20,7 @@ while [ $# -gt 0 ]; do
     --seeds) seeds=$2; shift 2 ;;
     --config) config=$2; shift 2 ;;
     --jobs) jobs=$2; shift 2 ;;
-    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
     *) echo "long_run.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -40,7 +41,7 @@ export bin work config
 one() {
   local s=$1 d="$work/s$1" rc=0
   mkdir -p "$d"
-  "$bin" plate generate --rows 10 --cols 15 --origin=-1.05e-3,-0.545e-3 --seed "$s" \
+  "$bin" plate generate --rows 10 --cols 15 --origin=-1.05e-3,-0.540e-3 --seed "$s" \
     --out "$d/plate.toml" >/dev/null
   "$bin" run ${config:+--config "$config"} --plate "$d/plate.toml" --seed "$s" \
     --db "$d/runs.sqlite" --format json >"$d/run.json" 2>"$d/run.err" || rc=$?

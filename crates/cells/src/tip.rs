@@ -10,6 +10,14 @@
 //! widens behind it) that both start at `t`, blurred by a Gaussian of `σ`:
 //! `M(s) = a·Φ(z) + c·σ·(z·Φ(z) + φ(z))`, `z = (t − s)/σ`, by a search over `t` and `σ`
 //! with `a`, `c` by least squares. The tip is the axis point at `t`.
+//!
+//! In one noisy frame `t` and `σ` trade against each other (a blurrier end further
+//! ahead looks much like a sharper one further back): the free fit's `σ` ranges from
+//! 0.3 to 6 px for a tip whose blur is 0.6 px, and the tip moves back with it (by
+//! 1.3 px on average for `σ` over 2.5 px, by up to 5 px). The blur is the optics' at the
+//! focus, the same in every frame taken there, so a caller that has measured it (the
+//! median of many frames' free fits) passes it to [`locate_with`], whose fit finds
+//! only `t`.
 
 use crate::{CellsError, components};
 
@@ -44,12 +52,26 @@ fn sample(d: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
     a * (1.0 - fy) + b * fy
 }
 
-/// Finds the tip in a `width × height` image at `pixel_size` m per pixel.
+/// Finds the tip in a `width × height` image at `pixel_size` m per pixel, its blur
+/// fitted with its position.
 pub fn locate(
     pixels: &[u16],
     width: usize,
     height: usize,
     pixel_size: f64,
+) -> Result<Tip, CellsError> {
+    locate_with(pixels, width, height, pixel_size, None)
+}
+
+/// [`locate`], with the blur of the tip's end along the axis known (`blur`, pixels:
+/// see [`Tip::sigma`]): the fit then finds only the position. `None`: the blur is
+/// fitted too.
+pub fn locate_with(
+    pixels: &[u16],
+    width: usize,
+    height: usize,
+    pixel_size: f64,
+    blur: Option<f64>,
 ) -> Result<Tip, CellsError> {
     if pixels.len() != width * height || width < 8 || height < 8 {
         return Err(CellsError::Size {
@@ -63,6 +85,15 @@ pub fn locate(
             what: "pixel_size",
             value: pixel_size,
             reason: "must be a positive length",
+        });
+    }
+    if let Some(b) = blur
+        && !(b.is_finite() && b > 0.0)
+    {
+        return Err(CellsError::Invalid {
+            what: "blur",
+            value: b,
+            reason: "must be a positive number of pixels",
         });
     }
     let um = |v: f64| v * 1e-6 / pixel_size;
@@ -139,13 +170,16 @@ pub fn locate(
     let (ox, oy) = (ax + t0 * u[0], ay + t0 * u[1]);
     // Darkness integrated across the tube along the axis, s forward (towards and beyond
     // the tip), from 25 µm behind to 15 µm beyond, quarter-pixel steps.
+    // Across, the tube's half-width (0.5 µm at the tip, growing by 0.12 of the distance
+    // behind it) and 3 blurs; 5 µm when the blur is not known (a defocused tip).
+    let reach = blur.map_or(um(5.0), |b| um(0.5) + 3.0 * b);
     let n = [-u[1], u[0]];
     let mut prof = Vec::new();
     let mut s = -um(25.0);
     while s <= um(15.0) {
         let (px, py) = (ox + s * u[0], oy + s * u[1]);
         let behind = (-s).max(0.0);
-        let half = 0.12 * behind + um(5.0);
+        let half = 0.12 * behind + reach;
         let mut m = 0.0;
         let mut o = -half;
         while o <= half {
@@ -155,7 +189,8 @@ pub fn locate(
         prof.push((s, m));
         s += 0.25;
     }
-    // Fit t (within 8 µm of the guess) and σ (up to 10 µm: a defocused tip), coarse then fine; a, c by least squares.
+    // Fit t (within 8 µm of the guess) and σ (up to 10 µm: a defocused tip; or the
+    // known blur), coarse then fine; a, c by least squares.
     let search =
         |best: &mut (f64, f64, f64), t_range: (f64, f64, f64), s_range: (f64, f64, f64)| {
             let mut sig = s_range.0;
@@ -172,17 +207,11 @@ pub fn locate(
             }
         };
     let mut best = (f64::INFINITY, 0.0, 1.0);
-    search(
-        &mut best,
-        (-um(8.0), um(8.0), 0.5),
-        (0.5, um(10.0).max(1.0), 0.5),
-    );
+    let coarse = blur.map_or((0.5, um(10.0).max(1.0), 0.5), |b| (b, b, 1.0));
+    search(&mut best, (-um(8.0), um(8.0), 0.5), coarse);
     let (_, t1, s1) = best;
-    search(
-        &mut best,
-        (t1 - 0.6, t1 + 0.6, 0.05),
-        ((s1 - 0.5).max(0.3), s1 + 0.5, 0.1),
-    );
+    let fine = blur.map_or(((s1 - 0.5).max(0.3), s1 + 0.5, 0.1), |b| (b, b, 1.0));
+    search(&mut best, (t1 - 0.6, t1 + 0.6, 0.05), fine);
     let (_, t, sigma) = best;
     Ok(Tip {
         x: ox + t * u[0],
@@ -332,6 +361,64 @@ mod tests {
         assert!((phi(0.0) - 0.5).abs() < 1e-12);
         assert!((phi(1.0) - 0.841_344_746_068_543).abs() < 1e-12);
         assert!((phi(-2.0) - 0.022_750_131_948_179).abs() < 1e-12);
+    }
+
+    /// A `w × h` frame (divided by its background, scaled to 2000) of a tube tapering
+    /// down to its tip at (`x0`, `y0`) px: 0.5 µm radius at the tip, growing by 0.12 of
+    /// the distance behind it, its end and walls blurred by `sigma` px, with noise of
+    /// `noise` counts.
+    fn tube(
+        x0: f64,
+        y0: f64,
+        sigma: f64,
+        noise: f64,
+        rng: &mut cellinject_numeric::Rng,
+    ) -> Vec<u16> {
+        let (w, h, pix) = (120usize, 160usize, 0.88e-6);
+        let mut px = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let behind = (y0 - j as f64).max(0.0);
+                let r = (0.5e-6 + 0.12 * behind * pix) / pix;
+                let d = (i as f64 - x0).abs();
+                let outer = phi((r - d) / sigma);
+                let inner = phi((0.65 * r - d) / sigma);
+                let fade = phi((y0 - j as f64) / sigma);
+                let dark = fade * (0.12 * outer + 0.45 * (outer - inner));
+                px.push((2000.0 * (1.0 - dark) + noise * rng.gaussian()).round() as u16);
+            }
+        }
+        px
+    }
+
+    #[test]
+    fn with_its_blur_known_the_tip_is_found_along_the_axis_in_every_frame() {
+        let mut rng = cellinject_numeric::Rng::new(7, 1);
+        let mut worst: f64 = 0.0;
+        for k in 0..30 {
+            let (x0, y0) = (60.0 + 0.37 * k as f64 % 1.0, 100.0 + 0.61 * k as f64 % 1.0);
+            let px = tube(x0, y0, 0.6, 50.0, &mut rng);
+            let t = locate_with(&px, 120, 160, 0.88e-6, Some(0.6)).expect("tip");
+            assert!(
+                (t.x - x0).abs() < 0.3,
+                "frame {k}: across {:.2} px off",
+                t.x - x0
+            );
+            worst = worst.max((t.y - y0).abs());
+        }
+        assert!(
+            worst < 1.0,
+            "a frame's tip {worst:.2} px off along the axis"
+        );
+    }
+
+    #[test]
+    fn a_blur_that_is_not_a_positive_number_is_refused() {
+        let px = vec![1000u16; 64 * 64];
+        assert!(matches!(
+            locate_with(&px, 64, 64, 1e-6, Some(0.0)),
+            Err(CellsError::Invalid { what: "blur", .. })
+        ));
     }
 
     #[test]

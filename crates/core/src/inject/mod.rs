@@ -18,6 +18,7 @@
 pub mod machine;
 pub mod window;
 
+use cellinject_cells::tip::Tip;
 use cellinject_cells::{Kind as BlobKind, Options as DetectOptions};
 use cellinject_control::{Controller, Feedforward, Measurement, SensorGains, SensorLoop, Stacks};
 use cellinject_hw::{Camera, CameraSettings, Clock, HwError, Injector, Optics, PiezoChannel};
@@ -42,9 +43,6 @@ const RETRACT_TIMEOUT: f64 = 2.0;
 /// the line between two wells stays clear of every cell (they lie within their wells).
 const A3_PROBE: f64 = 20e-6;
 
-/// How a skip for a blocked approach begins (no re-check follows it: nothing was off).
-const BLOCKED: &str = "the approach is blocked";
-
 /// m, farthest the resting tip may be from where the image map puts it (in the object
 /// plane, at either of the re-check's two stage positions) before the image is mapped
 /// again. The map only brings the tip to the start of the approach; the cell is found
@@ -58,6 +56,14 @@ const RECHECK_TOLERANCE: f64 = 1.5e-6;
 /// decides a step: a single frame's tip stands 2-4 px behind the true one along the
 /// pipette about once in 50 frames.
 const TIP_FRAMES: usize = 5;
+
+/// Frames of the resting tip whose fitted blurs measure the tip's blur before any
+/// position is taken ([`Workflow::blur`]).
+const BLUR_MIN: usize = 15;
+
+/// The latest frames of the resting tip whose fitted blurs make the tip's blur (a
+/// re-check's frames renew a part of them: the focus can drift).
+const BLUR_FRAMES: usize = 60;
 
 /// Settings of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -565,10 +571,11 @@ impl Shot {
     fn local(&self, p: [f64; 2]) -> [f64; 2] {
         [p[0] - self.origin[0], p[1] - self.origin[1]]
     }
-    /// The tip, found in this frame divided by the background (the same view with the
-    /// pipette out of it: the feeder's walls and the cells divide out, the pipette
-    /// stays).
-    fn tip(&self, background: &Background) -> Option<[f64; 2]> {
+    /// This frame divided by the background (the same view with the pipette out of
+    /// it: the feeder's walls and the cells divide out, the pipette stays), scaled to
+    /// 2000; `None` for a frame far darker or brighter than the background (the light
+    /// off, a bubble, a flash), which shows nothing to trust.
+    fn normalised(&self, background: &Background) -> Option<Vec<u16>> {
         let f = &self.frame;
         let (w, h) = (f.width as usize, f.height as usize);
         let (ox, oy) = (self.origin[0] as usize, self.origin[1] as usize);
@@ -580,15 +587,28 @@ impl Shot {
                 norm.push(v.clamp(0.0, 65535.0) as u16);
             }
         }
-        // A frame far darker or brighter than the background (the light off, a
-        // bubble, a flash) shows nothing to trust.
         let mean = norm.iter().map(|&v| v as f64).sum::<f64>() / norm.len().max(1) as f64;
-        if !(1000.0..4000.0).contains(&mean) {
-            return None;
-        }
-        cellinject_cells::tip::locate(&norm, w, h, f.pixel_size)
+        (1000.0..4000.0).contains(&mean).then_some(norm)
+    }
+
+    /// The tip in `norm` (this frame [`Shot::normalised`]), in full-frame pixels;
+    /// `blur`: the tip's blur (pixels) if known, else it is fitted too.
+    fn locate(&self, norm: &[u16], blur: Option<f64>) -> Option<Tip> {
+        let f = &self.frame;
+        let (w, h) = (f.width as usize, f.height as usize);
+        cellinject_cells::tip::locate_with(norm, w, h, f.pixel_size, blur)
             .ok()
-            .map(|t| self.full([t.x, t.y]))
+            .map(|t| {
+                let [x, y] = self.full([t.x, t.y]);
+                Tip { x, y, ..t }
+            })
+    }
+
+    /// The tip, found in this frame divided by the background, with the tip's blur
+    /// (pixels) if known.
+    fn tip(&self, background: &Background, blur: Option<f64>) -> Option<[f64; 2]> {
+        let norm = self.normalised(background)?;
+        self.locate(&norm, blur).map(|t| [t.x, t.y])
     }
     /// Mean intensity of pixel (column, row) rounded, or None outside.
     fn at(&self, c: f64, r: f64) -> Option<f64> {
@@ -626,16 +646,33 @@ pub struct Workflow<'r, B: Backend> {
     dead_in_row: usize,
     survey_cells: Vec<Target>,
     background: Option<Background>,
+    /// Pixels, the blur of the resting tip's end in each of the latest [`BLUR_FRAMES`]
+    /// full frames of it (fitted with its position).
+    blurs: Vec<f64>,
     /// s, device time at which the image map was last made or checked.
     last_check: f64,
     /// Why a re-check is due before the next cell (a fault), if one is.
     check_due: Option<String>,
 }
 
+/// Why an attempt was skipped (the cell not touched), for what follows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Skip {
+    /// A neighbour blocks the approach even off-centre: nothing was off, so no re-check
+    /// follows.
+    Blocked,
+    /// A fault before contact (the tip or the cell lost, a stage move refused, ...): the
+    /// calibrations are re-checked before the next cell.
+    Fault,
+}
+
 /// How a cell's procedure ended early.
 enum Fail {
     /// A fault on this cell; the run goes on.
     Cell(String),
+    /// The approach to this cell is blocked by a neighbour (the cell is skipped); the
+    /// run goes on.
+    Blocked(String),
     /// A fault the run stops on.
     Fatal(String),
     /// The operator stopped the run (an abort): the run stops; a touched cell is
@@ -700,6 +737,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             dead_in_row: 0,
             survey_cells: Vec::new(),
             background: None,
+            blurs: Vec::new(),
             last_check: 0.0,
             check_due: None,
         })
@@ -811,13 +849,13 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 continue;
             }
             match self.attempt(*target, obs)? {
-                (a, None) => {
+                (a, skip, None) => {
                     if a.outcome != Outcome::Injected && a.contact {
                         self.check_due = Some(format!(
                             "after a fault on cell {} ({})",
                             a.target.index, a.reason
                         ));
-                    } else if a.outcome == Outcome::Skipped && !a.reason.starts_with(BLOCKED) {
+                    } else if skip == Some(Skip::Fault) {
                         self.check_due = Some(format!(
                             "after cell {} was skipped ({})",
                             a.target.index, a.reason
@@ -825,7 +863,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                     }
                     attempts.push(a)
                 }
-                (a, Some(fatal)) => {
+                (a, _, Some(fatal)) => {
                     attempts.push(a);
                     stopped = Some(fatal);
                     break;
@@ -1020,18 +1058,38 @@ impl<'r, B: Backend> Workflow<'r, B> {
     }
 
     /// The resting tip in full frames: the median of [`TIP_FRAMES`] frames' tips
-    /// (`tries`: frames without a tip tolerated on top). A single frame's tip can stand
-    /// 2-3 px behind the true one along the axis (the fit trades the end's blur
-    /// against its position in the noise), and the image map extrapolates each of its
-    /// points' errors over the plate: seed 15's map, two of its four points 2-3 px
-    /// off, put the first row's cells 7-11 um off along the pipette.
+    /// (`tries`: frames without a tip tolerated on top), each found with the tip's blur
+    /// known ([`Workflow::blur`]). Every frame also measures the blur (a free fit), and
+    /// the run's first call looks at the resting tip until [`BLUR_MIN`] frames have:
+    /// with the blur free, a frame's tip stood up to 5 px behind the true one along the
+    /// axis (the fit trades the end's blur against its position in the noise), and the
+    /// image map extrapolates each of its points' errors over the plate: seed 15's map,
+    /// two of its four points 2-3 px off, put the first row's cells 7-11 um off along
+    /// the pipette.
     fn tip_full(&mut self, tries: usize) -> Result<Option<[f64; 2]>, WorkflowError> {
         let mut seen = Vec::with_capacity(TIP_FRAMES);
         let mut misses = 0;
         while seen.len() < TIP_FRAMES && misses < tries {
             let shot = self.shoot(None)?;
-            match shot.tip(self.background.as_ref().expect("background")) {
-                Some(t) => seen.push(t),
+            let bg = self.background.as_ref().expect("background");
+            let Some(free) = shot.normalised(bg).and_then(|n| {
+                let free = shot.locate(&n, None)?;
+                Some((n, free))
+            }) else {
+                misses += 1;
+                continue;
+            };
+            let (norm, free) = free;
+            self.blurs.push(free.sigma);
+            if self.blurs.len() > BLUR_FRAMES {
+                self.blurs.remove(0);
+            }
+            let Some(blur) = self.blur() else {
+                // Still measuring the blur.
+                continue;
+            };
+            match shot.locate(&norm, Some(blur)) {
+                Some(t) => seen.push([t.x, t.y]),
                 None => misses += 1,
             }
         }
@@ -1041,6 +1099,14 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let xs: Vec<f64> = seen.iter().map(|t| t[0]).collect();
         let ys: Vec<f64> = seen.iter().map(|t| t[1]).collect();
         Ok(Some([median(xs), median(ys)]))
+    }
+
+    /// Pixels, the blur of the tip's end in focus: the median of the latest
+    /// [`BLUR_FRAMES`] free fits of the resting tip, once there are [`BLUR_MIN`] of
+    /// them. The optics' blur at the focus is the same in every frame taken there; a
+    /// single frame's free fit scatters from 0.3 to 6 px around it.
+    fn blur(&self) -> Option<f64> {
+        (self.blurs.len() >= BLUR_MIN).then(|| median(self.blurs.clone()))
     }
 
     fn calibrate(
@@ -1181,8 +1247,6 @@ impl<'r, B: Backend> Workflow<'r, B> {
         })
     }
 
-    /// Maps the image to the stage: the tip located (lifted, over the plate) at four
-    /// stage positions 200 um apart, and its motion under A1 and A3.
     /// The background: a full frame of the plate with the pipette lifted one field
     /// width to the plate's left (the tip is found against it, and the survey reads
     /// it). Taken again at every re-check: a bench that drifts moves the plate's image
@@ -1193,8 +1257,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let half = 0.5 * self.plate.pitch;
         let x0 = self.plate.well_centre([0, 0])[0];
         let full = self.settings_full.expect("full settings");
-        let fov = full.roi.width as f64 * self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
-            / self.rig.camera.settings().binning as f64;
+        // m per pixel of the full frames: the last background's (taken with them), or on
+        // the first call a frame's at the current binning.
+        let pixel = match &self.background {
+            Some(b) => b.pixel_size,
+            None => {
+                self.rig.camera.grab().map_err(dev("camera"))?.pixel_size
+                    / self.rig.camera.settings().binning as f64
+            }
+        };
+        let fov = full.roi.width as f64 * pixel;
         let away = x0 - half - fov - 0.3e-3;
         if let Err(e) = self.stage_to([None, Some(lift), None])? {
             return Ok(Err(format!("the pipette cannot be lifted: {e}")));
@@ -1228,19 +1300,32 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok(Ok(()))
     }
 
-    /// The image map's stage positions: at the corners between four wells near the
-    /// plate's centre, where the tip is surely in view and, in focus, touches no cell (a
-    /// cell lies within its well, so its disc stays clear of the corner): a corner and
-    /// its neighbours `d` (about 200 um, whole pitches) away in x, z and both.
+    /// The image map's stage positions: at corners between four wells, where the tip is
+    /// surely in view and, in focus, touches no cell (a cell lies within its well, so
+    /// its disc stays clear of the corner), as far apart as the plate allows: along
+    /// each axis the corners between its first two and its last two wells. The map is
+    /// extrapolated no further than the outer wells: from four points 150 um apart at
+    /// the plate's centre it was more than 5 um off at the corners of a 10 x 15 plate
+    /// (it called such a plate with 5 um to spare too large on 4 seeds of 5). A plate
+    /// of fewer than four wells along an
+    /// axis takes a corner near its centre and one `d` (about 200 um, whole pitches)
+    /// beyond it.
     fn map_points(&self) -> [[f64; 2]; 4] {
-        let [cx, cz] = self
-            .plate
-            .well_centre([self.plate.rows / 2, self.plate.cols / 2]);
-        let q = 0.5 * self.plate.pitch;
-        let d = self.plate.pitch.max(200e-6f64.min(2.0 * self.plate.pitch));
-        let d = (d / self.plate.pitch).round() * self.plate.pitch;
-        let (cx, cz) = (cx - q, cz - q);
-        [(0.0, 0.0), (d, 0.0), (0.0, d), (d, d)].map(|(dx, dz)| [cx + dx, cz + dz])
+        let p = &self.plate;
+        let q = 0.5 * p.pitch;
+        let d = p.pitch.max(200e-6f64.min(2.0 * p.pitch));
+        let d = (d / p.pitch).round() * p.pitch;
+        let span = |origin: f64, n: u32| {
+            if n >= 4 {
+                (origin + q, origin + (n - 2) as f64 * p.pitch + q)
+            } else {
+                let c = origin + (n / 2) as f64 * p.pitch - q;
+                (c, c + d)
+            }
+        };
+        let (x0, x1) = span(p.origin[0], p.cols);
+        let (z0, z1) = span(p.origin[1], p.rows);
+        [[x0, z0], [x1, z0], [x0, z1], [x1, z1]]
     }
 
     /// The tip's full-frame pixel with the stage at `s` (x, z) and the pipette in
@@ -1363,6 +1448,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
         )
     }
 
+    /// Maps the image to the stage: the tip located (in focus, over the plate) at the
+    /// four stage positions of [`Workflow::map_points`], and its motion under A1 and A3.
     fn map_image(&mut self) -> Result<Result<ImageMap, String>, WorkflowError> {
         let mut pts = Vec::new();
         for s in self.map_points() {
@@ -1714,12 +1801,13 @@ impl<B: Backend> Workflow<'_, B> {
     }
 
     /// One cell: an attempt from the stage move to the verification. Returns the
-    /// attempt and, if the run must stop, why.
+    /// attempt, why it was skipped if it was (and the run goes on), and, if the run
+    /// must stop, why.
     fn attempt(
         &mut self,
         target: Target,
         obs: &mut dyn Observer,
-    ) -> Result<(Attempt, Option<String>), WorkflowError> {
+    ) -> Result<(Attempt, Option<Skip>, Option<String>), WorkflowError> {
         let mut a = Attempt {
             target,
             outcome: Outcome::Skipped,
@@ -1746,10 +1834,11 @@ impl<B: Backend> Workflow<'_, B> {
         self.fire(Event::CellChosen, why, obs, Some(&mut a.transitions))?;
         let result = self.procedure(&mut a, obs);
         let mut fatal = None;
+        let blocked = matches!(result, Err(Fail::Blocked(_)));
         match result {
             Ok(()) => self.consecutive_faults = 0,
             Err(Fail::Error(e)) => return Err(e),
-            Err(Fail::Cell(reason)) => {
+            Err(Fail::Cell(reason) | Fail::Blocked(reason)) => {
                 self.consecutive_faults += 1;
                 self.fire(
                     Event::CellFault,
@@ -1802,7 +1891,12 @@ impl<B: Backend> Workflow<'_, B> {
         }
         a.t[1] = self.now();
         obs.finished(&a).map_err(WorkflowError::Record)?;
-        Ok((a, fatal))
+        let skip = (fatal.is_none() && a.outcome == Outcome::Skipped).then_some(if blocked {
+            Skip::Blocked
+        } else {
+            Skip::Fault
+        });
+        Ok((a, skip, fatal))
     }
 
     /// A cell's procedure ended in a fault the run stops on (`by_operator`: an
@@ -1878,8 +1972,8 @@ impl<B: Backend> Workflow<'_, B> {
         let Some(shift) = shift else {
             let (k, gap) = blocked.unwrap_or((0, 0.0));
             let other = self.survey_cells[k];
-            return Err(Fail::Cell(format!(
-                "{BLOCKED} by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
+            return Err(Fail::Blocked(format!(
+                "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
                 other.index,
                 other.well[0],
                 other.well[1],
@@ -1924,7 +2018,7 @@ impl<B: Backend> Workflow<'_, B> {
             if k > 0 {
                 shot = self.shoot(Some(roi_centre))?;
             }
-            tip = shot.tip(self.background.as_ref().expect("background"));
+            tip = shot.tip(self.background.as_ref().expect("background"), self.blur());
             if tip.is_some() {
                 break;
             }
@@ -1998,7 +2092,7 @@ impl<B: Backend> Workflow<'_, B> {
                 return Err(Fail::Cell(e));
             }
             shot = self.shoot(Some(roi_centre))?;
-            match shot.tip(self.background.as_ref().expect("background")) {
+            match shot.tip(self.background.as_ref().expect("background"), self.blur()) {
                 Some(t) => tip = t,
                 None => {
                     return Err(Fail::Cell(
@@ -2041,7 +2135,7 @@ impl<B: Backend> Workflow<'_, B> {
             let s = self.servo.as_mut().expect("servo");
             s.refs[0] = (s.refs[0] + 0.8 * alpha).clamp(0.0, 8e-6);
             shot = self.shoot(Some(roi_centre))?;
-            match shot.tip(self.background.as_ref().expect("background")) {
+            match shot.tip(self.background.as_ref().expect("background"), self.blur()) {
                 Some(t) => {
                     tip = t;
                     misses = 0;
@@ -2082,7 +2176,9 @@ impl<B: Backend> Workflow<'_, B> {
             let (mut laterals, mut betas) = (Vec::new(), Vec::new());
             for _ in 0..TIP_FRAMES + 2 {
                 shot = self.shoot(Some(roi_centre))?;
-                if let Some(t) = shot.tip(self.background.as_ref().expect("background")) {
+                if let Some(t) =
+                    shot.tip(self.background.as_ref().expect("background"), self.blur())
+                {
                     let (_, l, b) = offset(t);
                     laterals.push(l);
                     betas.push(b);
@@ -2186,7 +2282,8 @@ impl<B: Backend> Workflow<'_, B> {
         let mut aims = Vec::new();
         for _ in 0..TIP_FRAMES {
             let shot = self.shoot(Some(roi_centre))?;
-            let Some(t) = shot.tip(self.background.as_ref().expect("background")) else {
+            let Some(t) = shot.tip(self.background.as_ref().expect("background"), self.blur())
+            else {
                 continue;
             };
             let e = [
