@@ -1,5 +1,5 @@
 //! `plate detect`: cells found in a microscope frame of a plate, scored against the
-//! plate's truth (the twin's [[cell]] and [[debris]]): precision, recall, centre and
+//! plate's truth (the twin's `[[cell]]` and `[[debris]]`): precision, recall, centre and
 //! diameter errors.
 
 use cellinject_cells::{Blob, CellsError, Kind, Options, detect};

@@ -13,9 +13,9 @@
 //! | `model` | [`model::model`] | [`model::ModelReport`] |
 //! | `reproduce` | [`reproduce::reproduce`] | [`reproduce::ReproduceReport`] |
 //! | `hinge` | [`hinge::hinge`] | [`hinge::HingeReport`] |
-//! | `hinge-table` | [`hinge::table`] | [`hinge::TableReport`] |
+//! | `hinge-table` | [`hinge::table`] | [`hinge::TableRow`] (a list) |
 //! | `dic` | [`dic::points`] | [`dic::PointReport`] (a list) |
-//! | `dic field` | [`dic::field`] | [`dic::FieldReport`] |
+//! | `dic field` | [`dic::field_report`] | [`dic::FieldReport`] |
 //! | `sim loop` | [`sim::hysteresis_loop`] | [`sim::LoopReport`] |
 //! | `sim step` | [`sim::step_response`] | [`sim::StepReport`] |
 //! | `hysteresis identify / fit / invert` | [`hysteresis::identify`], [`hysteresis::fit`], [`hysteresis::invert`] | [`hysteresis::IdentifyReport`], [`hysteresis::FitReport`], [`hysteresis::InvertReport`] |
