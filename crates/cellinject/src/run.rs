@@ -323,12 +323,17 @@ impl Observer for Recorder<'_> {
     }
     fn tip_error(&mut self, t: &Target) -> Option<f64> {
         let c = self.nearest(t)?;
-        let tip = self
-            .twin
-            .as_ref()?
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .tip();
+        // The tip in the plate's frame: the cells lie where the feeder has moved it.
+        let (mut tip, o) = {
+            let twin = self
+                .twin
+                .as_ref()?
+                .lock()
+                .unwrap_or_else(|e| e.into_inner());
+            (twin.tip(), twin.plate_offset())
+        };
+        tip.x -= o[0];
+        tip.z -= o[1];
         if std::env::var_os("CELLINJECT_DEBUG").is_some() {
             eprintln!(
                 "tip - cell: ({:.2}, {:.2}) um; target ({:.2}, {:.2}) um vs true ({:.2}, {:.2})",
@@ -707,8 +712,8 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     if let Err(e) = &result
         && matches!(
             e,
-            cellinject_core::inject::WorkflowError::PlateTooLarge { .. }
-                | cellinject_core::inject::WorkflowError::TooHigh { .. }
+            cellinject_core::inject::WorkflowError::Plan(_)
+                | cellinject_core::inject::WorkflowError::PitchTooLarge { .. }
         )
     {
         // Bad input leaves no record: a new run refused before any cell goes, and so

@@ -174,14 +174,16 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
     }
 }
 
-/// A plate too near the top of the image is refused with the move that fixes it, in
-/// stage coordinates ("move the plate down" did not say which way), and leaves no
-/// record: no database file when there was none, no run in one that exists.
+/// A plate partly beyond the feeder stage's reach is refused before anything moves,
+/// naming the wells out of reach, by how much, and the move of the plate's origin that
+/// fixes it; it leaves no record: no database file when there was none, no run in one
+/// that exists.
 #[test]
-fn a_plate_too_high_in_the_image_is_refused_saying_which_way_to_move_it() {
-    let d = bench("too-high");
-    // Row 0's wall at -0.775 mm; the image's top edge at about -0.825 mm: 50 µm of
-    // the 200 µm the tip finder needs.
+fn a_plate_partly_beyond_the_feeders_reach_is_refused_naming_the_wells() {
+    let d = bench("far");
+    // The feeder reaches ±25 mm; the view's usable window ends about 1.1 mm right of
+    // the stage's origin. Column 0's centre at 25.9 mm is within reach (its square
+    // fits the window with the feeder at -25 mm), columns 1-3 at 26.05-26.35 mm not.
     let o = run(
         &d,
         &[
@@ -190,26 +192,41 @@ fn a_plate_too_high_in_the_image_is_refused_saying_which_way_to_move_it() {
             "--rows",
             "2",
             "--cols",
-            "2",
-            "--origin=0,-0.7e-3",
+            "4",
+            "--origin=25.9e-3,0",
             "--out",
-            "high.toml",
+            "far.toml",
         ],
     );
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let o = run(
         &d,
-        &["run", "--plate", "high.toml", "--calibration", "hy.json"],
+        &["run", "--plate", "far.toml", "--calibration", "hy.json"],
     );
     assert_eq!(o.status.code(), Some(2), "{}", err(&o));
     let e = err(&o);
-    let by: f64 = e
-        .split("by at least +")
+    assert!(
+        e.contains(
+            "[0, 1], [0, 2], [0, 3], [1, 1], [1, 2], [1, 3] lie outside the feeder stage's travel"
+        ),
+        "{e}"
+    );
+    // Column 1 is out of reach and column 0 within it, so the worst miss (column 3's)
+    // exceeds 0.3 mm (two pitches beyond column 1's) and is at most 0.45 mm (three
+    // beyond column 0's); the fix moves the origin back by as much.
+    let worst: f64 = e
+        .split("the worst by ")
         .nth(1)
-        .and_then(|t| t.split(" um in stage y").next())
+        .and_then(|t| t.split(" mm").next())
         .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("no move in stage y: {e}"));
-    assert!((140.0..=160.0).contains(&by), "{by}: {e}");
+        .unwrap_or_else(|| panic!("no distance: {e}"));
+    assert!((0.3..=0.45).contains(&worst), "{worst}: {e}");
+    assert!(
+        e.contains(&format!(
+            "moving the plate's origin by (-{worst:.3}, +0.000) mm"
+        )),
+        "{e}"
+    );
     assert!(
         !d.join("runs.sqlite").exists(),
         "the refused run left a database"
@@ -233,7 +250,7 @@ fn a_plate_too_high_in_the_image_is_refused_saying_which_way_to_move_it() {
         &[
             "run",
             "--plate",
-            "high.toml",
+            "far.toml",
             "--calibration",
             "hy.json",
             "--db",
@@ -248,6 +265,128 @@ fn a_plate_too_high_in_the_image_is_refused_saying_which_way_to_move_it() {
     let runs: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(runs.as_array().unwrap().len(), 1, "{runs}");
     assert_eq!(runs[0]["status"], "finished", "{runs}");
+}
+
+/// A plate wider than the view is served in two fields of view: every cell is found
+/// and attempted exactly once, those in the fields' overlap (seen twice) and one that
+/// straddles a field's edge (whole only in the other field) included. Checked against
+/// the plate file's ground truth, which the workflow never reads.
+#[test]
+fn a_plate_wider_than_the_view_is_served_in_fields_and_each_cell_attempted_once() {
+    let d = bench("fields");
+    // 16 columns of 150 um span 2.4 mm; the window at zoom 2.5 is about 2.27 mm wide.
+    let o = run(
+        &d,
+        &[
+            "plate",
+            "generate",
+            "--rows",
+            "2",
+            "--cols",
+            "16",
+            "--doublet-fraction",
+            "0.3",
+            "--origin=-1.1e-3,-0.1e-3",
+            "--seed",
+            "4",
+            "--out",
+            "wide.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--plate",
+            "wide.toml",
+            "--calibration",
+            "hy.json",
+            "--db",
+            "wide.sqlite",
+            "--format",
+            "json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    // The fields as the survey recorded them: plate x and y ranges, m.
+    let mut fields = Vec::new();
+    for ev in v["events"].as_array().unwrap() {
+        let r = ev["reason"].as_str().unwrap();
+        if ev["event"] == "field_reached" && r.contains(" surveyed: plate x ") {
+            let nums: Vec<f64> = r
+                .split(" surveyed: plate x ")
+                .nth(1)
+                .unwrap()
+                .replace(" to ", " ")
+                .replace(" mm, y ", " ")
+                .split(' ')
+                .take(4)
+                .map(|t| t.trim_end_matches(" mm").parse::<f64>().unwrap() * 1e-3)
+                .collect();
+            fields.push([nums[0], nums[2], nums[1], nums[3]]);
+        }
+    }
+    assert_eq!(fields.len(), 2, "{}", v["events"]);
+    let plate =
+        cellinject_config::plate::parse(&fs::read_to_string(d.join("wide.toml")).unwrap()).unwrap();
+    let truth: Vec<([f64; 2], f64)> = plate
+        .cells
+        .iter()
+        .map(|c| (plate.centre(c), 0.5 * c.diameter))
+        .collect();
+    // The fields' inner edges: the first's right, the second's left.
+    let (left, right) = if fields[0][0] < fields[1][0] {
+        (fields[0], fields[1])
+    } else {
+        (fields[1], fields[0])
+    };
+    let inner = [left[2], right[0]];
+    let straddling = truth
+        .iter()
+        .filter(|(c, r)| inner.iter().any(|e| (c[0] - e).abs() < *r))
+        .count();
+    assert!(
+        straddling >= 1,
+        "no cell straddles {inner:?}: the test tests nothing"
+    );
+    let in_both = truth
+        .iter()
+        .filter(|(c, r)| c[0] - r >= right[0] && c[0] + r <= left[2])
+        .count();
+    assert!(in_both > truth.len() / 2, "{in_both} of {}", truth.len());
+    assert_eq!(v["cells_found"], truth.len(), "{}", v["cells_found"]);
+    // Each attempt targets one true cell (within 3 um of its measured centre), and no
+    // true cell is attempted twice.
+    let attempts = v["attempts"].as_array().unwrap();
+    assert_eq!(attempts.len(), truth.len());
+    let mut hit = vec![0; truth.len()];
+    for a in attempts {
+        let p = [
+            a["x_m"].as_f64().unwrap() + plate.origin[0],
+            a["y_m"].as_f64().unwrap() + plate.origin[1],
+        ];
+        let (k, dist) = truth
+            .iter()
+            .enumerate()
+            .map(|(k, (c, _))| (k, (c[0] - p[0]).hypot(c[1] - p[1])))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        assert!(dist < 3e-6, "attempt {a} is {dist} m from the nearest cell");
+        hit[k] += 1;
+        let outcome = a["outcome"].as_str().unwrap();
+        assert!(
+            outcome == "injected"
+                || (outcome == "skipped"
+                    && a["reason"]
+                        .as_str()
+                        .unwrap()
+                        .contains("the approach is blocked")),
+            "{a}"
+        );
+    }
+    assert!(hit.iter().all(|&h| h == 1), "{hit:?}");
 }
 
 /// A directory with the small plate and a hysteresis calibration (so that each run

@@ -195,6 +195,20 @@ pub fn plan(
     overlap: f64,
     travel: Travel,
 ) -> Result<FieldPlan, PlanError> {
+    plan_near(plate, window, overlap, travel, None)
+}
+
+/// [`plan`], with the feeder now at `at`: along an axis where one field holds the whole
+/// plate, the feeder stays where it is when the plate is then in the window (no
+/// needless move; a plate put under the objective by hand is served where it lies),
+/// else the plate is centred as [`plan`] does.
+pub fn plan_near(
+    plate: &Plate,
+    window: Window,
+    overlap: f64,
+    travel: Travel,
+    at: Option<[f64; 2]>,
+) -> Result<FieldPlan, PlanError> {
     if !(overlap.is_finite() && overlap >= MIN_OVERLAP) {
         return Err(PlanError::Invalid {
             what: "overlap",
@@ -291,7 +305,11 @@ pub fn plan(
             let (wlo, whi) = (window.centre[a] - 0.5 * w, window.centre[a] + 0.5 * w);
             let f_lo = travel.lo[a].max(wlo - lo[a]);
             let f_hi = travel.hi[a].min(whi - lo[a] - span[a]);
-            let f = (window.centre[a] - (lo[a] + 0.5 * span[a])).clamp(f_lo.min(f_hi), f_hi);
+            let centred = (window.centre[a] - (lo[a] + 0.5 * span[a])).clamp(f_lo.min(f_hi), f_hi);
+            let f = match at {
+                Some(at) if at[a] >= f_lo && at[a] <= f_hi => at[a],
+                _ => centred,
+            };
             vec![window.centre[a] - f]
         } else {
             let step = (span[a] - w) / (n - 1) as f64;
@@ -398,6 +416,28 @@ mod tests {
         assert!((f.centre[1] - (-0.125e-3 + 1.5 * 150e-6)).abs() < 1e-12);
         assert!((f.feeder[0] - (WINDOW.centre[0] - f.centre[0])).abs() < 1e-15);
         assert_eq!(plan.path_length(), 0.0);
+    }
+
+    #[test]
+    fn a_plate_already_in_the_window_stays_where_it_lies() {
+        let p = grid(4, 6, 150e-6, [-0.375e-3, -0.125e-3]);
+        // With the feeder at 0 the walls span x [-0.45, 0.45] mm, y [-0.2, 0.4] mm:
+        // inside the window (x ±1.1 mm, y [-0.6, 0.8] mm), so nothing moves.
+        let plan = plan_near(&p, WINDOW, MIN_OVERLAP, TRAVEL, Some([0.0, 0.0])).unwrap();
+        assert_eq!(plan.fields.len(), 1);
+        assert_eq!(plan.fields[0].feeder, [0.0, 0.0]);
+        // The field still holds every well at that feeder position.
+        let f = plan.fields[0];
+        for w in [[0, 0], [3, 5]] {
+            assert!(f.holds(p.well_centre(w), 75e-6), "{w:?}");
+        }
+        // A feeder 0.7 mm off along x leaves the plate's right wall at 1.15 mm, out of
+        // the window: that axis is centred, the other stays.
+        let plan = plan_near(&p, WINDOW, MIN_OVERLAP, TRAVEL, Some([0.7e-3, 0.0])).unwrap();
+        let f = plan.fields[0];
+        assert!((f.feeder[0] - (WINDOW.centre[0] - f.centre[0])).abs() < 1e-15);
+        assert!((f.centre[0] - (-0.375e-3 + 2.5 * 150e-6)).abs() < 1e-12);
+        assert_eq!(f.feeder[1], 0.0);
     }
 
     #[test]

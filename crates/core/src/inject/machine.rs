@@ -59,6 +59,9 @@ pub enum Event {
     Rechecked,
     /// The cells are known.
     Surveyed,
+    /// The feeder stage brought the next cell's field of view under the objective
+    /// (a plate larger than the view is served field by field).
+    FieldReached,
     /// A cell to do.
     CellChosen,
     /// A cell not to do (already done, or unreachable): recorded as skipped.
@@ -119,8 +122,9 @@ pub fn next(state: State, event: Event) -> Option<State> {
         (S::Start, E::Begin) => S::Calibrating,
         (S::Calibrating, E::Calibrated) => S::Surveying,
         (S::Surveying, E::Surveyed) => S::NextCell,
+        (S::Surveying, E::FieldReached) => S::Surveying,
         (S::NextCell, E::CellChosen) => S::MovingStage,
-        (S::NextCell, E::CellSkipped) => S::NextCell,
+        (S::NextCell, E::CellSkipped | E::FieldReached) => S::NextCell,
         (S::NextCell, E::NoMoreCells) => S::Finished,
         (S::NextCell, E::Recheck) => S::Rechecking,
         (S::Rechecking, E::Rechecked) => S::NextCell,
@@ -186,12 +190,13 @@ pub const STATES: [State; 16] = [
 ];
 
 /// Every event.
-pub const EVENTS: [Event; 21] = [
+pub const EVENTS: [Event; 22] = [
     Event::Begin,
     Event::Calibrated,
     Event::Recheck,
     Event::Rechecked,
     Event::Surveyed,
+    Event::FieldReached,
     Event::CellChosen,
     Event::CellSkipped,
     Event::NoMoreCells,

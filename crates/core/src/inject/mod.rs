@@ -25,6 +25,7 @@ use cellinject_hw::{Camera, CameraSettings, Clock, HwError, Injector, Optics, Pi
 use cellinject_hw::{PositionSensor, Roi, Stage};
 use cellinject_model::Design;
 use cellinject_plate::Plate;
+use cellinject_plate::fields::{self, Field, FieldPlan, PlanError, Travel};
 use cellinject_rig::pipette::cell_volume;
 use cellinject_rig::{Backend, Rig, RigParams};
 use serde::Serialize;
@@ -57,6 +58,20 @@ const RECHECK_TOLERANCE: f64 = 1.5e-6;
 /// pipette about once in 50 frames.
 const TIP_FRAMES: usize = 5;
 
+/// m of the top of the image the window leaves to the pipette: the tip finder needs
+/// that much of the pipette in view above the cells (it comes in from the top).
+const TOP_BAND: f64 = 200e-6;
+
+/// m kept clear of the image's left, right and bottom edges by the window: a cell at
+/// the window's edge is whole in the frame with its blur.
+const WINDOW_MARGIN: f64 = 5e-6;
+
+/// m by which the first field's window is narrowed on every side before the image is
+/// mapped (the window then comes from the rig's set-up, which puts the resting tip
+/// near the image's centre with the stage at its origin, not from a measurement): the
+/// prototype's views are centred 30 µm off the tip.
+const BOOTSTRAP_MARGIN: f64 = 60e-6;
+
 /// Frames of the resting tip whose fitted blurs measure the tip's blur before any
 /// position is taken ([`Workflow::blur`]).
 const BLUR_MIN: usize = 15;
@@ -68,7 +83,7 @@ const BLUR_FRAMES: usize = 60;
 /// Settings of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Options {
-    /// Magnification (the whole plate must be in view).
+    /// Magnification (a plate larger than the view is served field by field).
     pub zoom: f64,
     /// Injected volume aimed at, fraction of the cell's volume.
     pub target_fraction: f64,
@@ -209,32 +224,25 @@ pub enum WorkflowError {
         /// What is wrong.
         reason: String,
     },
-    /// The plate does not fit in the field of view.
+    /// The plate cannot be served: wells beyond the feeder's reach, or a view too
+    /// small for a well. Nothing has moved when this is returned before the
+    /// calibrations (always, unless the measured view differs from the set-up's).
+    #[error("the plate cannot be served: {0}")]
+    Plan(PlanError),
+    /// The wells are too wide for the view: a field must show two walls along each
+    /// axis (the image map's points lie on them).
     #[error(
-        "the plate spans {plate_mm:.2} x {plate_rows_mm:.2} mm but the camera sees {fov_mm:.2} x {fov_rows_mm:.2} mm at zoom {zoom}: use a smaller plate or a lower zoom"
+        "the wells' pitch ({pitch_um:.0} um) leaves fewer than two walls along {axis} in a field of {field_um:.0} um at zoom {zoom}: use a lower zoom"
     )]
-    PlateTooLarge {
-        /// mm along x.
-        plate_mm: f64,
-        /// mm along y.
-        plate_rows_mm: f64,
-        /// mm.
-        fov_mm: f64,
-        /// mm.
-        fov_rows_mm: f64,
+    PitchTooLarge {
+        /// um.
+        pitch_um: f64,
+        /// um, the field's size along the axis.
+        field_um: f64,
+        /// "x" or "y".
+        axis: &'static str,
         /// Zoom.
         zoom: f64,
-    },
-    /// The plate sits too close to the top of the image: the pipette, coming from
-    /// the top, would show too little of itself above its tip.
-    #[error(
-        "the plate's top edge is {top_um:.0} um from the top of the image; the tip finder needs {need_um:.0} um of the pipette in view above the top row: move the plate's origin by at least +{:.0} um in stage y (towards the bottom of the image: plate.origin[1] larger) or use fewer rows", need_um - top_um
-    )]
-    TooHigh {
-        /// um from the image's top edge.
-        top_um: f64,
-        /// um needed.
-        need_um: f64,
     },
     /// A calibration failed its check twice.
     #[error("the {what} calibration failed its check: {reason}")]
@@ -469,6 +477,8 @@ impl ImageMap {
 pub struct RunReport {
     /// Cells the survey found.
     pub cells_found: usize,
+    /// Fields of view the plate was served in.
+    pub fields: usize,
     /// Attempts by outcome.
     pub injected: usize,
     /// Failed.
@@ -653,6 +663,17 @@ pub struct Workflow<'r, B: Backend> {
     last_check: f64,
     /// Why a re-check is due before the next cell (a fault), if one is.
     check_due: Option<String>,
+    /// The feeder stage's reach.
+    travel: Travel,
+    /// The fields over the plate, once planned.
+    plan: Option<FieldPlan>,
+    /// The field the feeder has brought under the objective.
+    field: Option<Field>,
+    /// m, the feeder's position read after it brought the current field (a plate
+    /// point `p` is then at stage `p + feeder_at`).
+    feeder_at: [f64; 2],
+    /// The field each surveyed cell is injected in, by the cell's index.
+    target_field: Vec<usize>,
 }
 
 /// Why an attempt was skipped (the cell not touched), for what follows it.
@@ -740,6 +761,17 @@ impl<'r, B: Backend> Workflow<'r, B> {
             blurs: Vec::new(),
             last_check: 0.0,
             check_due: None,
+            travel: {
+                let (lo, hi) = params.feeder_limits();
+                Travel {
+                    lo: [lo; 2],
+                    hi: [hi; 2],
+                }
+            },
+            plan: None,
+            field: None,
+            feeder_at: [0.0; 2],
+            target_field: Vec::new(),
         })
     }
 
@@ -807,7 +839,23 @@ impl<'r, B: Backend> Workflow<'r, B> {
             obs.mapped(map);
         }
         self.fire(Event::Calibrated, why, obs, None)?;
-        let targets = match self.survey() {
+        // The fields again, in the measured view (the feeder stays where it is when
+        // the plate is in view there).
+        let planned = match self.map {
+            Some(map) => self.plan_for(&map, 0.0, self.feeder_at),
+            None => Err(WorkflowError::Calibration {
+                what: "image-to-stage",
+                reason: "no map".into(),
+            }),
+        };
+        match planned {
+            Ok(p) => self.plan = Some(p),
+            Err(e) => {
+                let _ = self.fire(Event::Fatal, e.to_string(), obs, None);
+                return Err(e);
+            }
+        }
+        let targets = match self.survey(obs) {
             Ok(t) => t,
             Err(e) => {
                 let _ = self.fire(Event::Fatal, e.to_string(), obs, None);
@@ -815,9 +863,14 @@ impl<'r, B: Backend> Workflow<'r, B> {
             }
         };
         obs.surveyed(&targets).map_err(WorkflowError::Record)?;
+        let fields = self.plan.as_ref().map_or(1, |p| p.fields.len());
         self.fire(
             Event::Surveyed,
-            format!("{} cells found on the plate", targets.len()),
+            format!(
+                "{} cells found on the plate ({fields} field{} of view)",
+                targets.len(),
+                if fields == 1 { "" } else { "s" }
+            ),
             obs,
             None,
         )?;
@@ -848,7 +901,14 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 )?;
                 continue;
             }
-            match self.attempt(*target, obs)? {
+            let k = self.target_field[target.index];
+            if self.field.is_none_or(|f| f.index != k)
+                && let Some(fatal) = self.enter_field(k, obs)?
+            {
+                stopped = Some(fatal);
+                break;
+            }
+            match self.attempt(self.survey_cells[target.index], obs)? {
                 (a, skip, None) => {
                     if a.outcome != Outcome::Injected && a.contact {
                         self.check_due = Some(format!(
@@ -880,6 +940,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok((
             RunReport {
                 cells_found: targets.len(),
+                fields,
                 injected: count(Outcome::Injected),
                 failed: count(Outcome::Failed),
                 skipped: count(Outcome::Skipped),
@@ -897,6 +958,40 @@ impl<'r, B: Backend> Workflow<'r, B> {
             },
             cal,
         ))
+    }
+
+    /// Brings field `k` under the objective for its cells: the feeder moved, the
+    /// background taken again there, the cells' stage positions updated. Returns why
+    /// the run must stop, if it must.
+    fn enter_field(
+        &mut self,
+        k: usize,
+        obs: &mut dyn Observer,
+    ) -> Result<Option<String>, WorkflowError> {
+        let field = self.plan.as_ref().expect("plan").fields[k];
+        let t0 = self.now();
+        let why = match self.goto_field(field)? {
+            Ok(()) => match self.take_background()? {
+                Ok(()) => None,
+                Err(e) => Some(format!(
+                    "the background of field {k} could not be taken: {e}"
+                )),
+            },
+            Err(e) => Some(e),
+        };
+        if let Some(why) = why {
+            self.fire(Event::Fatal, why.clone(), obs, None)?;
+            return Ok(Some(why));
+        }
+        self.place_targets();
+        let r = format!(
+            "field {k} under the objective (feeder at {:.3}, {:.3} mm; {:.1} s)",
+            self.feeder_at[0] * 1e3,
+            self.feeder_at[1] * 1e3,
+            self.now() - t0
+        );
+        self.fire(Event::FieldReached, r, obs, None)?;
+        Ok(None)
     }
 
     /// Retracts A3, relaxes A1/A2 and lifts the pipette: the safe state.
@@ -1128,6 +1223,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
             .optics
             .set_zoom(self.options.zoom)
             .map_err(dev("zoom"))?;
+        // The fields over the plate for the view the set-up gives: a plate the feeder
+        // cannot present is refused here, before anything else moves.
+        let boot = self.bootstrap_plan()?;
         let cal = match hysteresis {
             Some(c) if c.problem().is_none() => {
                 why.push("hysteresis calibration loaded and checked".to_string());
@@ -1215,6 +1313,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
             binning: 1,
             ..self.rig.camera.settings()
         });
+        if let Err(reason) = self.goto_field(boot.fields[0])? {
+            return Err(WorkflowError::Calibration {
+                what: "first field",
+                reason,
+            });
+        }
         if let Err(reason) = self.take_background()? {
             return Err(WorkflowError::Calibration {
                 what: "background",
@@ -1254,8 +1358,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// 0.1 px), and the stale edges would pull the tip detector.
     fn take_background(&mut self) -> Result<Result<(), String>, WorkflowError> {
         let lift = self.home[1];
-        let half = 0.5 * self.plate.pitch;
-        let x0 = self.plate.well_centre([0, 0])[0];
+        // The current field's left edge on the stage.
+        let x0 = self.field.expect("field").rect[0] + self.feeder_at[0];
         let full = self.settings_full.expect("full settings");
         // m per pixel of the full frames: the last background's (taken with them), or on
         // the first call a frame's at the current binning.
@@ -1267,7 +1371,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             }
         };
         let fov = full.roi.width as f64 * pixel;
-        let away = x0 - half - fov - 0.3e-3;
+        let away = x0 - fov - 0.3e-3;
         if let Err(e) = self.stage_to([None, Some(lift), None])? {
             return Ok(Err(format!("the pipette cannot be lifted: {e}")));
         }
@@ -1300,31 +1404,50 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok(Ok(()))
     }
 
-    /// The image map's stage positions: at corners between four wells, where the tip is
-    /// surely in view and, in focus, touches no cell (a cell lies within its well, so
-    /// its disc stays clear of the corner), as far apart as the plate allows: along
-    /// each axis the corners between its first two and its last two wells. The map is
-    /// extrapolated no further than the outer wells: from four points 150 um apart at
-    /// the plate's centre it was more than 5 um off at the corners of a 10 x 15 plate
-    /// (it called such a plate with 5 um to spare too large on 4 seeds of 5). A plate
-    /// of fewer than four wells along an
-    /// axis takes a corner near its centre and one `d` (about 200 um, whole pitches)
-    /// beyond it.
+    /// The image map's stage positions: at corners between four wells of the current
+    /// field, where the tip is surely in view and, in focus, touches no cell (a cell
+    /// lies within its well, so its disc stays clear of the corner), as far apart as
+    /// the field allows: along each axis the corners between the first two and the
+    /// last two wells the field holds whole. The map is extrapolated no further than
+    /// that: from four points 150 um apart at the plate's centre it was more than 5 um
+    /// off at the corners of a 10 x 15 plate (it called such a plate with 5 um to spare
+    /// too large on 4 seeds of 5); every field lies in the same window of the image,
+    /// so points spread over one field serve them all. Along an axis where the field
+    /// holds fewer than four whole wells: on a plate that small, a corner near its
+    /// centre and one `d` (about 200 um, whole pitches) beyond it; in a field of a
+    /// larger plate, the first and the last wall crossing in the field.
     fn map_points(&self) -> [[f64; 2]; 4] {
         let p = &self.plate;
+        let f = self.field.expect("field");
         let q = 0.5 * p.pitch;
         let d = p.pitch.max(200e-6f64.min(2.0 * p.pitch));
         let d = (d / p.pitch).round() * p.pitch;
-        let span = |origin: f64, n: u32| {
-            if n >= 4 {
-                (origin + q, origin + (n - 2) as f64 * p.pitch + q)
-            } else {
-                let c = origin + (n / 2) as f64 * p.pitch - q;
+        let span = |a: usize| {
+            let (o, all) = (p.origin[a], if a == 0 { p.cols } else { p.rows });
+            let (lo, hi) = (f.rect[a], f.rect[a + 2]);
+            let last = all.saturating_sub(1) as f64;
+            let k0 = ((lo - o + q) / p.pitch - 1e-9).ceil().max(0.0);
+            let k1 = ((hi - o - q) / p.pitch + 1e-9).floor().min(last);
+            let n = if k1 >= k0 { (k1 - k0) as u32 + 1 } else { 0 };
+            let (a0, a1) = if n >= 4 {
+                (o + k0 * p.pitch + q, o + (k1 - 1.0) * p.pitch + q)
+            } else if n == all {
+                let c = o + (n / 2) as f64 * p.pitch - q;
                 (c, c + d)
-            }
+            } else {
+                let wall = |k: f64| o - q + k * p.pitch;
+                let w0 = ((lo - (o - q)) / p.pitch - 1e-9)
+                    .ceil()
+                    .clamp(0.0, all as f64);
+                let w1 = ((hi - (o - q)) / p.pitch + 1e-9)
+                    .floor()
+                    .clamp(0.0, all as f64);
+                (wall(w0), wall(w1.max(w0 + 1.0)))
+            };
+            (a0 + self.feeder_at[a], a1 + self.feeder_at[a])
         };
-        let (x0, x1) = span(p.origin[0], p.cols);
-        let (z0, z1) = span(p.origin[1], p.rows);
+        let (x0, x1) = span(0);
+        let (z0, z1) = span(1);
         [[x0, z0], [x1, z0], [x0, z1], [x1, z1]]
     }
 
@@ -1574,120 +1697,279 @@ impl<'r, B: Backend> Workflow<'r, B> {
         }))
     }
 
-    fn survey(&mut self) -> Result<Vec<Target>, WorkflowError> {
-        let map = self.map.expect("map");
-        // The background frame (taken with the pipette out of view) is the survey.
-        let (width, height) = {
-            let bg = self.background.as_ref().expect("background");
-            (bg.width as f64, (bg.pixels.len() / bg.width) as f64)
-        };
-        let fov = [width * map.pixel_size, height * map.pixel_size];
-        let span = [
-            self.plate.cols as f64 * self.plate.pitch,
-            self.plate.rows as f64 * self.plate.pitch,
-        ];
-        // The plate's corners must be in view.
-        let corners = [
-            self.plate.well_centre([0, 0]),
-            self.plate
-                .well_centre([self.plate.rows - 1, self.plate.cols - 1]),
-        ];
-        let to_px = |s: [f64; 2]| map.pixel_of(s);
-        let half = 0.5 * self.plate.pitch;
-        let inside = corners.iter().all(|c| {
-            [[-half, -half], [half, half]].iter().all(|o| {
-                let p = to_px([c[0] + o[0], c[1] + o[1]]);
-                p[0] >= 0.0 && p[1] >= 0.0 && p[0] < width && p[1] < height
+    /// The fields over the plate for the view `map` gives, narrowed by `narrow` m on
+    /// every side, with the feeder now at `at`.
+    fn plan_for(
+        &self,
+        map: &ImageMap,
+        narrow: f64,
+        at: [f64; 2],
+    ) -> Result<FieldPlan, WorkflowError> {
+        let (sw, sh) = self.rig.camera.sensor_size();
+        let too_small = || {
+            WorkflowError::Plan(PlanError::WindowTooSmall {
+                window: [0.0; 2],
+                pitch: self.plate.pitch,
+                overlap: fields::MIN_OVERLAP,
             })
-        });
-        if !inside {
-            return Err(WorkflowError::PlateTooLarge {
-                plate_mm: span[0] * 1e3,
-                plate_rows_mm: span[1] * 1e3,
-                fov_mm: fov[0] * 1e3,
-                fov_rows_mm: fov[1] * 1e3,
-                zoom: self.options.zoom,
-            });
-        }
-        let top = to_px([corners[0][0], corners[0][1] - half])[1] * map.pixel_size;
-        let need = 200e-6;
-        if top < need {
-            return Err(WorkflowError::TooHigh {
-                top_um: top * 1e6,
-                need_um: need * 1e6,
-            });
-        }
-        let bg = self.background.as_ref().expect("background");
-        let shot = Shot {
-            frame: cellinject_hw::Frame {
-                width: bg.width as u32,
-                height: (bg.pixels.len() / bg.width) as u32,
-                pixels: bg.pixels.clone(),
-                pixel_size: map.pixel_size,
-                ..cellinject_hw::Frame::default()
-            },
-            origin: [0.0, 0.0],
         };
-        let f = &shot.frame;
-        let o = DetectOptions::for_pixel_size(f.pixel_size);
-        let blobs =
-            cellinject_cells::detect(&f.pixels, f.width as usize, f.height as usize, &[], &o)
-                .map_err(|e| WorkflowError::Calibration {
-                    what: "survey",
-                    reason: e.to_string(),
-                })?;
-        let mut targets = Vec::new();
-        for b in blobs.iter().filter(|b| b.kind == BlobKind::Cell) {
-            let s = map.stage_of(shot.full([b.x, b.y]));
-            let p = [s[0] - self.plate.origin[0], s[1] - self.plate.origin[1]];
-            let (c, r) = (
-                (p[0] / self.plate.pitch).round(),
-                (p[1] / self.plate.pitch).round(),
-            );
-            if c < 0.0 || r < 0.0 || c >= self.plate.cols as f64 || r >= self.plate.rows as f64 {
-                continue;
+        let win = window::window(
+            map,
+            [sw as f64, sh as f64],
+            TOP_BAND + narrow,
+            WINDOW_MARGIN + narrow,
+        )
+        .ok_or_else(too_small)?;
+        let plan = fields::plan_near(&self.plate, win, fields::MIN_OVERLAP, self.travel, Some(at))
+            .map_err(WorkflowError::Plan)?;
+        // The image map's points lie on wall crossings in the field: two walls along
+        // each axis. A field of width L holds at least ⌊L / pitch⌋ walls of a larger
+        // plate; a plate in one field holds all its own.
+        for (a, axis) in [(0, "x"), (1, "y")] {
+            let many = plan.grid[1 - a] > 1;
+            if many && win.size[a] < 2.0 * self.plate.pitch {
+                return Err(WorkflowError::PitchTooLarge {
+                    pitch_um: self.plate.pitch * 1e6,
+                    field_um: win.size[a] * 1e6,
+                    axis,
+                    zoom: self.options.zoom,
+                });
             }
-            let w = self.plate.well_centre([r as u32, c as u32]);
-            if (s[0] - w[0]).abs() > half || (s[1] - w[1]).abs() > half {
-                continue;
-            }
-            targets.push(Target {
-                index: 0,
-                well: [r as u32, c as u32],
-                x_m: p[0],
-                y_m: p[1],
-                diameter_m: b.diameter,
-                stage_m: s,
-            });
         }
-        // Row by row, alternating direction (short stage moves); within a well, top
-        // cell first.
-        targets.sort_by(|a, b| {
-            let ka = (
-                a.well[0],
-                if a.well[0] % 2 == 0 {
-                    a.well[1]
-                } else {
-                    u32::MAX - a.well[1]
-                },
+        Ok(plan)
+    }
+
+    /// The fields for the view the rig's set-up gives, before the image is mapped: the
+    /// stage's origin puts the resting tip near the image's centre and the image's
+    /// columns and rows run along stage x and z, so the window is taken from a nominal
+    /// map, narrowed by [`BOOTSTRAP_MARGIN`]. The image is mapped in its first field;
+    /// the fields are planned again with the measured map.
+    fn bootstrap_plan(&mut self) -> Result<FieldPlan, WorkflowError> {
+        let frame = self.rig.camera.grab().map_err(dev("camera"))?;
+        let pixel = frame.pixel_size / self.rig.camera.settings().binning as f64;
+        let (sw, sh) = self.rig.camera.sensor_size();
+        let nominal = ImageMap {
+            pixel0: [0.5 * (sw as f64 - 1.0), 0.5 * (sh as f64 - 1.0)],
+            stage0: [0.0, 0.0],
+            b: [[1.0 / pixel, 0.0], [0.0, 1.0 / pixel]],
+            residual_px: 0.0,
+            a1: [0.0; 2],
+            a3: [0.0; 2],
+            pixel_size: pixel,
+        };
+        let at = self.feeder_position()?;
+        self.plan_for(&nominal, BOOTSTRAP_MARGIN, at)
+    }
+
+    /// m, where the feeder is (x, y).
+    fn feeder_position(&mut self) -> Result<[f64; 2], WorkflowError> {
+        Ok([
+            self.rig.feeder.position(0).map_err(dev("feeder stage"))?,
+            self.rig.feeder.position(1).map_err(dev("feeder stage"))?,
+        ])
+    }
+
+    /// Time passes: with the loops running if they are.
+    fn idle(&mut self, seconds: f64) -> Result<(), WorkflowError> {
+        if self.servo.is_some() {
+            self.wait(seconds)
+        } else {
+            self.rig.clock.sleep(seconds).map_err(dev("clock"))
+        }
+    }
+
+    /// Brings `field` under the objective: the pipette lifted first (the plate moves
+    /// under it), then the feeder moved and waited for (its deadline: the run's stage
+    /// deadline plus 1 s per mm). The feeder's position is read back: plate and stage
+    /// coordinates differ by it until the next move.
+    fn goto_field(&mut self, field: Field) -> Result<Result<(), String>, WorkflowError> {
+        if let Err(e) = self.stage_to([None, Some(self.home[1]), None])? {
+            return Ok(Err(format!("the pipette cannot be lifted: {e}")));
+        }
+        let now = self.feeder_position()?;
+        let far = (field.feeder[0] - now[0])
+            .abs()
+            .max((field.feeder[1] - now[1]).abs());
+        // Within the feeder's resolution: already there.
+        if far > 0.05e-6 {
+            for (a, v) in field.feeder.iter().enumerate() {
+                if let Err(e) = self.rig.feeder.move_to(a, *v) {
+                    return Ok(Err(format!(
+                        "the feeder stage refused the move to field {} ({:.3}, {:.3}) mm: {e}",
+                        field.index,
+                        field.feeder[0] * 1e3,
+                        field.feeder[1] * 1e3
+                    )));
+                }
+            }
+            let deadline = self.options.stage_deadline + far * 1e3;
+            let t0 = self.now();
+            while self.rig.feeder.is_busy().map_err(dev("feeder stage"))? {
+                if self.now() - t0 > deadline {
+                    return Err(WorkflowError::Device {
+                        what: "feeder stage",
+                        source: HwError::Timeout {
+                            device: "feeder stage (missed its deadline)".into(),
+                            seconds: deadline,
+                        },
+                    });
+                }
+                self.idle(0.005)?;
+            }
+        }
+        self.feeder_at = self.feeder_position()?;
+        self.field = Some(field);
+        Ok(Ok(()))
+    }
+
+    /// The cells in the current field's background frame (the pipette out of view):
+    /// plate coordinates of their centres and their diameters, m. Only cells whole in
+    /// the field.
+    fn detect_field(&self) -> Result<Vec<([f64; 2], f64)>, WorkflowError> {
+        let map = self.map.expect("map");
+        let field = self.field.expect("field");
+        let bg = self.background.as_ref().expect("background");
+        let (w, h) = (bg.width, bg.pixels.len() / bg.width);
+        let o = DetectOptions::for_pixel_size(map.pixel_size);
+        let blobs = cellinject_cells::detect(&bg.pixels, w, h, &[], &o).map_err(|e| {
+            WorkflowError::Calibration {
+                what: "survey",
+                reason: e.to_string(),
+            }
+        })?;
+        Ok(blobs
+            .iter()
+            .filter(|b| b.kind == BlobKind::Cell)
+            .filter_map(|b| {
+                let s = map.stage_of([b.x, b.y]);
+                let p = [s[0] - self.feeder_at[0], s[1] - self.feeder_at[1]];
+                field.holds(p, 0.5 * b.diameter).then_some((p, b.diameter))
+            })
+            .collect())
+    }
+
+    /// The survey: the feeder brings every field under the objective in turn, and one
+    /// frame of each (the background, the pipette out of view) shows where its cells
+    /// are. A cell seen in two fields (in their overlap) is one cell: detections whose
+    /// centres lie within a radius of each other are merged, and the cell is given to
+    /// the field that owns its centre if that field holds it whole, else to the first
+    /// that does. Cells are then numbered in the order they are injected: field by
+    /// field in the reverse of the survey's order (the feeder is over the last field
+    /// surveyed), row by row within a field in alternating direction, top cell first
+    /// within a well.
+    fn survey(&mut self, obs: &mut dyn Observer) -> Result<Vec<Target>, WorkflowError> {
+        let plan = self.plan.clone().expect("plan");
+        let n = plan.fields.len();
+        // (plate point, diameter, field) of every detection.
+        let mut seen: Vec<([f64; 2], f64, usize)> = Vec::new();
+        for field in &plan.fields {
+            if let Err(reason) = self.goto_field(*field)? {
+                return Err(WorkflowError::Calibration {
+                    what: "survey",
+                    reason,
+                });
+            }
+            if let Err(reason) = self.take_background()? {
+                return Err(WorkflowError::Calibration {
+                    what: "survey",
+                    reason: format!("field {}: {reason}", field.index),
+                });
+            }
+            let found = self.detect_field()?;
+            let r = format!(
+                "field {} of {n} surveyed: plate x {:.3} to {:.3} mm, y {:.3} to {:.3} mm (feeder at {:.3}, {:.3} mm): {} cells whole in it",
+                field.index,
+                field.rect[0] * 1e3,
+                field.rect[2] * 1e3,
+                field.rect[1] * 1e3,
+                field.rect[3] * 1e3,
+                self.feeder_at[0] * 1e3,
+                self.feeder_at[1] * 1e3,
+                found.len()
             );
-            let kb = (
-                b.well[0],
-                if b.well[0] % 2 == 0 {
-                    b.well[1]
-                } else {
-                    u32::MAX - b.well[1]
+            self.fire(Event::FieldReached, r, obs, None)?;
+            for (p, d) in found {
+                seen.push((p, d, field.index));
+            }
+        }
+        // One cell, one entry: detections within a radius of a cell's first.
+        let mut cells: Vec<Vec<usize>> = Vec::new();
+        for (k, (p, d, _)) in seen.iter().enumerate() {
+            let same = cells.iter_mut().find(|c| {
+                let (q, e, _) = seen[c[0]];
+                (p[0] - q[0]).hypot(p[1] - q[1]) < 0.5 * d.min(e)
+            });
+            match same {
+                Some(c) => c.push(k),
+                None => cells.push(vec![k]),
+            }
+        }
+        let pl = &self.plate;
+        let half = 0.5 * pl.pitch;
+        let mut targets: Vec<(Target, usize)> = Vec::new();
+        for c in &cells {
+            let m = c.len() as f64;
+            let mean = [
+                c.iter().map(|&k| seen[k].0[0]).sum::<f64>() / m,
+                c.iter().map(|&k| seen[k].0[1]).sum::<f64>() / m,
+            ];
+            let owner = plan.owner(mean).index;
+            let &k = c.iter().find(|&&k| seen[k].2 == owner).unwrap_or(&c[0]);
+            let (p, d, field) = seen[k];
+            let rel = [p[0] - pl.origin[0], p[1] - pl.origin[1]];
+            let (col, row) = ((rel[0] / pl.pitch).round(), (rel[1] / pl.pitch).round());
+            if col < 0.0 || row < 0.0 || col >= pl.cols as f64 || row >= pl.rows as f64 {
+                continue;
+            }
+            let w = pl.well_centre([row as u32, col as u32]);
+            if (p[0] - w[0]).abs() > half || (p[1] - w[1]).abs() > half {
+                continue;
+            }
+            targets.push((
+                Target {
+                    index: 0,
+                    well: [row as u32, col as u32],
+                    x_m: rel[0],
+                    y_m: rel[1],
+                    diameter_m: d,
+                    stage_m: [p[0] + self.feeder_at[0], p[1] + self.feeder_at[1]],
                 },
-            );
-            ka.cmp(&kb)
+                field,
+            ));
+        }
+        let key = |t: &Target, f: usize| {
+            (
+                n - 1 - f,
+                t.well[0],
+                if t.well[0] % 2 == 0 {
+                    t.well[1]
+                } else {
+                    u32::MAX - t.well[1]
+                },
+            )
+        };
+        targets.sort_by(|(a, fa), (b, fb)| {
+            key(a, *fa)
+                .cmp(&key(b, *fb))
                 .then(a.y_m.total_cmp(&b.y_m))
                 .then(a.x_m.total_cmp(&b.x_m))
         });
-        for (k, t) in targets.iter_mut().enumerate() {
+        for (k, (t, _)) in targets.iter_mut().enumerate() {
             t.index = k;
         }
+        self.target_field = targets.iter().map(|(_, f)| *f).collect();
+        let targets: Vec<Target> = targets.into_iter().map(|(t, _)| t).collect();
         self.survey_cells = targets.clone();
+        self.place_targets();
         Ok(targets)
+    }
+
+    /// The surveyed cells' stage positions for the feeder where it is now.
+    fn place_targets(&mut self) {
+        let (o, f) = (self.plate.origin, self.feeder_at);
+        for t in &mut self.survey_cells {
+            t.stage_m = [t.x_m + o[0] + f[0], t.y_m + o[1] + f[1]];
+        }
     }
 }
 
