@@ -414,6 +414,12 @@ impl Observer for Tee<'_, '_> {
         self.rec.logged(t)?;
         self.extra.as_mut().map_or(Ok(()), |x| x.logged(t))
     }
+    fn field(&mut self, index: usize, of: usize, rect: [f64; 4], feeder: [f64; 2]) {
+        self.rec.field(index, of, rect, feeder);
+        if let Some(x) = self.extra.as_mut() {
+            x.field(index, of, rect, feeder);
+        }
+    }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         self.rec.surveyed(targets)?;
         self.extra.as_mut().map_or(Ok(()), |x| x.surveyed(targets))

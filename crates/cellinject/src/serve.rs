@@ -316,8 +316,6 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
         Some(p) => crate::run::read_plate(p)?,
         None => default_plate_text(seed)?,
     };
-    // The database is opened (and refused if foreign) before anything is listened on.
-    drop(Records::open(&a.db).map_err(records_error)?);
     let control = Arc::new(Control::new(a.fast));
     let telemetry = Arc::new(Telemetry::default());
     let opened = crate::backend::open_with(
@@ -330,6 +328,24 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
         &a.backend,
         |devices| cellinject_dashboard::instrument(devices, &telemetry, &control, remote),
     )?;
+    let mut opened = opened;
+    // A plate the feeder cannot present is refused now, not at the first run.
+    if let Err(e) =
+        cellinject_core::inject::Workflow::new(&mut opened.rig, &d.design, &d.rig, &plate, options)
+            .and_then(|mut w| w.fields())
+    {
+        return Err(match e {
+            cellinject_core::inject::WorkflowError::Plan(_)
+            | cellinject_core::inject::WorkflowError::PitchTooLarge { .. }
+            | cellinject_core::inject::WorkflowError::Invalid { .. } => {
+                InputError(format!("--plate: {e}")).into()
+            }
+            e => anyhow::anyhow!("checking the plate: {e}"),
+        });
+    }
+    // The database is opened (and refused if foreign) before anything is listened on,
+    // and after the plate is checked (a refused plate leaves no file).
+    drop(Records::open(&a.db).map_err(records_error)?);
     let generation = Arc::new(AtomicU64::new(0));
     if let Some(twin) = &opened.twin {
         let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());

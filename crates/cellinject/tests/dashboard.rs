@@ -124,6 +124,13 @@ impl Drop for Server {
 fn bad_arguments_exit_2_naming_the_argument() {
     let d = dir("serve", "bad");
     std::fs::write(d.join("runs.sqlite"), b"").unwrap();
+    // A plate beyond the feeder's reach (±25 mm): refused at start, not at the first
+    // run.
+    std::fs::write(
+        d.join("far.toml"),
+        "[plate]\nrows = 2\ncols = 2\npitch = 1.5e-4\norigin = [40e-3, 0.0]\n",
+    )
+    .unwrap();
     let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let busy_addr = busy.local_addr().unwrap().to_string();
     let cases: Vec<(Vec<&str>, &str)> = vec![
@@ -146,6 +153,10 @@ fn bad_arguments_exit_2_naming_the_argument() {
         (vec!["--serve-for", "-1"], "--serve-for"),
         (vec!["--dose", "0.5"], "--dose"),
         (vec!["--plate", "missing.toml"], "--plate `missing.toml`"),
+        (
+            vec!["--plate", "far.toml"],
+            "--plate: the plate cannot be served: [0, 0], [0, 1], [1, 0], [1, 1] lie outside the feeder stage's travel",
+        ),
         (
             vec![
                 "--backend",

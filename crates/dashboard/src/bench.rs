@@ -217,6 +217,20 @@ pub enum BenchState {
     Fault,
 }
 
+/// The field of view under the objective, as the plate map shows it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FieldView {
+    /// Its number in the survey's order, from 0.
+    pub index: usize,
+    /// Fields over the plate.
+    pub of: usize,
+    /// m, the plate's rectangle in view: `[x_lo, y_lo, x_hi, y_hi]`, plate
+    /// coordinates.
+    pub rect_m: [f64; 4],
+    /// m, the feeder's position: a plate point `p` is at stage `p + feeder_m`.
+    pub feeder_m: [f64; 2],
+}
+
 /// A cell of the run, as the map and the overlay show it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CellView {
@@ -269,6 +283,8 @@ pub struct RunView {
     pub cells: Vec<CellView>,
     /// The cell being worked on.
     pub current: Option<usize>,
+    /// The field of view the feeder has brought under the objective.
+    pub field: Option<FieldView>,
     /// Tracking error per attempt.
     pub errors: Vec<ErrorPoint>,
     /// (s of device time since the first cell, attempts ended).
@@ -443,6 +459,16 @@ impl Observer for Watch<'_> {
     }
     fn mapped(&mut self, map: &ImageMap) {
         self.shared.telemetry.set_map(*map);
+    }
+    fn field(&mut self, index: usize, of: usize, rect: [f64; 4], feeder: [f64; 2]) {
+        self.run(|r| {
+            r.field = Some(FieldView {
+                index,
+                of,
+                rect_m: rect,
+                feeder_m: feeder,
+            })
+        });
     }
     fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
         let p = self.shared.plate;

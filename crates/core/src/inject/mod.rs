@@ -363,6 +363,10 @@ pub struct Attempt {
 pub trait Observer {
     /// A transition happened.
     fn transition(&mut self, _t: &Transition) {}
+    /// The feeder brought field `index` of `of` under the objective; `rect` is the
+    /// plate's rectangle in view, `[x_lo, y_lo, x_hi, y_hi]`, m in plate coordinates,
+    /// and `feeder` the feeder's position (a plate point `p` is at stage `p + feeder`).
+    fn field(&mut self, _index: usize, _of: usize, _rect: [f64; 4], _feeder: [f64; 2]) {}
     /// The survey found these cells.
     fn surveyed(&mut self, _targets: &[Target]) -> Result<(), String> {
         Ok(())
@@ -779,6 +783,19 @@ impl<'r, B: Backend> Workflow<'r, B> {
         self.rig.clock.now()
     }
 
+    /// The fields of view the plate would be served in, from the view the rig's
+    /// set-up gives at the run's zoom (the lens is set to it): a front end calls this
+    /// at start to refuse a plate the feeder cannot present
+    /// ([`WorkflowError::Plan`], [`WorkflowError::PitchTooLarge`]) before any run.
+    /// Nothing else moves.
+    pub fn fields(&mut self) -> Result<FieldPlan, WorkflowError> {
+        self.rig
+            .optics
+            .set_zoom(self.options.zoom)
+            .map_err(dev("zoom"))?;
+        self.bootstrap_plan()
+    }
+
     fn fire(
         &mut self,
         event: Event,
@@ -984,6 +1001,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
             return Ok(Some(why));
         }
         self.place_targets();
+        let of = self.plan.as_ref().map_or(1, |p| p.fields.len());
+        obs.field(k, of, field.rect, self.feeder_at);
         let r = format!(
             "field {k} under the objective (feeder at {:.3}, {:.3} mm; {:.1} s)",
             self.feeder_at[0] * 1e3,
@@ -1875,6 +1894,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                     reason: format!("field {}: {reason}", field.index),
                 });
             }
+            obs.field(field.index, n, field.rect, self.feeder_at);
             let found = self.detect_field()?;
             let r = format!(
                 "field {} of {n} surveyed: plate x {:.3} to {:.3} mm, y {:.3} to {:.3} mm (feeder at {:.3}, {:.3} mm): {} cells whole in it",
