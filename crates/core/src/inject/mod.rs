@@ -551,15 +551,21 @@ impl Servo {
         ramp: Option<(f64, f64)>,
     ) -> Result<(), WorkflowError> {
         let end = rig.clock.now() + seconds;
+        // The ramp moves with the time that passed since the last step (at least one
+        // step's DT): a bench whose clock is the wall clock (a GCS controller on a
+        // loaded host) steps less often than every DT, and a ramp counted in steps
+        // fell behind there (A3 left 6 um out after a withdrawal of 0.08 s).
+        let mut last = rig.clock.now() - DT;
         loop {
             let now = rig.clock.now();
             if now >= end - 1e-9 {
                 return Ok(());
             }
             if let Some((target, speed)) = ramp {
-                let step = speed * DT;
+                let step = speed * (now - last).max(DT);
                 self.a3_ref += (target - self.a3_ref).clamp(-step, step);
             }
+            last = now;
             self.step(rig)?;
             let dt = DT.min(end - now);
             rig.clock.sleep(dt).map_err(dev("clock"))?;
@@ -2656,7 +2662,8 @@ impl<B: Backend> Workflow<'_, B> {
                     at * 1e6
                 )));
             }
-            self.wait(0.01)?;
+            // The reference keeps ramping to 0 until the stack is back.
+            self.ramp_a3(0.0, 500e-6, 0.01)?;
         }
         self.servo.as_mut().expect("servo").refs = [0.0; 2];
         self.fire(
