@@ -565,6 +565,156 @@ fn a_run_killed_at_any_moment_resumes_without_touching_a_cell_twice() {
     }
 }
 
+/// `runs show` of `db` as JSON, once the run is recorded.
+fn show(d: &Path, db: &str) -> Option<Value> {
+    let o = run(d, &["runs", "show", "--db", db]);
+    (o.status.code() == Some(0))
+        .then(|| serde_json::from_slice(&o.stdout).ok())
+        .flatten()
+}
+
+/// A run over two fields of view killed (SIGKILL) in the middle of a field's cells, and
+/// between fields (just after the feeder brought the next field), then
+/// resumed: the resumed run goes on in the field it was in, every cell is attempted
+/// exactly once (cells seen in both fields included), at most one is interrupted.
+#[test]
+fn a_run_killed_between_and_within_fields_resumes_without_touching_a_cell_twice() {
+    let d = bench("kill-fields");
+    let o = run(
+        &d,
+        &[
+            "plate",
+            "generate",
+            "--rows",
+            "1",
+            "--cols",
+            "16",
+            "--empty-fraction",
+            "0.4",
+            "--doublet-fraction",
+            "0",
+            "--origin=-1.1e-3,0",
+            "--seed",
+            "2",
+            "--out",
+            "w.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let cells = fs::read_to_string(d.join("w.toml"))
+        .unwrap()
+        .lines()
+        .filter(|l| l.trim() == "[[cell]]")
+        .count();
+    assert!(cells >= 4, "{cells}");
+    // When to kill, from the run's records: two cells ended in the first field
+    // injected, and just after the feeder brought the next field for its cells
+    // (between fields: its background is being taken).
+    let kills: [(&str, &dyn Fn(&Value) -> bool); 2] = [
+        ("within a field", &|v: &Value| {
+            v["attempts"]
+                .as_array()
+                .is_some_and(|a| a.iter().filter(|a| a["outcome"] != "started").count() >= 2)
+        }),
+        ("after the feeder brought the next field", &|v: &Value| {
+            v["events"].as_array().is_some_and(|e| {
+                e.iter().any(|e| {
+                    e["reason"]
+                        .as_str()
+                        .is_some_and(|r| r.contains("under the objective"))
+                })
+            })
+        }),
+    ];
+    for (k, (when, due)) in kills.iter().enumerate() {
+        let db = format!("k{k}.sqlite");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_cellinject"))
+            .current_dir(&d)
+            .args([
+                "run",
+                "--plate",
+                "w.toml",
+                "--calibration",
+                "hy.json",
+                "--db",
+                &db,
+            ])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        // Poll the records (generously: a loaded machine is slow) until the moment
+        // comes; the run must not have ended by then.
+        let mut killed = false;
+        for _ in 0..6000 {
+            if let Some(v) = show(&d, &db)
+                && due(&v)
+            {
+                let _ = child.kill(); // SIGKILL
+                killed = true;
+                break;
+            }
+            if child.try_wait().unwrap().is_some() {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let _ = child.wait();
+        assert!(killed, "kill {k} ({when}): the run ended first");
+        let before = show(&d, &db).unwrap();
+        let o = run(
+            &d,
+            &[
+                "run",
+                "--resume",
+                "--calibration",
+                "hy.json",
+                "--db",
+                &db,
+                "--format",
+                "json",
+            ],
+        );
+        assert_eq!(o.status.code(), Some(0), "kill {k} ({when}): {}", err(&o));
+        let s: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(s["status"], "finished", "kill {k} ({when}): {s}");
+        let attempts = s["attempts"].as_array().unwrap();
+        let mut seen = std::collections::BTreeSet::new();
+        for a in attempts {
+            let key = (
+                a["well"].to_string(),
+                (a["x_m"].as_f64().unwrap() * 1e6).round() as i64,
+            );
+            assert!(
+                seen.insert(key),
+                "kill {k} ({when}): a cell attempted twice: {a}"
+            );
+        }
+        assert_eq!(attempts.len(), cells, "kill {k} ({when}): every cell once");
+        let interrupted = attempts
+            .iter()
+            .filter(|a| a["outcome"] == "interrupted")
+            .count();
+        assert!(
+            interrupted <= 1,
+            "kill {k} ({when}): {interrupted} interrupted"
+        );
+        // Killed within a field (the first injected, the last surveyed): the resumed
+        // run goes on in it. A field's cells go in column order on this one-row plate,
+        // and the first field's cells lie right of the second's, so the next cell of
+        // the same field is right of the last one done.
+        if k == 0 {
+            let done = before["attempts"].as_array().unwrap().len();
+            let col = |a: &Value| a["well"][1].as_i64().unwrap();
+            let (last, next) = (col(&attempts[done - 1]), col(&attempts[done]));
+            assert!(
+                next > last,
+                "kill {k} ({when}): from column {last} to {next}"
+            );
+        }
+    }
+}
+
 #[test]
 fn a_move_the_safety_envelope_refuses_stops_the_run_with_the_refusal_recorded() {
     let d = bench("refuse");
