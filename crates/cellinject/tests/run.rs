@@ -610,7 +610,8 @@ fn a_run_killed_between_and_within_fields_resumes_without_touching_a_cell_twice(
     // When to kill, from the run's records: two cells ended in the first field
     // injected, and just after the feeder brought the next field for its cells
     // (between fields: its background is being taken).
-    let kills: [(&str, &dyn Fn(&Value) -> bool); 2] = [
+    type Due<'a> = &'a dyn Fn(&Value) -> bool;
+    let kills: [(&str, Due); 2] = [
         ("within a field", &|v: &Value| {
             v["attempts"]
                 .as_array()
