@@ -181,6 +181,10 @@ struct Summary {
     attempts: Vec<AttemptRow>,
     /// The run's own transitions: calibration, survey, re-checks, the end.
     events: Vec<EventRow>,
+    /// Other cells the pipette's glass ran into during this command's attempts (the
+    /// twin's truth; absent on hardware and from `runs show`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    grazed: Option<u32>,
 }
 
 fn summary(run: &RunRow, attempts: Vec<AttemptRow>, events: Vec<EventRow>) -> Summary {
@@ -204,6 +208,7 @@ fn summary(run: &RunRow, attempts: Vec<AttemptRow>, events: Vec<EventRow>) -> Su
         stopped: run.stopped.clone(),
         attempts,
         events,
+        grazed: None,
     }
 }
 
@@ -258,15 +263,21 @@ impl Observer for Recorder<'_> {
                 eprintln!("{:?} -> {:?}: {}", t.from, t.to, t.reason);
                 return;
             };
-            let tip = twin.lock().unwrap_or_else(|e| e.into_inner()).tip();
+            let twin = twin.lock().unwrap_or_else(|e| e.into_inner());
+            let tip = twin.tip();
+            let (strikes, lost) = twin
+                .biology
+                .as_ref()
+                .map_or((0, 0.0), |b| (b.floor_strikes, b.tip_loss));
             eprintln!(
-                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um]",
+                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um; floor strikes {strikes}, tip lost {:.1} um]",
                 t.from,
                 t.to,
                 t.reason,
                 tip.x * 1e6,
                 tip.z * 1e6,
-                tip.depth * 1e6
+                tip.depth * 1e6,
+                lost * 1e6
             );
         }
     }
@@ -362,6 +373,15 @@ impl Observer for Recorder<'_> {
         }
         Some((c.dose_fraction(), c.dead.is_none()))
     }
+    fn grazed(&mut self) -> Option<u32> {
+        let twin = self
+            .twin
+            .as_ref()?
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        let b = twin.biology.as_ref()?;
+        Some(b.cells.iter().filter(|c| c.grazed).count() as u32)
+    }
 }
 
 /// One run on an opened bench: what [`execute`] needs.
@@ -452,6 +472,9 @@ impl Observer for Tee<'_, '_> {
     }
     fn cell_truth(&mut self, t: &Target) -> Option<(f64, bool)> {
         self.rec.cell_truth(t)
+    }
+    fn grazed(&mut self) -> Option<u32> {
+        self.rec.grazed()
     }
 }
 
@@ -710,11 +733,19 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     };
     let (result, stopped) = execute(job, &mut db, &mut rig, None, &|| false)?;
     let r = db.run(Some(run_id)).map_err(records_error)?;
-    let s = summary(
+    let mut s = summary(
         &r,
         db.attempts(run_id).map_err(records_error)?,
         db.events(run_id).map_err(records_error)?,
     );
+    if let Ok((report, _)) = &result {
+        let g: Vec<u32> = report
+            .attempts
+            .iter()
+            .filter_map(|a| a.truth.grazed)
+            .collect();
+        s.grazed = (!g.is_empty()).then(|| g.iter().sum());
+    }
     if let Err(e) = &result
         && matches!(
             e,
@@ -799,6 +830,13 @@ fn print_text(s: &Summary) {
         s.cell_time_s,
         s.cells_per_min
     );
+    if let Some(g) = s.grazed {
+        if g == 0 {
+            outln!("the pipette's glass touched no cell but its targets");
+        } else {
+            outln!("the pipette's glass ran into {g} other cells");
+        }
+    }
     for e in s
         .events
         .iter()

@@ -562,19 +562,18 @@ fn run_tip(d: &Description, zoom: f64, runs: usize, args: &TwinArgs) -> Result<(
     };
     let r = {
         let _p = crate::progress::spinner(format!("finding the tip in {runs} frames"));
-        cellinject_core::cells::tip_trials(&mut rig, zoom, runs, seed, &mut truth).map_err(|e| {
-            match e {
-                SimError::Device {
-                    what,
-                    source: HwError::Refused(r),
-                } => InputError(format!("{what}: refused: {r}")).into(),
-                SimError::Device {
-                    what: "--zoom",
-                    source,
-                } => InputError(format!("--zoom: {source}")).into(),
-                SimError::Invalid { .. } => InputError(e.to_string()).into(),
-                other => sim_error(other),
-            }
+        cellinject_core::cells::tip_trials(&mut rig, &d.rig.pipette, zoom, runs, seed, &mut truth)
+            .map_err(|e| match e {
+            SimError::Device {
+                what,
+                source: HwError::Refused(r),
+            } => InputError(format!("{what}: refused: {r}")).into(),
+            SimError::Device {
+                what: "--zoom",
+                source,
+            } => InputError(format!("--zoom: {source}")).into(),
+            SimError::Invalid { .. } => InputError(e.to_string()).into(),
+            other => sim_error(other),
         })?
     };
     if args.format() == Format::Json {

@@ -811,3 +811,84 @@ fn re_checks_of_the_calibrations_are_made_on_time_and_recorded_with_their_verdic
         "a refused run writes no database"
     );
 }
+
+#[test]
+fn touching_partners_are_passed_over_from_above_unless_the_glass_truly_meets_them() {
+    // Three doublet wells. The pipette comes down at 45° from smaller plate y, so the
+    // partner of a well's second cell (larger y) lies behind it on the glass's way:
+    // small behind large (well [0, 0]: a 10 um cell with a 20 um partner behind,
+    // touching in the plate's plane; resting on the floor they are 0.8 um apart),
+    // equal (well [0, 1], 16 um each), and side by side (well [0, 2]). The cells rest
+    // on the floor, a mean radius below the focus: a larger cell stands taller.
+    let d = dir("partners");
+    let rows = [
+        ([0, 0], [0.0, 5e-6], 10e-6),
+        ([0, 0], [0.0, -10e-6], 20e-6),
+        ([0, 1], [0.0, 8e-6], 16e-6),
+        ([0, 1], [0.0, -8e-6], 16e-6),
+        ([0, 2], [-6e-6, 0.0], 12e-6),
+        ([0, 2], [6e-6, 0.0], 12e-6),
+    ];
+    let mut text =
+        "[plate]\nrows = 1\ncols = 3\npitch = 150e-6\norigin = [-150e-6, 0.0]\n".to_string();
+    for (w, o, dia) in rows {
+        text += &format!(
+            "\n[[cell]]\nwell = [{}, {}]\noffset = [{:e}, {:e}]\ndiameter = {dia:e}\n",
+            w[0], w[1], o[0], o[1]
+        );
+    }
+    fs::write(d.join("p.toml"), text).unwrap();
+    // The expected decisions, from the plate's truth and the pipette's shape alone:
+    // a cell is blocked when the glass, with the tip as deep as the run lets it go (a
+    // fifth of the radius past the centre), comes within 0.5 um of another cell.
+    let p = cellinject_rig::PipetteParams::default();
+    let ax = p.axis();
+    let mean_r = rows.iter().map(|r| 0.5 * r.2).sum::<f64>() / rows.len() as f64;
+    let centre = |k: usize| {
+        let (w, o, dia) = rows[k];
+        let x = w[1] as f64 * 150e-6 + o[0];
+        [x, -mean_r + 0.5 * dia, o[1]]
+    };
+    let blocked: Vec<bool> = (0..rows.len())
+        .map(|k| {
+            let c = centre(k);
+            let reach = 0.2 * 0.5 * rows[k].2;
+            let tip = [0, 1, 2].map(|i| c[i] + reach * ax[i]);
+            (0..rows.len())
+                .filter(|&j| j != k)
+                .any(|j| p.clearance(tip, ax, centre(j), 0.5 * rows[j].2) < 0.5e-6)
+        })
+        .collect();
+    // Only the small cell in front of the large one.
+    assert_eq!(blocked, [true, false, false, false, false, false]);
+    let o = run(&d, &["run", "--plate", "p.toml", "--format", "json"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let s: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let attempts = s["attempts"].as_array().unwrap();
+    assert_eq!(attempts.len(), rows.len(), "{s}");
+    for a in attempts {
+        // Which cell of the file: the nearest to the attempt's target.
+        let (x, y) = (a["x_m"].as_f64().unwrap(), a["y_m"].as_f64().unwrap());
+        let k = (0..rows.len())
+            .min_by(|&i, &j| {
+                let c = |k: usize| (centre(k)[0] - x).hypot(centre(k)[2] - y);
+                c(i).total_cmp(&c(j))
+            })
+            .unwrap();
+        let reason = a["reason"].as_str().unwrap_or_default();
+        if blocked[k] {
+            assert_eq!(a["outcome"], "skipped", "{a}");
+            assert!(
+                reason.contains("glass would run") && reason.contains("well [0, 0]"),
+                "{reason}"
+            );
+        } else {
+            assert_eq!(a["outcome"], "injected", "cell {k}: {a}");
+            let f = a["dose_fraction"].as_f64().unwrap();
+            assert!((f / 0.05 - 1.0).abs() < 0.2, "{a}");
+            assert_eq!(a["alive"], Value::Bool(true));
+        }
+    }
+    // The twin's truth: the glass never ran into a partner.
+    assert_eq!(s["grazed"], 0, "{s}");
+}

@@ -73,6 +73,27 @@ pub fn locate_with(
     pixel_size: f64,
     blur: Option<f64>,
 ) -> Result<Tip, CellsError> {
+    locate_tapered(pixels, width, height, pixel_size, blur, 0.12)
+}
+
+/// [`locate_with`] for a tube whose radius grows by `taper` per unit length behind
+/// the tip in the image (0.12 for a glass lying in the image plane; a glass tilted
+/// out of it by `a` looks tapered by its own taper over `cos a`).
+pub fn locate_tapered(
+    pixels: &[u16],
+    width: usize,
+    height: usize,
+    pixel_size: f64,
+    blur: Option<f64>,
+    taper: f64,
+) -> Result<Tip, CellsError> {
+    if !(taper.is_finite() && taper > 0.0) {
+        return Err(CellsError::Invalid {
+            what: "taper",
+            value: taper,
+            reason: "must be a positive growth of the radius per length",
+        });
+    }
     if pixels.len() != width * height || width < 8 || height < 8 {
         return Err(CellsError::Size {
             len: pixels.len(),
@@ -136,7 +157,7 @@ pub fn locate_with(
     while b <= um(50.0) {
         let (px, py) = (gx - b * u[0], gy - b * u[1]);
         let n = [-u[1], u[0]];
-        let half = 0.12 * b + um(5.0);
+        let half = taper * b + um(5.0);
         let (mut sw, mut swo) = (0.0, 0.0);
         let mut o = -half;
         while o <= half {
@@ -170,8 +191,8 @@ pub fn locate_with(
     let (ox, oy) = (ax + t0 * u[0], ay + t0 * u[1]);
     // Darkness integrated across the tube along the axis, s forward (towards and beyond
     // the tip), from 25 µm behind to 15 µm beyond, quarter-pixel steps.
-    // Across, the tube's half-width (0.5 µm at the tip, growing by 0.12 of the distance
-    // behind it) and 3 blurs; 5 µm when the blur is not known (a defocused tip).
+    // Across, the tube's half-width (0.5 µm at the tip, growing by `taper` of the
+    // distance behind it) and 3 blurs; 5 µm when the blur is not known (a defocused tip).
     let reach = blur.map_or(um(5.0), |b| um(0.5) + 3.0 * b);
     let n = [-u[1], u[0]];
     let mut prof = Vec::new();
@@ -179,7 +200,7 @@ pub fn locate_with(
     while s <= um(15.0) {
         let (px, py) = (ox + s * u[0], oy + s * u[1]);
         let behind = (-s).max(0.0);
-        let half = 0.12 * behind + reach;
+        let half = taper * behind + reach;
         let mut m = 0.0;
         let mut o = -half;
         while o <= half {

@@ -242,7 +242,33 @@ pub(crate) fn bench(
     let mut pipette = r.pipette;
     let injector = with(top, "injector", d.injector, |s, d| {
         injector_max_pressure = s.num("max_pressure", injector_max_pressure, Check::Positive)?;
+        let angle = s.num(
+            "pipette_angle",
+            pipette.angle,
+            // 10-75°: the glass must rise from the plate behind the tip, and the
+            // microscope must still see the tip come along the plate.
+            Check::Between(0.17, 1.31),
+        )?;
+        let tip_outer_radius = s.num(
+            "tip_outer_radius",
+            pipette.tip_outer_radius,
+            Check::Between(0.05e-6, 5e-6),
+        )?;
+        let outer_taper = s.num(
+            "outer_taper",
+            pipette.outer_taper,
+            Check::Between(0.01, 1.0),
+        )?;
+        let shank_radius = s.num(
+            "shank_radius",
+            pipette.shank_radius,
+            Check::Between(tip_outer_radius, 1e-3),
+        )?;
         pipette = cellinject_rig::PipetteParams {
+            angle,
+            tip_outer_radius,
+            outer_taper,
+            shank_radius,
             inner_diameter: s.num(
                 "tip_inner_diameter",
                 pipette.inner_diameter,

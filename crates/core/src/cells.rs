@@ -211,18 +211,26 @@ pub struct TipReport {
     pub not_found: usize,
 }
 
-/// Runs the tip trials on `rig`: `runs` times, A1 and A3 to random voltages (0-60 V,
-/// within the envelope; A2 at 0 V keeps the tip in focus), a full frame at `zoom`, the tip found from the image and compared
-/// with `truth` (the true tip in the frame's pixels, from the backend's truth).
+/// Runs the tip trials on `rig` with `pipette` mounted: `runs` times, A1 and A3 to
+/// random voltages (0-60 V, within the envelope; A2 at 0 V and the stage lifted by A3's
+/// descent keep the tip in focus), a full frame at `zoom`, the tip found from the image
+/// (with the glass's foreshortened taper) and compared with `truth` (the true tip in
+/// the frame's pixels, from the backend's truth).
 pub fn tip_trials<B: cellinject_rig::Backend>(
     rig: &mut cellinject_rig::Rig<B>,
+    pipette: &cellinject_rig::PipetteParams,
     zoom: f64,
     runs: usize,
     seed: u64,
     truth: &mut dyn FnMut() -> [f64; 2],
 ) -> Result<TipReport, crate::sim::SimError> {
     use crate::sim::{Acquisition, SimError, frame};
-    use cellinject_hw::{Clock, PiezoChannel};
+    use cellinject_hw::{Clock, PiezoChannel, PositionSensor, Stage};
+    let dev = |what: &'static str| move |source| SimError::Device { what, source };
+    // The stage's height and A3's reading at rest: A3 drives the tip down the
+    // pipette's axis, and the stage follows it up to keep the tip in focus.
+    let y0 = rig.stage.position(1).map_err(dev("stage"))?;
+    let e0 = rig.sensors[2].read().map_err(dev("A3 sensor"))?;
     if !(1..=10_000).contains(&runs) {
         return Err(SimError::Invalid {
             arg: "--runs",
@@ -235,9 +243,9 @@ pub fn tip_trials<B: cellinject_rig::Backend>(
     let mut not_found = 0;
     let mut pitch = f64::NAN;
     for _ in 0..runs {
-        // A1 (x) and A3 (z) anywhere in 0-60 V; A2 stays at 0 V, where the optics were
-        // focused (A2 tilts the tip along the optical axis: the workflow focuses with
-        // the side camera before it looks for the tip).
+        // A1 (x) and A3 (down the pipette's axis) anywhere in 0-60 V; A2 stays at 0 V,
+        // where the optics were focused (A2 tilts the tip along the optical axis), and
+        // the stage lifts the pipette by A3's descent (as read by its sensor).
         for ch in [0, 2] {
             let v = rng.range(0.0, 60.0);
             rig.piezo[ch]
@@ -251,14 +259,23 @@ pub fn tip_trials<B: cellinject_rig::Backend>(
             what: "clock",
             source,
         })?;
+        let e3 = rig.sensors[2].read().map_err(dev("A3 sensor"))? - e0;
+        rig.stage
+            .move_to(1, y0 + e3 * pipette.angle.sin())
+            .map_err(dev("stage"))?;
+        while rig.stage.is_busy().map_err(dev("stage"))? {
+            rig.clock.sleep(0.01).map_err(dev("clock"))?;
+        }
         let f = frame(rig, zoom, Acquisition::Full, None)?;
         pitch = f.pixel_size;
         let t = truth();
-        match cellinject_cells::tip::locate(
+        match cellinject_cells::tip::locate_tapered(
             &f.pixels,
             f.width as usize,
             f.height as usize,
             f.pixel_size,
+            None,
+            pipette.outer_taper / pipette.angle.cos(),
         ) {
             Ok(tip) => {
                 let (dx, dy) = (tip.x - t[0], tip.y - t[1]);

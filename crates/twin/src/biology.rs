@@ -4,11 +4,17 @@
 //! the faults the twin can inject into a run (a clogged or broken pipette, a cell that
 //! moves, a stage that jams, the light going out).
 //!
-//! Geometry is the top view's object plane (x along the image columns, z along the
-//! rows); the pipette's axis is z (A3 pushes the tip towards +z). The tip interacts
-//! with a cell only within a cell radius of the focal plane (depth).
+//! Geometry is the plate's: x along the image columns, z along the rows, and height
+//! (the tip's `depth`) up the optical axis from the focal plane. Cells are spheres
+//! resting on the plate's floor, which lies a mean cell radius below the focal plane
+//! (the plate is focused on its cells' equators), so a larger cell stands taller. A3
+//! pushes the tip forward along the pipette's axis ([`PipetteParams::axis`]: towards
+//! +z and down). The tip dimples and punctures a cell; the glass behind it (its taper
+//! and shank, [`PipetteParams::clearance`]) pushes aside any cell it runs into; a tip
+//! driven into the floor breaks.
 
 use cellinject_numeric::Rng;
+use cellinject_rig::PipetteParams;
 use cellinject_rig::pipette::cell_volume;
 use cellinject_simparams::CellBiology;
 use thiserror::Error;
@@ -50,6 +56,8 @@ pub struct CellState {
     pub origin: [f64; 2],
     /// m, radius before any injection.
     pub radius: f64,
+    /// m, the centre's height above the focal plane (the floor plus the radius).
+    pub height: f64,
     /// m, dimple depth at which this cell's membrane gives.
     pub puncture_dimple: f64,
     /// m, how far the tip pushes the cell now (x, z).
@@ -58,11 +66,14 @@ pub struct CellState {
     pub punctured: bool,
     /// The pipette has touched the cell.
     pub touched: bool,
+    /// The glass behind the tip ran into the cell (it was pushed aside by the taper or
+    /// the shank, not by the tip).
+    pub grazed: bool,
     /// Times the membrane was punctured.
     pub punctures: u32,
     /// m, the tip's lateral (x) extent while inside: min, max.
     pub inside_x: [f64; 2],
-    /// m, deepest the tip went past the centre (along z).
+    /// m, deepest the tip went past the centre (along the pipette's axis).
     pub max_depth: f64,
     /// m³, injected.
     pub injected: f64,
@@ -321,6 +332,15 @@ pub struct Biology {
     hard_clog: bool,
     /// The stage must jam on its next move.
     pub stall_pending: bool,
+    pipette: PipetteParams,
+    axis: [f64; 3],
+    /// m, the floor's height (below the focal plane).
+    pub floor: f64,
+    /// Times the tip was driven into the floor (each breaks it).
+    pub floor_strikes: u32,
+    below_floor: bool,
+    /// m, the tallest cell's top above the floor.
+    tallest: f64,
 }
 
 /// How close (m) to a cell's membrane the tip comes, in focus, for a fault tied to the
@@ -328,24 +348,35 @@ pub struct Biology {
 const ARRIVAL: f64 = 20e-6;
 
 impl Biology {
-    /// The cells at `centres` (m, x and z) with `radii` (m), each with its own puncture
-    /// threshold drawn from `rng`.
+    /// The cells at `centres` (m, x and z) with `radii` (m), resting on a floor a mean
+    /// radius below the focal plane, each with its own puncture threshold drawn from
+    /// `rng`, met by `pipette`.
     pub fn new(
         params: CellBiology,
-        dye_contrast: f64,
+        pipette: PipetteParams,
         cells: impl IntoIterator<Item = ([f64; 2], f64)>,
         rng: &mut Rng,
     ) -> Self {
+        let cells: Vec<([f64; 2], f64)> = cells.into_iter().collect();
+        let mean = if cells.is_empty() {
+            0.0
+        } else {
+            cells.iter().map(|c| c.1).sum::<f64>() / cells.len() as f64
+        };
+        let floor = -mean;
+        let tallest = cells.iter().map(|c| 2.0 * c.1).fold(0.0, f64::max);
         let cells = cells
             .into_iter()
             .map(|(c, r)| CellState {
                 centre: c,
                 origin: c,
                 radius: r,
+                height: floor + r,
                 puncture_dimple: r * rng.range(params.puncture[0], params.puncture[1]),
                 push: [0.0; 2],
                 punctured: false,
                 touched: false,
+                grazed: false,
                 punctures: 0,
                 inside_x: [0.0; 2],
                 max_depth: 0.0,
@@ -355,7 +386,13 @@ impl Biology {
             .collect();
         Biology {
             params,
-            dye_contrast,
+            dye_contrast: pipette.dye_contrast,
+            pipette,
+            axis: pipette.axis(),
+            floor,
+            floor_strikes: 0,
+            below_floor: false,
+            tallest,
             cells,
             faults: Vec::new(),
             flow: 1.0,
@@ -385,21 +422,48 @@ impl Biology {
         self.cells.iter().position(|c| c.punctured)
     }
 
-    /// Updates contact, puncture and viability for the tip at `tip` (its true pose,
-    /// the broken length already taken off).
+    /// Updates contact, puncture and viability for the tip at `tip` (its true pose
+    /// in the plate's frame, the broken length already taken off).
     pub fn interact(&mut self, tip: &TipPose) -> Effects {
         let mut fx = Effects::default();
         let p = self.params;
+        let a = self.axis;
+        let t3 = [tip.x, tip.depth, tip.z];
+        // The floor: a tip driven into it breaks (2 um of glass lost, the orifice
+        // widened), once per strike: a new strike needs the tip lifted 5 um clear.
+        if tip.depth < self.floor {
+            if !self.below_floor {
+                self.below_floor = true;
+                self.floor_strikes += 1;
+                self.tip_loss += 2e-6;
+                self.flow *= 30.0;
+            }
+        } else if tip.depth > self.floor + 5e-6 {
+            self.below_floor = false;
+        }
+        // How far behind the tip (in the plate's plane) the glass still comes down to
+        // the tallest cell's top.
+        let (sin, cos) = (-a[1], a[2]);
+        let top = self.floor + self.tallest;
+        let shank = self.pipette.shank_radius;
+        let glass_reach = if sin > 1e-6 {
+            ((top - tip.depth + shank * cos).max(0.0) / sin) * cos + shank + self.tallest
+        } else {
+            f64::INFINITY
+        };
         for k in 0..self.cells.len() {
             let c = &mut self.cells[k];
             let (dx, dz) = (tip.x - c.centre[0], tip.z - c.centre[1]);
-            let d = dx.hypot(dz);
-            if d > c.radius + ARRIVAL && !c.punctured && c.push == [0.0, 0.0] {
+            let dy = tip.depth - c.height;
+            let d = (dx * dx + dy * dy + dz * dz).sqrt();
+            let far = d > c.radius + ARRIVAL && !c.punctured && c.push == [0.0, 0.0];
+            if far && dx.hypot(dz) > glass_reach + c.radius {
                 continue;
             }
-            // Faults tied to this cell fire on arrival (in focus) or on touch.
-            let touching = tip.depth.abs() < c.radius && d < c.radius;
-            let near = tip.depth.abs() < c.radius && d < c.radius + ARRIVAL;
+            // Faults tied to this cell fire on arrival (the tip within 20 um of the
+            // membrane) or on touch.
+            let touching = d < c.radius;
+            let near = d < c.radius + ARRIVAL;
             for (f, fired) in self.faults.iter_mut() {
                 if *fired || f.cell() != k {
                     continue;
@@ -426,21 +490,46 @@ impl Biology {
                 }
             }
             let (dx, dz) = (tip.x - c.centre[0], tip.z - c.centre[1]);
-            let d = dx.hypot(dz);
-            if tip.depth.abs() >= c.radius {
-                c.push = [0.0; 2];
-                continue;
-            }
+            let d = (dx * dx + dy * dy + dz * dz).sqrt();
+            // Along the axis past the centre, and off the axis.
+            let along = dx * a[0] + dy * a[1] + dz * a[2];
+            let off = (d * d - along * along).max(0.0).sqrt();
             if !c.punctured {
                 let advance = c.radius - d;
                 if advance <= 0.0 || d == 0.0 {
-                    c.push = [0.0; 2];
+                    // The tip is outside: the glass behind it may still press the cell
+                    // aside (away from the axis, in the plate's plane). A cell at the
+                    // tip itself is the tip's (its membrane just resealed behind it).
+                    let gap = if d < c.radius + self.pipette.tip_outer_radius + 0.5e-6 {
+                        0.0
+                    } else {
+                        self.pipette.clearance(
+                            t3,
+                            a,
+                            [c.centre[0], c.height, c.centre[1]],
+                            c.radius,
+                        )
+                    };
+                    if gap < 0.0 {
+                        c.touched = true;
+                        c.grazed = true;
+                        // From the axis to the centre, in the plate's plane.
+                        let (ux, uz) = (-dx, -(dz - along * a[2]));
+                        let n = ux.hypot(uz);
+                        c.push = if n > 0.0 {
+                            [-gap * ux / n, -gap * uz / n]
+                        } else {
+                            [-gap, 0.0]
+                        };
+                    } else {
+                        c.push = [0.0; 2];
+                    }
                     continue;
                 }
                 c.touched = true;
                 let dimple = (1.0 - p.push_fraction) * advance;
                 if dimple < c.puncture_dimple {
-                    // Pushed away from the tip.
+                    // Pushed away from the tip, along the plate (the floor holds it).
                     let s = p.push_fraction * advance / d;
                     c.push = [-dx * s, -dz * s];
                     continue;
@@ -449,7 +538,7 @@ impl Biology {
                 c.punctures += 1;
                 c.push = [0.0; 2];
                 c.inside_x = [tip.x, tip.x];
-                if dx.abs() > p.tear_offset * c.radius && c.dead.is_none() {
+                if off > p.tear_offset * c.radius && c.dead.is_none() {
                     c.dead = Some(Death::TornAtEntry);
                 }
                 for (f, fired) in self.faults.iter_mut() {
@@ -466,11 +555,11 @@ impl Biology {
             // Inside.
             if d < c.radius {
                 c.inside_x = [c.inside_x[0].min(tip.x), c.inside_x[1].max(tip.x)];
-                c.max_depth = c.max_depth.max(dz);
+                c.max_depth = c.max_depth.max(along);
                 if c.dead.is_none() {
                     if c.inside_x[1] - c.inside_x[0] > p.tear_travel * c.radius {
                         c.dead = Some(Death::TornInside);
-                    } else if dz > p.lethal_depth * c.radius {
+                    } else if along > p.lethal_depth * c.radius {
                         c.dead = Some(Death::TooDeep);
                     }
                 }
@@ -566,7 +655,11 @@ mod tests {
                 puncture: [0.15, 0.15],
                 ..CellBiology::default()
             },
-            0.8,
+            // In the plate's plane (angle 0), as the tests' paths run along z.
+            PipetteParams {
+                angle: 0.0,
+                ..PipetteParams::default()
+            },
             [([0.0, 0.0], 9e-6)],
             &mut rng,
         )

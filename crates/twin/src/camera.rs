@@ -169,6 +169,57 @@ fn span(c0: f64, pitch: f64, n: usize, a: f64, b: f64) -> (usize, usize) {
     (lo, hi.max(lo))
 }
 
+/// The pipette's glass as one camera sees it: its outer shape (the rig's) and how its
+/// axis lies to the camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PipetteView {
+    /// m, outer radius at the tip.
+    pub tip_radius: f64,
+    /// Outer radius growth per metre behind the tip.
+    pub taper: f64,
+    /// m, outer radius of the shank.
+    pub shank_radius: f64,
+    /// Unit direction in the object plane (columns, rows) from the tip back along the
+    /// glass; its row component must be negative (the glass comes from the top).
+    pub back: [f64; 2],
+    /// Image length per metre of glass (the cosine of its angle to the image plane).
+    pub foreshortening: f64,
+    /// Height gained towards the camera per metre of glass behind the tip.
+    pub rise: f64,
+}
+
+impl PipetteView {
+    /// The glass of `pipette` lying along `back` in the image, foreshortened by
+    /// `foreshortening`, rising by `rise` per metre behind the tip.
+    pub fn new(
+        pipette: &cellinject_rig::PipetteParams,
+        back: [f64; 2],
+        foreshortening: f64,
+        rise: f64,
+    ) -> Self {
+        PipetteView {
+            tip_radius: pipette.tip_outer_radius,
+            taper: pipette.outer_taper,
+            shank_radius: pipette.shank_radius,
+            back,
+            foreshortening,
+            rise,
+        }
+    }
+
+    /// The scene's default shape, in the image plane along the rows.
+    fn flat(shape: &crate::scene::PipetteShape) -> Self {
+        PipetteView {
+            tip_radius: shape.tip_radius,
+            taper: shape.taper,
+            shank_radius: shape.shank_radius,
+            back: [0.0, -1.0],
+            foreshortening: 1.0,
+            rise: 0.0,
+        }
+    }
+}
+
 /// The zoom lens's state: magnification (the rig's) and blur (the simulation's).
 #[derive(Debug, Clone, Copy)]
 struct Lens {
@@ -203,6 +254,8 @@ pub struct Microscope {
     /// optical axis): the plate's walls, cells and debris are drawn this far from the
     /// scene's positions, defocused by the depth.
     plate_offset: [f64; 3],
+    /// How the pipette's glass lies in this view.
+    pipette: PipetteView,
 }
 
 /// Resolution of the magnification's thermal drift: the static layer is drawn again
@@ -221,6 +274,7 @@ impl Microscope {
             defocus_rate: lens.defocus_rate,
         };
         Microscope {
+            pipette: PipetteView::flat(&scene.pipette),
             settings: CameraSettings {
                 roi: Roi {
                     x: 0,
@@ -311,6 +365,11 @@ impl Microscope {
     /// the cells cannot be seen).
     pub fn go_dark(&mut self, frames: u32) {
         self.dark_frames = frames;
+    }
+
+    /// How the pipette's glass lies in this view from now on.
+    pub fn set_pipette(&mut self, view: PipetteView) {
+        self.pipette = view;
     }
 
     /// Looks at another scene from now on (e.g. a plate file's).
@@ -618,43 +677,71 @@ impl Microscope {
         }
     }
 
-    /// Draws the pipette and its speckled marker tab into the work buffer.
+    /// Draws the pipette and its speckled marker tab into the work buffer. The glass
+    /// is a tube of outer radius `r(s)` at `s` metres behind the tip, lying along the
+    /// view's `back` direction foreshortened by `foreshortening`; each section is
+    /// blurred by its own distance from the focal plane (the tip's depth plus `rise`
+    /// per metre behind it) and by the motion during the exposure.
     fn render_pipette(&mut self, g: &Grid, pose: &TipPose, exposure: f64) {
         let shape = self.scene.pipette;
+        let view = self.pipette;
         let blur = self.optics.focus_blur + self.optics.defocus_rate * pose.depth.abs();
         let base2 = blur * blur + g.pitch * g.pitch / 12.0;
         let sx = (base2 + (pose.vx * exposure).powi(2) / 12.0).sqrt();
         let sz = (base2 + (pose.vz * exposure).powi(2) / 12.0).sqrt();
         let (sxf, szf) = (sx as f32, sz as f32);
-        // Tube: outer radius grows behind the tip up to the shank; the tip is rounded
-        // by fading along z.
+        let [bu, bv] = view.back;
+        let f = view.foreshortening.max(1e-6);
+        // Motion along and across the glass's image.
+        let v_along = pose.vx * bu + pose.vz * bv;
+        let v_across = pose.vx * bv - pose.vz * bu;
+        let pix2 = g.pitch * g.pitch / 12.0;
+        let sigma = |s: f64, v: f64| {
+            let b = self.optics.focus_blur
+                + self.optics.defocus_rate * (pose.depth + view.rise * s.max(0.0)).abs();
+            (b * b + pix2 + (v * exposure).powi(2) / 12.0).sqrt()
+        };
+        let v_max = v_across.abs().max(v_along.abs());
+        let tip_reach = 4.0 * sigma(0.0, v_along);
+        // Rows from the image's top to just past the tip.
         let (j0, j1) = span(
             g.z0,
             g.pitch,
             g.height,
             f64::NEG_INFINITY,
-            pose.z + 4.0 * sz,
+            pose.z + tip_reach + view.tip_radius,
         );
         let j0 = j0.min(j1);
         for j in j0..j1 {
             let z = g.z0 + j as f64 * g.pitch;
-            let behind = (pose.z - z).max(0.0);
-            let r = (shape.tip_radius + shape.taper * behind).min(shape.shank_radius);
-            let ri = shape.bore * r;
-            let fade = step(((pose.z - z) / sz) as f32);
-            let (i0, i1) = span(
-                g.x0,
-                g.pitch,
-                g.width,
-                pose.x - r - 4.0 * sx,
-                pose.x + r + 4.0 * sx,
-            );
-            let (rf, rif) = (r as f32, ri as f32);
+            // Where the axis crosses this row, and how wide the glass is there (its
+            // radius and blur at that section; a tilted glass's sections across the
+            // row lie a little further along it, hence the quarter's margin).
+            let dv = z - pose.z;
+            let u_c = if bv.abs() > 1e-9 {
+                pose.x + dv * bu / bv
+            } else {
+                pose.x
+            };
+            let s_c = ((u_c - pose.x) * bu + dv * bv) / f;
+            let r_c = (view.tip_radius + view.taper * s_c.max(0.0)).min(view.shank_radius);
+            let width = 1.25 * (r_c + 4.0 * sigma(s_c, v_max)) / bv.abs().max(0.05) + 2.0 * g.pitch;
+            let (i0, i1) = span(g.x0, g.pitch, g.width, u_c - width, u_c + width);
             let row = &mut self.work[j * g.width..(j + 1) * g.width];
             for (i, px) in row.iter_mut().enumerate().take(i1).skip(i0) {
-                let d = (g.x0 + i as f64 * g.pitch - pose.x).abs() as f32;
-                let outer = step((rf - d) / sxf);
-                let inner = step((rif - d) / sxf);
+                let (du, dv) = (g.x0 + i as f64 * g.pitch - pose.x, z - pose.z);
+                // Image distance behind the tip along the glass, and across it.
+                let along = du * bu + dv * bv;
+                let d = (du * bv - dv * bu).abs();
+                let s = along / f;
+                let r = (view.tip_radius + view.taper * s.max(0.0)).min(view.shank_radius);
+                let ri = shape.bore * r;
+                let s_across = sigma(s, v_across) as f32;
+                let s_along = sigma(s, v_along) as f32;
+                let fade = step(along as f32 / s_along);
+                let (rf, rif, df) = (r as f32, ri as f32, d as f32);
+                let outer = step((rf - df) / s_across);
+                let inner = step((rif - df) / s_across);
                 *px *= 1.0 - fade * (0.12 * outer + 0.45 * (outer - inner));
             }
         }

@@ -16,7 +16,7 @@ use cellinject_numeric::Rng;
 use cellinject_rig::{Backend, Devices, Rig, RigError};
 
 use crate::biology::{Biology, Fault};
-use crate::camera::{Grid, Microscope, TipPose};
+use crate::camera::{Grid, Microscope, PipetteView, TipPose};
 use crate::scene::Scene;
 pub use crate::world::TwinParams;
 use crate::world::{TwinError, World};
@@ -83,7 +83,7 @@ impl Twin {
         let mut rng = Rng::new(seed, crate::world::stream::BIOLOGY);
         self.biology = Some(Biology::new(
             params.sim.biology,
-            params.rig.pipette.dye_contrast,
+            params.rig.pipette,
             plate
                 .cells
                 .iter()
@@ -197,6 +197,13 @@ impl Twin {
         )
         .with_noise_stream(crate::world::stream::SIDE_CAMERA);
         side.set_zoom(params.rig.optics.zoom).map_err(zoom_error)?;
+        // The glass as each camera sees it: the microscope looks down on it
+        // (foreshortened, rising out of focus behind the tip); the side camera sees it
+        // at its angle, in focus along its length.
+        let pip = params.rig.pipette;
+        let (sin, cos) = (pip.angle.sin(), pip.angle.cos());
+        camera.set_pipette(PipetteView::new(&pip, [0.0, -1.0], cos, sin));
+        side.set_pipette(PipetteView::new(&pip, [sin, -cos], 1.0, 0.0));
         let x = world.snapshot().x;
         Ok(Twin {
             world,
@@ -228,10 +235,13 @@ impl Twin {
         let s = self.world.snapshot();
         let o = self.origin;
         let lost = self.biology.as_ref().map_or(0.0, |b| b.tip_loss);
+        // A3 drives the tip along the pipette's axis: forward along z and down.
+        let angle = self.world.params().rig.pipette.angle;
+        let e3 = s.x[2] - o[2] - lost;
         TipPose {
             x: self.world.stage.true_position(0) + s.x[0] - o[0],
-            z: self.world.stage.true_position(2) + s.x[2] - o[2] - lost,
-            depth: self.world.stage.true_position(1) + s.x[1] - o[1],
+            z: self.world.stage.true_position(2) + e3 * angle.cos(),
+            depth: self.world.stage.true_position(1) + s.x[1] - o[1] - e3 * angle.sin(),
             vx: 0.0,
             vz: 0.0,
         }

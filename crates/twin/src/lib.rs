@@ -26,7 +26,7 @@ pub use cellinject_numeric::rng;
 pub use cellinject_simparams as params;
 
 pub use biology::{Biology, CellState, Death, Fault, FaultAt, FaultKind, FaultSpecError};
-pub use camera::{CellLook, Grid, Microscope, TipPose};
+pub use camera::{CellLook, Grid, Microscope, PipetteView, TipPose};
 pub use devices::{
     SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, dyn_rig, guarded, rig,
 };

@@ -15,6 +15,7 @@
 //! pushed ahead of the tip and snapping back, the dose from the dye's darkening. The
 //! plate file's cells are never read (only its grid).
 
+pub mod approach;
 pub mod machine;
 pub mod window;
 
@@ -330,6 +331,8 @@ pub struct Truth {
     pub dose_fraction: Option<f64>,
     /// The cell is alive.
     pub alive: Option<bool>,
+    /// Other cells the pipette's glass (not its tip) ran into during the attempt.
+    pub grazed: Option<u32>,
 }
 
 /// One cell attempt.
@@ -410,6 +413,11 @@ pub trait Observer {
     fn cell_truth(&mut self, _target: &Target) -> Option<(f64, bool)> {
         None
     }
+    /// How many cells the pipette's glass behind its tip has run into so far (the
+    /// twin): a planner that clears every neighbour keeps it still.
+    fn grazed(&mut self) -> Option<u32> {
+        None
+    }
 }
 
 /// An attempt's outcome and reason when the run stops in its cell for `reason`
@@ -445,7 +453,8 @@ pub struct ImageMap {
     pub residual_px: f64,
     /// Pixels per metre of A1's extension (its sensor).
     pub a1: [f64; 2],
-    /// Pixels per metre of A3's extension.
+    /// Pixels per metre of A3's extension: the tip's motion down the pipette's axis as
+    /// the microscope sees it (foreshortened by the mount angle).
     pub a3: [f64; 2],
     /// m per pixel of the frames.
     pub pixel_size: f64,
@@ -582,6 +591,8 @@ impl Servo {
 struct Shot {
     frame: cellinject_hw::Frame,
     origin: [f64; 2],
+    /// The glass's outer taper as the microscope sees it (foreshortened).
+    taper: f64,
 }
 
 impl Shot {
@@ -616,7 +627,7 @@ impl Shot {
     fn locate(&self, norm: &[u16], blur: Option<f64>) -> Option<Tip> {
         let f = &self.frame;
         let (w, h) = (f.width as usize, f.height as usize);
-        cellinject_cells::tip::locate_with(norm, w, h, f.pixel_size, blur)
+        cellinject_cells::tip::locate_tapered(norm, w, h, f.pixel_size, blur, self.taper)
             .ok()
             .map(|t| {
                 let [x, y] = self.full([t.x, t.y]);
@@ -655,6 +666,16 @@ pub struct Workflow<'r, B: Backend> {
     gain_a3: f64,
     dye_contrast: f64,
     conductance: f64,
+    /// The pipette's glass and its mount angle.
+    pipette: cellinject_rig::PipetteParams,
+    /// m of tip motion (x, height) per metre of A1 and A2 extension: the mechanism
+    /// model's Jacobian at rest ([`crate::calibrate::model_jacobian`]).
+    jacobian: [[f64; 2]; 2],
+    /// m, A1's and A2's travels.
+    travel_a12: [f64; 2],
+    /// m, the surveyed cells' mean diameter: the plate is focused on their equators,
+    /// so a cell of diameter d has its centre (d - mean) / 2 above the focal plane.
+    mean_diameter: f64,
     state: State,
     log: Vec<Transition>,
     servo: Option<Servo>,
@@ -757,6 +778,15 @@ impl<'r, B: Backend> Workflow<'r, B> {
             gain_a3: design.actuators[2].travel / params.amplifiers[2].v_max,
             dye_contrast: params.pipette.dye_contrast,
             conductance: params.pipette.conductance(),
+            pipette: params.pipette,
+            jacobian: crate::calibrate::model_jacobian(design, params.approach).map_err(|e| {
+                WorkflowError::Calibration {
+                    what: "mechanism model",
+                    reason: e.to_string(),
+                }
+            })?,
+            travel_a12: [design.actuators[0].travel, design.actuators[1].travel],
+            mean_diameter: 0.0,
             state: State::Start,
             log: Vec::new(),
             servo: None,
@@ -1110,6 +1140,26 @@ impl<'r, B: Backend> Workflow<'r, B> {
 
     /// Moves the stage; the deadline is the option's for moves of up to 1 mm, plus
     /// 1 s per further mm (the calibration's long moves).
+    /// Moves the stage's height to `y` before the servo runs (no stack is driven):
+    /// waits until it is there.
+    fn raise_to(&mut self, y: f64) -> Result<(), WorkflowError> {
+        self.rig.stage.move_to(1, y).map_err(dev("stage lift"))?;
+        let t0 = self.now();
+        while self.rig.stage.is_busy().map_err(dev("stage"))? {
+            if self.now() - t0 > self.options.stage_deadline {
+                return Err(WorkflowError::Device {
+                    what: "stage",
+                    source: HwError::Timeout {
+                        device: "stage (missed its deadline)".into(),
+                        seconds: self.options.stage_deadline,
+                    },
+                });
+            }
+            self.rig.clock.sleep(0.005).map_err(dev("clock"))?;
+        }
+        Ok(())
+    }
+
     fn stage_to(&mut self, p: [Option<f64>; 3]) -> Result<Result<(), String>, WorkflowError> {
         let mut far = 0.0f64;
         for (axis, v) in p.iter().enumerate() {
@@ -1174,6 +1224,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok(Shot {
             frame,
             origin: [s.roi.x as f64, s.roi.y as f64],
+            taper: self.pipette.outer_taper / self.pipette.angle.cos(),
         })
     }
 
@@ -1187,6 +1238,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// two of its four points 2-3 px off, put the first row's cells 7-11 um off along
     /// the pipette.
     fn tip_full(&mut self, tries: usize) -> Result<Option<[f64; 2]>, WorkflowError> {
+        self.tip_full_at(tries, true)
+    }
+
+    /// As [`Self::tip_full`]; a tip out of focus (`in_focus` false) is located by the
+    /// free fit alone, and its blur is not learnt.
+    fn tip_full_at(
+        &mut self,
+        tries: usize,
+        in_focus: bool,
+    ) -> Result<Option<[f64; 2]>, WorkflowError> {
         let mut seen = Vec::with_capacity(TIP_FRAMES);
         let mut misses = 0;
         while seen.len() < TIP_FRAMES && misses < tries {
@@ -1200,6 +1261,10 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 continue;
             };
             let (norm, free) = free;
+            if !in_focus {
+                seen.push([free.x, free.y]);
+                continue;
+            }
             self.blurs.push(free.sigma);
             if self.blurs.len() > BLUR_FRAMES {
                 self.blurs.remove(0);
@@ -1263,6 +1328,15 @@ impl<'r, B: Backend> Workflow<'r, B> {
                         c.problem().unwrap_or_default()
                     ));
                 }
+                // The identification sweeps A3 over its whole travel, down the
+                // pipette's axis: the pipette goes that much higher first, so that the
+                // tip stays clear of the cells and the floor.
+                let j = self.jacobian;
+                let drop =
+                    self.gain_a3 * self.rig.piezo[2].voltage_range().1 * self.pipette.angle.sin()
+                        + j[1][0].abs() * self.travel_a12[0]
+                        + j[1][1].abs() * self.travel_a12[1];
+                self.raise_to(lift + drop)?;
                 let c = crate::calibrate::hysteresis(self.rig, self.options.hysteresis_samples, 20)
                     .map_err(|e| match e {
                         // Not the calibration's fault: the operator stopped it.
@@ -1278,6 +1352,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
                             reason: e.to_string(),
                         },
                     })?;
+                self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))?;
+                self.rig.clock.sleep(0.1).map_err(dev("clock"))?;
+                self.raise_to(lift)?;
                 if let Some(p) = c.problem() {
                     return Err(WorkflowError::Calibration {
                         what: "hysteresis",
@@ -1664,7 +1741,18 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 }
                 Ok(sum / 10.0)
             };
-            let Some(p0) = self.tip_full(3)? else {
+            // A3 drives the tip down its axis: the probe starts as high above the focus
+            // as it will come down, and ends in focus (above the floor).
+            let drop = if k == 1 {
+                e * self.pipette.angle.sin()
+            } else {
+                0.0
+            };
+            if drop > 0.0 {
+                self.stage_to([None, Some(self.options.focus + drop), None])?
+                    .ok();
+            }
+            let Some(p0) = self.tip_full_at(3, drop == 0.0)? else {
                 return Ok(Err(format!("the tip was lost before {what} moved")));
             };
             let e0 = extension(self)?;
@@ -1675,7 +1763,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 s.a3_ref = e;
             }
             self.wait(0.3)?;
-            let Some(p1) = self.tip_full(3)? else {
+            let Some(p1) = self.tip_full_at(3, drop == 0.0)? else {
                 return Ok(Err(format!("the tip was lost while {what} moved")));
             };
             let e1 = extension(self)?;
@@ -1694,12 +1782,14 @@ impl<'r, B: Backend> Workflow<'r, B> {
             dir[k] = [(p1[0] - p0[0]) / de, (p1[1] - p0[1]) / de];
         }
         self.stage_to([None, Some(lift), None])?.ok();
-        let a3m = dir[1][0].hypot(dir[1][1]) / scale;
+        // The microscope sees A3's motion foreshortened by the pipette's angle.
+        let cos = self.pipette.angle.cos();
+        let a3m = dir[1][0].hypot(dir[1][1]) / scale / cos;
         // A3 carries the pipette directly: the tip follows the stack's extension, less
         // what the structure in series with it gives (some 10-20 %).
         if !(0.5..1.5).contains(&a3m) {
             return Ok(Err(format!(
-                "A3 moved the tip {a3m:.2} times its own extension (it carries the pipette directly: expected about 1)"
+                "A3 moved the tip {a3m:.2} times its own extension along the pipette (it carries the pipette directly: expected about 1)"
             )));
         }
         if dir[0][0].hypot(dir[0][1]) / scale < 0.5 {
@@ -1716,7 +1806,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             // tip positions a few um apart, is only checked).
             a3: {
                 let u = unit(dir[1]);
-                [u[0] * scale, u[1] * scale]
+                [u[0] * scale * cos, u[1] * scale * cos]
             },
             pixel_size: pixel,
         }))
@@ -1986,6 +2076,11 @@ impl<'r, B: Backend> Workflow<'r, B> {
         self.target_field = targets.iter().map(|(_, f)| *f).collect();
         let targets: Vec<Target> = targets.into_iter().map(|(t, _)| t).collect();
         self.survey_cells = targets.clone();
+        self.mean_diameter = if targets.is_empty() {
+            0.0
+        } else {
+            targets.iter().map(|t| t.diameter_m).sum::<f64>() / targets.len() as f64
+        };
         self.place_targets();
         Ok(targets)
     }
@@ -2086,17 +2181,33 @@ fn far_edge(shot: &Shot, c: [f64; 2], r: f64) -> Option<f64> {
 }
 
 impl<B: Backend> Workflow<'_, B> {
-    fn refresh_background(&mut self, shot: &Shot, c: [f64; 2], reach: f64) {
+    /// Renews the background from `shot` within `reach` pixels of `c` (full-frame
+    /// pixels), except under the pipette's glass, whose tip `shot` shows at `tip`.
+    fn refresh_background(&mut self, shot: &Shot, c: [f64; 2], reach: f64, tip: [f64; 2]) {
+        let pix = shot.frame.pixel_size;
+        let cos = self.pipette.angle.cos();
+        let pipette = self.pipette;
+        let blur = self.blur().unwrap_or(1.0);
         let Some(bg) = self.background.as_mut() else {
             return;
         };
         let (w, h) = (shot.frame.width as i64, shot.frame.height as i64);
         let l = shot.local(c);
+        let t = shot.local(tip);
         let k = reach.ceil() as i64;
         for j in (l[1] as i64 - k)..=(l[1] as i64 + k) {
             for i in (l[0] as i64 - k)..=(l[0] as i64 + k) {
                 let (dx, dy) = (i as f64 - l[0], j as f64 - l[1]);
                 if i < 0 || j < 0 || i >= w || j >= h || dx.hypot(dy) > reach {
+                    continue;
+                }
+                // Not where the glass lies (the image shows it foreshortened over the
+                // cell): its pixels keep the old background. (No tip: no glass.)
+                let behind = t[1] - j as f64;
+                if behind > -4.0 * blur - 2.0
+                    && (i as f64 - t[0]).abs()
+                        < pipette.radius_at(behind.max(0.0) * pix / cos) / pix + 4.0 * blur + 3.0
+                {
                     continue;
                 }
                 let (fi, fj) = (
@@ -2130,6 +2241,7 @@ impl<B: Backend> Workflow<'_, B> {
             transitions: Vec::new(),
         };
         obs.started(&a).map_err(WorkflowError::Record)?;
+        let grazed0 = obs.grazed();
         let why = format!(
             "cell {} in well [{}, {}], {:.1} um at ({:.1}, {:.1}) um",
             target.index,
@@ -2197,6 +2309,7 @@ impl<B: Backend> Workflow<'_, B> {
             a.truth.dose_fraction = Some(dose);
             a.truth.alive = Some(alive);
         }
+        a.truth.grazed = obs.grazed().zip(grazed0).map(|(n, m)| n.saturating_sub(m));
         a.t[1] = self.now();
         obs.finished(&a).map_err(WorkflowError::Record)?;
         let skip = (fatal.is_none() && a.outcome == Outcome::Skipped).then_some(if blocked {
@@ -2238,61 +2351,57 @@ impl<B: Backend> Workflow<'_, B> {
         let c = a.target.stage_m;
         let back = r + o.gap;
         let lead = 1.5e-6;
-        // The path from the start to the aim must not pass within 0.6 um (the tip's
-        // radius and a margin) of another cell; if a touching neighbour is in the way,
-        // the aim may move sideways by up to `max_off_centre` of the radius (the membrane
-        // takes an entry that far off-centre), else the cell is skipped.
-        let clear = |shift: f64| -> Result<(), (usize, f64)> {
-            let aim = [c[0] + d1[0] * shift, c[1] + d1[1] * shift];
-            let start = [aim[0] - d3[0] * back, aim[1] - d3[1] * back];
-            for other in &self.survey_cells {
-                if other.index == a.target.index {
-                    continue;
-                }
-                let q = other.stage_m;
-                let (vx, vz) = (aim[0] - start[0], aim[1] - start[1]);
-                let l2 = vx * vx + vz * vz;
-                let t = (((q[0] - start[0]) * vx + (q[1] - start[1]) * vz) / l2).clamp(0.0, 1.0);
-                let dist = (start[0] + t * vx - q[0]).hypot(start[1] + t * vz - q[1]);
-                if dist < 0.5 * other.diameter_m + 0.6e-6 {
-                    return Err((other.index, dist - 0.5 * other.diameter_m));
-                }
-            }
-            Ok(())
+        // The glass's way in, in three dimensions: the cells rest on the floor, the
+        // plate focused on their mean equator, so each centre stands half its
+        // diameter's excess over the mean above the focal plane. The tip may go
+        // `depth_limit` radii past the centre; the glass must keep 0.5 um from every
+        // other cell; the aim may move sideways by up to `max_off_centre` of the radius
+        // (the membrane takes an entry that far off-centre), else the cell is skipped.
+        let height = |d: f64| 0.5 * (d - self.mean_diameter);
+        let sphere = |t: &Target| approach::Sphere {
+            index: t.index,
+            well: t.well,
+            centre: [t.stage_m[0], height(t.diameter_m), t.stage_m[1]],
+            radius: 0.5 * t.diameter_m,
         };
-        let mut shift = None;
-        let mut blocked = None;
-        let steps = (o.max_off_centre / 0.05 + 1e-9).floor() as usize;
-        let shifts = (0..=2 * steps).map(|j| {
-            let k = j.div_ceil(2) as f64 * 0.05;
-            if j % 2 == 0 { -k } else { k }
-        });
-        for k in shifts {
-            match clear(k * r) {
-                Ok(()) => {
-                    shift = Some(k * r);
-                    break;
-                }
-                Err(b) if blocked.is_none() => blocked = Some(b),
-                Err(_) => {}
+        let neighbours: Vec<approach::Sphere> = self.survey_cells.iter().map(sphere).collect();
+        let way = approach::plan(
+            &self.pipette,
+            &sphere(&a.target),
+            &neighbours,
+            d1,
+            d3,
+            o.depth_limit * r,
+            o.max_off_centre,
+            0.5e-6,
+        );
+        let shift = match way {
+            Ok(w) => w.shift,
+            Err(b) => {
+                return Err(Fail::Blocked(format!(
+                    "the approach is blocked by cell {} in well [{}, {}]: the pipette's glass would run {:.1} um into it{}",
+                    b.by.index,
+                    b.by.well[0],
+                    b.by.well[1],
+                    -b.clearance * 1e6,
+                    if o.max_off_centre > 0.0 {
+                        format!(
+                            " on the centred way, and no aim up to {:.2} radius off-centre clears",
+                            o.max_off_centre
+                        )
+                    } else {
+                        String::new()
+                    }
+                )));
             }
-        }
-        let Some(shift) = shift else {
-            let (k, gap) = blocked.unwrap_or((0, 0.0));
-            let other = self.survey_cells[k];
-            return Err(Fail::Blocked(format!(
-                "the approach is blocked by cell {} in well [{}, {}] ({:.1} um from the path, even {:.2} radius off-centre)",
-                other.index,
-                other.well[0],
-                other.well[1],
-                gap * 1e6,
-                o.max_off_centre
-            )));
         };
+        let (sin, cos) = self.pipette.angle.sin_cos();
+        // The start: `back` up the axis from the aim, `lead` short across.
         let start = [
-            c[0] + d1[0] * (shift - lead) - d3[0] * back,
-            c[1] + d1[1] * (shift - lead) - d3[1] * back,
+            c[0] + d1[0] * (shift - lead) - d3[0] * back * cos,
+            c[1] + d1[1] * (shift - lead) - d3[1] * back * cos,
         ];
+        let start_height = o.focus + height(a.target.diameter_m) + back * sin;
         // Where the tip goes in the image, relative to the cell's centre (pixels).
         let u1 = unit(map.a1);
         let aim_off = [u1[0] * shift / pix, u1[1] * shift / pix];
@@ -2302,15 +2411,16 @@ impl<B: Backend> Workflow<'_, B> {
         for p in [
             [None, Some(lift), None],
             [Some(start[0]), None, Some(start[1])],
-            [None, Some(o.focus), None],
+            [None, Some(start_height), None],
         ] {
             if let Err(e) = self.stage_to(p)? {
                 return Err(Fail::Cell(e));
             }
         }
         let why = format!(
-            "tip {:.1} um before the membrane, in focus, after {:.2} s",
+            "tip {:.1} um before the membrane along the pipette, {:.1} um above the focus, after {:.2} s",
             o.gap * 1e6,
+            (start_height - o.focus) * 1e6,
             self.now() - t0
         );
         self.fire(Event::StageArrived, why, obs, Some(&mut a.transitions))
@@ -2342,7 +2452,8 @@ impl<B: Backend> Workflow<'_, B> {
         let tl = shot.local(tip);
         let mut exclude = vec![false; w * h];
         for j in 0..h.min((tl[1] - 1.0).max(0.0) as usize) {
-            let half = 4.0 + (0.5e-6 + 0.12 * (tl[1] - j as f64) * pix) / pix;
+            // The glass's radius that far behind the tip (the image foreshortens it).
+            let half = 4.0 + self.pipette.radius_at((tl[1] - j as f64) * pix / cos) / pix;
             for i in 0..w {
                 if (i as f64 - tl[0]).abs() < half {
                     exclude[j * w + i] = true;
@@ -2375,6 +2486,7 @@ impl<B: Backend> Workflow<'_, B> {
             )));
         };
         let moved = (p[0] - cell_px[0]).hypot(p[1] - cell_px[1]) * pix;
+        let old_px = cell_px;
         cell_px = p;
         if moved > 1.5e-6 {
             let why = format!(
@@ -2393,10 +2505,34 @@ impl<B: Backend> Workflow<'_, B> {
             // a few um sideways, still outside the cell), and look again.
             let c = map.stage_of(cell_px);
             let start = [
-                c[0] + d1[0] * (shift - lead) - d3[0] * back,
-                c[1] + d1[1] * (shift - lead) - d3[1] * back,
+                c[0] + d1[0] * (shift - lead) - d3[0] * back * cos,
+                c[1] + d1[1] * (shift - lead) - d3[1] * back * cos,
             ];
             if let Err(e) = self.stage_to([Some(start[0]), None, Some(start[1])])? {
+                return Err(Fail::Cell(e));
+            }
+            // The background still has the cell where the survey saw it, and the tip
+            // stands over that old place: the pipette backs up its axis until the tip
+            // is clear of both places in the image, the background is renewed around
+            // them, and the pipette comes back to the start.
+            let reach = r_px + moved / pix + 3.0;
+            let mid = [
+                0.5 * (cell_px[0] + old_px[0]),
+                0.5 * (cell_px[1] + old_px[1]),
+            ];
+            let up = ((reach * pix + 8e-6) / cos - back).max(0.0);
+            let at = start;
+            let y = self.rig.stage.position(1).map_err(dev("stage"))?;
+            if let Err(e) = self.stage_to([
+                Some(at[0] - d3[0] * up * cos),
+                Some(y + up * sin),
+                Some(at[1] - d3[1] * up * cos),
+            ])? {
+                return Err(Fail::Cell(e));
+            }
+            let clear = self.shoot(Some(roi_centre))?;
+            self.refresh_background(&clear, mid, reach, [f64::NAN; 2]);
+            if let Err(e) = self.stage_to([Some(at[0]), Some(y), Some(at[1])])? {
                 return Err(Fail::Cell(e));
             }
             shot = self.shoot(Some(roi_centre))?;
@@ -2465,7 +2601,8 @@ impl<B: Backend> Workflow<'_, B> {
             )));
         }
         let mut beta = median(betas);
-        let mut along = beta * map.a3[0].hypot(map.a3[1]) * pix;
+        // Along the pipette's axis (A3's extension: the map's A3 is per metre of it).
+        let mut along = beta;
         // The approach must start outside the membrane: the withdrawal comes back to
         // this point, and a tip still in the cell when A1 relaxes tears it sideways. The
         // stage placed the tip `gap` before the membrane by the survey's map; where the
@@ -2475,10 +2612,13 @@ impl<B: Backend> Workflow<'_, B> {
         if along - r < 0.5 * o.gap {
             let short = r + o.gap - along;
             let x = self.rig.stage.position(0).map_err(dev("stage"))?;
+            let y = self.rig.stage.position(1).map_err(dev("stage"))?;
             let z = self.rig.stage.position(2).map_err(dev("stage"))?;
-            if let Err(e) =
-                self.stage_to([Some(x - d3[0] * short), None, Some(z - d3[1] * short)])?
-            {
+            if let Err(e) = self.stage_to([
+                Some(x - d3[0] * short * cos),
+                Some(y + short * sin),
+                Some(z - d3[1] * short * cos),
+            ])? {
                 return Err(Fail::Cell(e));
             }
             let (mut laterals, mut betas) = (Vec::new(), Vec::new());
@@ -2506,7 +2646,7 @@ impl<B: Backend> Workflow<'_, B> {
                 short * 1e6,
                 (along - r) * 1e6
             );
-            along = beta * map.a3[0].hypot(map.a3[1]) * pix;
+            along = beta;
         }
         a.measured_tip_error_m = Some(lateral);
         let why = format!(
@@ -2684,7 +2824,7 @@ impl<B: Backend> Workflow<'_, B> {
         // The injected cell looks different from now on: renew the background there
         // (a disc around the cell that stops short of the retracted tip).
         let reach = r_px + (0.5 * r).min(o.gap - 2e-6) / pix;
-        self.refresh_background(&shot, cell_px, reach);
+        self.refresh_background(&shot, cell_px, reach, tip);
         let dose = (d1 - d0) / self.dye_contrast;
         a.measured_dose_fraction = Some(dose);
         let ratio = dose / o.target_fraction;
