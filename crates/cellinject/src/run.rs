@@ -39,8 +39,9 @@ pub struct RunArgs {
     /// Injected volume, fraction of each cell's volume.
     #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
     dose: f64,
-    /// Farthest the aim may move off a cell's centre, fraction of its radius, to pass a
-    /// touching neighbour in the pipette's path (the twin's membrane tears past 0.6).
+    /// Farthest the aim may move off a cell's centre across the pipette's axis (sideways
+    /// or up), fraction of its radius, for the glass to pass a neighbour in its way
+    /// (the twin's membrane tears past 0.6).
     #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
     max_off_centre: f64,
     /// Seconds of device time between two re-checks of the background and the
@@ -265,12 +266,15 @@ impl Observer for Recorder<'_> {
             };
             let twin = twin.lock().unwrap_or_else(|e| e.into_inner());
             let tip = twin.tip();
-            let (strikes, lost) = twin
-                .biology
-                .as_ref()
-                .map_or((0, 0.0), |b| (b.floor_strikes, b.tip_loss));
+            let (strikes, lost, grazed) = twin.biology.as_ref().map_or((0, 0.0, 0), |b| {
+                (
+                    b.floor_strikes,
+                    b.tip_loss,
+                    b.cells.iter().filter(|c| c.grazed).count(),
+                )
+            });
             eprintln!(
-                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um; floor strikes {strikes}, tip lost {:.1} um]",
+                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um; floor strikes {strikes}, tip lost {:.1} um, grazed {grazed}]",
                 t.from,
                 t.to,
                 t.reason,

@@ -839,10 +839,14 @@ fn touching_partners_are_passed_over_from_above_unless_the_glass_truly_meets_the
     }
     fs::write(d.join("p.toml"), text).unwrap();
     // The expected decisions, from the plate's truth and the pipette's shape alone:
-    // a cell is blocked when the glass, with the tip as deep as the run lets it go (a
-    // fifth of the radius past the centre), comes within 0.5 um of another cell.
+    // a cell is blocked when, for every aim within 0.3 of its radius of its centre
+    // across the axis (on a grid of 0.05 radius), the glass, with the tip as deep as
+    // the run lets it go (a fifth of the radius past the aim), comes within 0.5 um of
+    // another cell.
     let p = cellinject_rig::PipetteParams::default();
     let ax = p.axis();
+    // Across the axis: sideways (x) and up in the axis's vertical plane.
+    let (side, up) = ([1.0, 0.0, 0.0], [0.0, ax[2], -ax[1]]);
     let mean_r = rows.iter().map(|r| 0.5 * r.2).sum::<f64>() / rows.len() as f64;
     let centre = |k: usize| {
         let (w, o, dia) = rows[k];
@@ -851,12 +855,17 @@ fn touching_partners_are_passed_over_from_above_unless_the_glass_truly_meets_the
     };
     let blocked: Vec<bool> = (0..rows.len())
         .map(|k| {
-            let c = centre(k);
-            let reach = 0.2 * 0.5 * rows[k].2;
-            let tip = [0, 1, 2].map(|i| c[i] + reach * ax[i]);
-            (0..rows.len())
-                .filter(|&j| j != k)
-                .any(|j| p.clearance(tip, ax, centre(j), 0.5 * rows[j].2) < 0.5e-6)
+            let (c, r) = (centre(k), 0.5 * rows[k].2);
+            let blocked_at = |a: f64, b: f64| {
+                let tip = [0, 1, 2].map(|i| c[i] + a * side[i] + b * up[i] + 0.2 * r * ax[i]);
+                (0..rows.len())
+                    .filter(|&j| j != k)
+                    .any(|j| p.clearance(tip, ax, centre(j), 0.5 * rows[j].2) < 0.5e-6)
+            };
+            (-6..=6i32)
+                .flat_map(|a| (-6..=6i32).map(move |b| (a, b)))
+                .filter(|(a, b)| a * a + b * b <= 36)
+                .all(|(a, b)| blocked_at(a as f64 * 0.05 * r, b as f64 * 0.05 * r))
         })
         .collect();
     // Only the small cell in front of the large one.

@@ -32,8 +32,10 @@ pub struct Sphere {
 /// The way into a cell that clears every neighbour.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Way {
-    /// m, the aim's offset from the centre across the axis (along A1's direction).
-    pub shift: f64,
+    /// m, the aim's offset from the centre across the axis: sideways (along A1's
+    /// direction in the plate's plane) and up (perpendicular to the axis in its
+    /// vertical plane: [`up`]).
+    pub shift: [f64; 2],
     /// m, the smallest clearance to a neighbour on that way (infinite with none near).
     pub clearance: f64,
     /// The neighbour that comes closest, if any lies within a millimetre.
@@ -57,6 +59,18 @@ pub fn axis(pipette: &PipetteParams, forward: [f64; 2]) -> [f64; 3] {
     [forward[0] * cos, -sin, forward[1] * cos]
 }
 
+/// The unit vector across the axis `axis` in its vertical plane, pointing up (stage
+/// x, height, z): an aim moved along it raises the glass behind the tip.
+pub fn up(axis: [f64; 3]) -> [f64; 3] {
+    let h = axis[0].hypot(axis[2]);
+    if h == 0.0 {
+        return [1.0, 0.0, 0.0];
+    }
+    // The horizontal part scaled by the vertical's size, and vice versa.
+    let s = -axis[1];
+    [axis[0] / h * s, h, axis[2] / h * s]
+}
+
 /// The smallest clearance between the glass with its tip at `tip` along `axis` and
 /// the spheres, and which sphere it is (infinite, none, without spheres).
 pub fn clearance(
@@ -76,10 +90,11 @@ pub fn clearance(
 }
 
 /// The way into `target` (a sphere) past `neighbours`: the centred aim first, then aims
-/// shifted across the axis by ±0.05, ±0.10, … of the radius up to `max_off_centre`,
-/// the first whose glass keeps `margin` from every neighbour with the tip `reach`
-/// past the aim. `across` and `forward` are unit vectors in the plate's plane (A1's
-/// and A3's directions).
+/// moved across the axis (sideways and up, [`up`]) on a grid of 0.05 of the radius, the
+/// nearest first, up to `max_off_centre` of the radius from the centre: the first whose
+/// glass keeps `margin` from every neighbour with the tip `reach` past the aim (the
+/// membrane takes an entry that far off-centre). `across` and `forward` are unit
+/// vectors in the plate's plane (A1's and A3's directions).
 #[allow(clippy::too_many_arguments)]
 pub fn plan(
     pipette: &PipetteParams,
@@ -92,6 +107,7 @@ pub fn plan(
     margin: f64,
 ) -> Result<Way, Blocked> {
     let ax = axis(pipette, forward);
+    let up = up(ax);
     // Only neighbours the glass could come near: within a millimetre.
     let near: Vec<Sphere> = neighbours
         .iter()
@@ -101,24 +117,29 @@ pub fn plan(
         })
         .copied()
         .collect();
-    let steps = (max_off_centre / 0.05 + 1e-9).floor() as usize;
+    // Offsets in steps of 0.05 radius within the allowed disc, nearest first (then
+    // sideways before up, left before right: a fixed order).
+    let n = (max_off_centre / 0.05 + 1e-9).floor() as i32;
+    let mut grid: Vec<(i32, i32)> = (-n..=n)
+        .flat_map(|a| (-n..=n).map(move |b| (a, b)))
+        .filter(|(a, b)| a * a + b * b <= n * n)
+        .collect();
+    grid.sort_by_key(|&(a, b)| (a * a + b * b, b.abs(), b, a));
     let mut centred = None;
-    for j in 0..=2 * steps {
-        let k = j.div_ceil(2) as f64 * 0.05;
-        let k = if j % 2 == 0 { -k } else { k };
-        let shift = k * target.radius;
-        let tip = [
-            target.centre[0] + across[0] * shift + ax[0] * reach,
-            target.centre[1] + ax[1] * reach,
-            target.centre[2] + across[1] * shift + ax[2] * reach,
-        ];
+    for (a, b) in grid {
+        let (sa, sb) = (
+            a as f64 * 0.05 * target.radius,
+            b as f64 * 0.05 * target.radius,
+        );
+        let side = [across[0], 0.0, across[1]];
+        let tip = [0, 1, 2].map(|i| target.centre[i] + side[i] * sa + up[i] * sb + ax[i] * reach);
         let (c, who) = clearance(pipette, tip, ax, &near);
-        if j == 0 {
+        if a == 0 && b == 0 {
             centred = who.map(|s| (s, c));
         }
         if c > margin {
             return Ok(Way {
-                shift,
+                shift: [sa, sb],
                 clearance: c,
                 closest: who.map(|s| s.index),
             });
@@ -297,9 +318,31 @@ mod tests {
         let c60 = at(60.0, 0.0).unwrap_err();
         assert!(c45.by.index == 1 && c45.clearance < c60.clearance && c60.clearance < 0.0);
         let w75 = at(75.0, 0.0).unwrap();
-        assert!(w75.shift == 0.0 && w75.clearance > 0.5e-6, "{w75:?}");
+        assert!(w75.shift == [0.0, 0.0] && w75.clearance > 0.5e-6, "{w75:?}");
+        // Raised aims pass over a partner straight behind that blocks the centred way
+        // by less than they raise the glass (and move it no further sideways).
+        let mut raised = 0;
+        for deg in [45.0f64, 60.0] {
+            let p = PipetteParams {
+                angle: deg.to_radians(),
+                ..PipetteParams::default()
+            };
+            for rn in [5.5e-6, 6e-6, 7e-6, 8e-6, 10e-6] {
+                let h = ((rt + rn) * (rt + rn) - (rn - rt) * (rn - rt)).sqrt();
+                let behind = Sphere {
+                    centre: [0.0, floor + rn, -h],
+                    radius: rn,
+                    ..partner
+                };
+                if let (Err(_), Ok(w)) = (go(&p, behind, 0.0), go(&p, behind, 0.45)) {
+                    assert!(w.shift[0] == 0.0 && w.shift[1] > 0.0, "{deg} {rn}: {w:?}");
+                    raised += 1;
+                }
+            }
+        }
+        assert!(raised > 0);
         // A partner a little to the side: where the centred way grazes it, an aim
-        // shifted away from it (never towards it) clears.
+        // moved away from it (never towards it) clears.
         let p = PipetteParams::default();
         let mut rescued = 0;
         for bearing in (5..=60).step_by(5) {
@@ -313,7 +356,7 @@ mod tests {
                 };
                 if let (Err(_), Ok(w)) = (go(&p, partner, 0.0), go(&p, partner, 0.3)) {
                     assert!(
-                        w.shift < 0.0 && w.clearance > 0.5e-6,
+                        w.shift[0] <= 0.0 && w.clearance > 0.5e-6,
                         "{bearing} {rn}: {w:?}"
                     );
                     rescued += 1;

@@ -107,9 +107,10 @@ pub struct Options {
     pub stage_deadline: f64,
     /// Excitation samples (1 ms apart) of the hysteresis identification.
     pub hysteresis_samples: usize,
-    /// Farthest the aim may move sideways off the cell's centre, fraction of its
-    /// radius, to pass a touching neighbour that blocks the straight approach; keep it
-    /// below the membrane's tear limit with room for the tip error.
+    /// Farthest the aim may move off the cell's centre across the pipette's axis
+    /// (sideways or up), fraction of its radius, for the glass to pass a neighbour
+    /// that blocks the centred approach; keep it below the membrane's tear limit with
+    /// room for the tip error.
     pub max_off_centre: f64,
     /// s of device time between two re-checks of the background and the
     /// image-to-stage map (the bench drifts with temperature); 0: only after a fault.
@@ -673,6 +674,11 @@ pub struct Workflow<'r, B: Backend> {
     jacobian: [[f64; 2]; 2],
     /// m, A1's and A2's travels.
     travel_a12: [f64; 2],
+    /// m, the stage height that puts the tip in the focal plane with the stacks held
+    /// at their zero: the option's focus, less the tip's drop along the optical axis
+    /// since the run started (A1 and A2 held where the identification of their
+    /// hysteresis left them, through the mechanism's Jacobian).
+    focus: f64,
     /// m, the surveyed cells' mean diameter: the plate is focused on their equators,
     /// so a cell of diameter d has its centre (d - mean) / 2 above the focal plane.
     mean_diameter: f64,
@@ -786,6 +792,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 }
             })?,
             travel_a12: [design.actuators[0].travel, design.actuators[1].travel],
+            focus: options.focus,
             mean_diameter: 0.0,
             state: State::Start,
             log: Vec::new(),
@@ -1305,6 +1312,15 @@ impl<'r, B: Backend> Workflow<'r, B> {
         for axis in 0..3 {
             self.home[axis] = self.rig.stage.position(axis).map_err(dev("stage"))?;
         }
+        // Where the stacks stand as the run starts (the optics focused on the tip).
+        let mut start = [0.0; 2];
+        for (k, z) in start.iter_mut().enumerate() {
+            let mut s = 0.0;
+            for _ in 0..20 {
+                s += self.rig.sensors[k].read().map_err(dev("stack sensor"))?;
+            }
+            *z = s / 20.0;
+        }
         let lift = self.options.focus + self.options.lift;
         self.rig.stage.move_to(1, lift).map_err(dev("stage lift"))?;
         self.rig.clock.sleep(0.3).map_err(dev("clock"))?;
@@ -1391,6 +1407,19 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 s += self.rig.sensors[k].read().map_err(dev("stack sensor"))?;
             }
             *z = s / 20.0;
+        }
+        // The stacks now rest where the identification left them (remanence): the tip
+        // stands that much higher or lower, and the stage makes up for it.
+        let j = self.jacobian;
+        let drop = j[1][0] * (zero[0] - start[0]) + j[1][1] * (zero[1] - start[1]);
+        self.focus = self.options.focus - drop;
+        if drop.abs() > 0.05e-6 {
+            why.push(format!(
+                "the tip rests {:.2} um {} than at the start: focus height {:.2} um",
+                drop.abs() * 1e6,
+                if drop < 0.0 { "lower" } else { "higher" },
+                self.focus * 1e6
+            ));
         }
         let a3_vmax = self.rig.piezo[2].voltage_range().1;
         self.servo = Some(Servo {
@@ -1560,7 +1589,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
         for p in [
             [None, Some(lift), None],
             [Some(s[0]), None, Some(s[1])],
-            [None, Some(self.options.focus), None],
+            [None, Some(self.focus), None],
         ] {
             if let Err(e) = self.stage_to(p)? {
                 return Ok(Err(e));
@@ -1729,7 +1758,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
         // A1 and A3 in the image: 1 um of A1 extension, A3_PROBE of A3, from rest; per metre
         // of extension as the stacks' own sensors read it.
         self.stage_to([Some(s0[0]), None, Some(s0[1])])?.ok();
-        self.stage_to([None, Some(self.options.focus), None])?.ok();
+        self.stage_to([None, Some(self.focus), None])?.ok();
         let mut dir = [[0.0; 2]; 2];
         for (k, (e, what)) in [(1e-6, "A1"), (A3_PROBE, "A3")].into_iter().enumerate() {
             let ch = if k == 0 { 0 } else { 2 };
@@ -1749,8 +1778,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 0.0
             };
             if drop > 0.0 {
-                self.stage_to([None, Some(self.options.focus + drop), None])?
-                    .ok();
+                self.stage_to([None, Some(self.focus + drop), None])?.ok();
             }
             let Some(p0) = self.tip_full_at(3, drop == 0.0)? else {
                 return Ok(Err(format!("the tip was lost before {what} moved")));
@@ -2375,7 +2403,20 @@ impl<B: Backend> Workflow<'_, B> {
             o.max_off_centre,
             0.5e-6,
         );
-        let shift = match way {
+        let clears = match way {
+            Ok(approach::Way {
+                clearance,
+                closest: Some(k),
+                ..
+            }) if clearance < 20e-6 => {
+                format!(
+                    "; the glass passes cell {k} {:.1} um clear",
+                    clearance * 1e6
+                )
+            }
+            _ => String::new(),
+        };
+        let [shift, raise] = match way {
             Ok(w) => w.shift,
             Err(b) => {
                 return Err(Fail::Blocked(format!(
@@ -2396,15 +2437,23 @@ impl<B: Backend> Workflow<'_, B> {
             }
         };
         let (sin, cos) = self.pipette.angle.sin_cos();
+        // A raised aim lies `raise` across the axis in its vertical plane: up by its
+        // cosine, forward by its sine.
+        let aim = [
+            c[0] + d1[0] * shift + d3[0] * raise * sin,
+            c[1] + d1[1] * shift + d3[1] * raise * sin,
+        ];
         // The start: `back` up the axis from the aim, `lead` short across.
         let start = [
-            c[0] + d1[0] * (shift - lead) - d3[0] * back * cos,
-            c[1] + d1[1] * (shift - lead) - d3[1] * back * cos,
+            aim[0] - d1[0] * lead - d3[0] * back * cos,
+            aim[1] - d1[1] * lead - d3[1] * back * cos,
         ];
-        let start_height = o.focus + height(a.target.diameter_m) + back * sin;
+        let start_height = self.focus + height(a.target.diameter_m) + raise * cos + back * sin;
         // Where the tip goes in the image, relative to the cell's centre (pixels).
-        let u1 = unit(map.a1);
-        let aim_off = [u1[0] * shift / pix, u1[1] * shift / pix];
+        let aim_off = {
+            let (p, q) = (map.pixel_of(aim), map.pixel_of(c));
+            [p[0] - q[0], p[1] - q[1]]
+        };
         // Lift, travel, lower.
         let t0 = self.now();
         let lift = self.home[1];
@@ -2418,9 +2467,9 @@ impl<B: Backend> Workflow<'_, B> {
             }
         }
         let why = format!(
-            "tip {:.1} um before the membrane along the pipette, {:.1} um above the focus, after {:.2} s",
+            "tip {:.1} um before the membrane along the pipette, {:.1} um above the focus, after {:.2} s{clears}",
             o.gap * 1e6,
-            (start_height - o.focus) * 1e6,
+            (start_height - self.focus) * 1e6,
             self.now() - t0
         );
         self.fire(Event::StageArrived, why, obs, Some(&mut a.transitions))
@@ -2505,8 +2554,8 @@ impl<B: Backend> Workflow<'_, B> {
             // a few um sideways, still outside the cell), and look again.
             let c = map.stage_of(cell_px);
             let start = [
-                c[0] + d1[0] * (shift - lead) - d3[0] * back * cos,
-                c[1] + d1[1] * (shift - lead) - d3[1] * back * cos,
+                c[0] + d1[0] * (shift - lead) + d3[0] * (raise * sin - back * cos),
+                c[1] + d1[1] * (shift - lead) + d3[1] * (raise * sin - back * cos),
             ];
             if let Err(e) = self.stage_to([Some(start[0]), None, Some(start[1])])? {
                 return Err(Fail::Cell(e));
