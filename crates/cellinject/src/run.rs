@@ -186,6 +186,21 @@ struct Summary {
     /// twin's truth; absent on hardware and from `runs show`).
     #[serde(skip_serializing_if = "Option::is_none")]
     grazed: Option<u32>,
+    /// The fields' planes of best focus this command measured (absent from `runs
+    /// show`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    focus: Vec<FocusRow>,
+}
+
+/// A field's focus as measured, and on the twin how far it is from the truth.
+#[derive(Debug, Serialize)]
+struct FocusRow {
+    #[serde(flatten)]
+    focus: cellinject_core::inject::FieldFocus,
+    /// m, the twin's truth: the largest distance over the field's cells between the
+    /// floor's height the plane puts under them and its true height.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    true_error_m: Option<f64>,
 }
 
 fn summary(run: &RunRow, attempts: Vec<AttemptRow>, events: Vec<EventRow>) -> Summary {
@@ -210,6 +225,7 @@ fn summary(run: &RunRow, attempts: Vec<AttemptRow>, events: Vec<EventRow>) -> Su
         attempts,
         events,
         grazed: None,
+        focus: Vec::new(),
     }
 }
 
@@ -724,6 +740,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         let o = wire.take().expect("opened before the database");
         (None, o.rig)
     };
+    let truth = twin.clone();
     let job = Job {
         d,
         options,
@@ -749,6 +766,14 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             .filter_map(|a| a.truth.grazed)
             .collect();
         s.grazed = (!g.is_empty()).then(|| g.iter().sum());
+        s.focus = report
+            .focus
+            .iter()
+            .map(|f| FocusRow {
+                focus: *f,
+                true_error_m: truth.as_ref().map(|t| focus_error(t, &plate, f)),
+            })
+            .collect();
     }
     if let Err(e) = &result
         && matches!(
@@ -1023,6 +1048,30 @@ pub(crate) fn open_existing(p: &Path) -> Result<Records> {
         .into());
     }
     Records::open(p).map_err(records_error)
+}
+
+/// m, the largest distance over the cells of field `f` (the plate's true cells in
+/// its rectangle; its centre if it holds none) between the floor's height its plane of
+/// focus gives and the twin's truth, the feeder at the plane's height.
+fn focus_error(
+    twin: &cellinject_twin::SharedTwin,
+    plate: &cellinject_plate::Plate,
+    f: &cellinject_core::inject::FieldFocus,
+) -> f64 {
+    let surface = twin.lock().unwrap_or_else(|e| e.into_inner()).surface();
+    let r = f.rect_m;
+    let mut at: Vec<[f64; 2]> = plate
+        .cells
+        .iter()
+        .map(|c| plate.centre(c))
+        .filter(|p| p[0] >= r[0] && p[0] <= r[2] && p[1] >= r[1] && p[1] <= r[3])
+        .collect();
+    if at.is_empty() {
+        at.push(f.centre_m);
+    }
+    at.iter()
+        .map(|&p| (f.feeder_z_m + surface.height(p) - f.floor_at(p)).abs())
+        .fold(0.0, f64::max)
 }
 
 #[cfg(test)]

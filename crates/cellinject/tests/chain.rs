@@ -93,7 +93,14 @@ fn a_50_nm_step_of_a3_is_resolved_through_the_camera() {
         sigma * 1e9,
         measured / sigma
     );
-    assert!(truth > 30e-9 && truth < 70e-9, "{truth}");
+    // A3 drives the tip down the pipette's axis: the camera sees the step's
+    // component along the plate, 50 nm times the cosine of the pipette's angle (the
+    // stack's creep and the amplifier's quantisation change it by some percent).
+    let along = 50e-9 * cellinject_rig::PipetteParams::default().angle.cos();
+    assert!(
+        truth > 0.7 * along && truth < 1.3 * along,
+        "{truth} vs {along}"
+    );
     // The difference of two 10-frame means has a standard error of sigma·√(2/10).
     assert!(
         (measured - truth).abs() < 3.0 * sigma * (0.2f64).sqrt(),

@@ -30,6 +30,7 @@ use std::collections::VecDeque;
 
 use thiserror::Error;
 
+pub mod focus;
 pub mod tip;
 
 /// Why an image could not be searched.

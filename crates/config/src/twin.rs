@@ -236,6 +236,12 @@ pub(crate) fn bench(
             offset: s.arr("offset", d.offset, Check::Between(-0.1, 0.1))?,
             empty_fraction: s.num("empty_fraction", d.empty_fraction, Check::Between(0.0, 1.0))?,
             debris_density: s.num("debris_density", d.debris_density, Check::Between(0.0, 1e5))?,
+            surface_tilt: s.num("surface_tilt", d.surface_tilt, Check::Between(0.0, 0.02))?,
+            surface_curvature: s.num(
+                "surface_curvature",
+                d.surface_curvature,
+                Check::Between(0.0, 10.0),
+            )?,
         })
     })?;
     let mut injector_max_pressure = r.injector_max_pressure;

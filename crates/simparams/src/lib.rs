@@ -332,6 +332,14 @@ pub struct FeederParams {
     pub empty_fraction: f64,
     /// Debris particles per square millimetre.
     pub debris_density: f64,
+    /// m/m, how steeply a loaded plate's floor is tilted (the twin draws a direction
+    /// and 0.5-1 times this magnitude from its seed): the focus differs across the
+    /// plate by this much per metre.
+    pub surface_tilt: f64,
+    /// 1/m, how much a loaded plate's floor is bowed (the twin draws a sign and 0.5-1
+    /// times this curvature from its seed): the floor rises or sags by half of it
+    /// times the squared distance from the plate's centre.
+    pub surface_curvature: f64,
 }
 
 impl Default for FeederParams {
@@ -344,6 +352,8 @@ impl Default for FeederParams {
             offset: [-300.0e-6, 60.0e-6],
             empty_fraction: 0.1,
             debris_density: 150.0,
+            surface_tilt: 3.0e-3,
+            surface_curvature: 0.4,
         }
     }
 }

@@ -21,6 +21,7 @@ use cellinject_rig::params::OpticsSetup;
 
 use crate::params::{CameraParams, LensParams};
 use crate::scene::Scene;
+use crate::surface::PlateSurface;
 use crate::world::stream;
 use cellinject_numeric::Rng;
 
@@ -256,6 +257,8 @@ pub struct Microscope {
     plate_offset: [f64; 3],
     /// How the pipette's glass lies in this view.
     pipette: PipetteView,
+    /// The plate's floor: each feature is defocused by its own height.
+    surface: PlateSurface,
 }
 
 /// Resolution of the magnification's thermal drift: the static layer is drawn again
@@ -299,6 +302,16 @@ impl Microscope {
             dark_frames: 0,
             scale: 1.0,
             plate_offset: [0.0; 3],
+            surface: PlateSurface::FLAT,
+        }
+    }
+
+    /// The plate's floor (tilted and bowed): each cell, wall and particle is
+    /// defocused by its own height; the static layer is drawn again.
+    pub fn set_surface(&mut self, surface: PlateSurface) {
+        if surface != self.surface {
+            self.surface = surface;
+            self.static_grid = None;
         }
     }
 
@@ -317,17 +330,29 @@ impl Microscope {
         self.plate_offset
     }
 
-    /// The blur of the plate's features, m: the lens's, plus its defocus rate times
-    /// the plate's depth from the focal plane (as the pipette's).
-    fn plate_blur(&self) -> f64 {
-        self.optics.focus_blur + self.optics.defocus_rate * self.plate_offset[2].abs()
+    /// The blur of the plate's features at plate point `at`, m: the lens's, plus its
+    /// defocus rate times the floor's distance from the focal plane there (as the
+    /// pipette's).
+    fn plate_blur(&self, at: [f64; 2]) -> f64 {
+        let depth = self.plate_offset[2] + self.surface.height(at);
+        self.optics.focus_blur + self.optics.defocus_rate * depth.abs()
     }
 
-    /// The membrane ring's contrast relative to in focus: a defocused ring spreads its
-    /// darkness (a line's profile keeps its integral), 1 exactly in focus.
-    fn ring_gain(&self) -> f32 {
+    /// The membrane ring's contrast relative to in focus for a plate blur `blur`: a
+    /// defocused ring spreads its darkness (a line's profile keeps its integral), 1
+    /// exactly in focus.
+    fn ring_gain(&self, blur: f64) -> f32 {
         let (w, f) = (0.5e-6f64, self.optics.focus_blur);
-        ((w * w + f * f) / (w * w + self.plate_blur().powi(2))).sqrt() as f32
+        ((w * w + f * f) / (w * w + blur * blur)).sqrt() as f32
+    }
+
+    /// Squared blur of the plate at `at` on grid `g` (the pixels' own width
+    /// included), its square root, and the membrane ring's width and gain.
+    fn plate_sigma(&self, g: &Grid, at: [f64; 2]) -> (f64, f64, (f64, f32)) {
+        let b = self.plate_blur(at);
+        let blur2 = b * b + g.pitch * g.pitch / 12.0;
+        let ring = (2.0 * (0.5e-6f64.powi(2) + blur2), self.ring_gain(b));
+        (blur2, blur2.sqrt(), ring)
     }
 
     /// The grid `g` in the plate's frame: the scene's plate positions map onto it.
@@ -533,13 +558,15 @@ impl Microscope {
                 *o = gz * x;
             }
         }
-        let blur2 = self.plate_blur().powi(2) + g.pitch * g.pitch / 12.0;
-        let sigma = blur2.sqrt();
-        // The plate's walls, cells and debris, where the feeder has moved them.
+        // The plate's walls, cells and debris, where the feeder has moved them, each
+        // defocused by the floor's height under it.
         let g = &self.plate_grid(g);
         let f = self.scene.feeder;
-        // Feeder walls: faint lines between the wells.
-        let wall_sigma = (0.6e-6f64.powi(2) + blur2).sqrt();
+        // Feeder walls: faint lines between the wells, one well's side at a time.
+        let wall_sigma = |cam: &Self, at: [f64; 2]| {
+            let (blur2, _, _) = cam.plate_sigma(g, at);
+            (0.6e-6f64.powi(2) + blur2).sqrt()
+        };
         let (zx0, zx1) = (
             f.offset[1] - 0.5 * f.pitch,
             f.offset[1] + (f.rows as f64 - 0.5) * f.pitch,
@@ -550,21 +577,30 @@ impl Microscope {
         );
         let feeder_cols = if f.rows > 0 { f.cols + 1 } else { 0 };
         let feeder_rows = if f.cols > 0 { f.rows + 1 } else { 0 };
+        let mut sigmas = Vec::new();
         for k in 0..feeder_cols {
             let xk = xx0 + k as f64 * f.pitch;
-            self.multiply_line(g, true, xk, wall_sigma, 0.10, zx0, zx1);
+            sigmas.clear();
+            sigmas.extend(
+                (0..f.rows).map(|r| wall_sigma(self, [xk, f.offset[1] + r as f64 * f.pitch])),
+            );
+            self.multiply_wall(g, true, xk, &sigmas, f.pitch, zx0, zx1);
         }
         for k in 0..feeder_rows {
             let zk = zx0 + k as f64 * f.pitch;
-            self.multiply_line(g, false, zk, wall_sigma, 0.10, xx0, xx1);
+            sigmas.clear();
+            sigmas.extend(
+                (0..f.cols).map(|c| wall_sigma(self, [f.offset[0] + c as f64 * f.pitch, zk])),
+            );
+            self.multiply_wall(g, false, zk, &sigmas, f.pitch, xx0, xx1);
         }
         // Cells: cytoplasm, membrane ring, nucleus.
         let cells = self.scene.cells.clone();
         for c in &cells {
+            let (_, sigma, ring) = self.plate_sigma(g, [c.x, c.z]);
             let reach = c.radius + 4.0 * sigma + 2e-6;
             let (i0, i1) = span(g.x0, g.pitch, g.width, c.x - reach, c.x + reach);
             let (j0, j1) = span(g.z0, g.pitch, g.height, c.z - reach, c.z + reach);
-            let ring = (2.0 * (0.5e-6f64.powi(2) + blur2), self.ring_gain());
             for j in j0..j1 {
                 let dz = g.z0 + j as f64 * g.pitch - c.z;
                 let row = &mut self.static_layer[j * g.width..(j + 1) * g.width];
@@ -577,6 +613,7 @@ impl Microscope {
         // Debris: small dark Gaussian spots.
         let debris = self.scene.debris.clone();
         for d in &debris {
+            let (blur2, _, _) = self.plate_sigma(g, [d.x, d.z]);
             let sd = (d.sigma * d.sigma + blur2).sqrt();
             let amp = (d.depth * d.sigma * d.sigma / (sd * sd)) as f32;
             self.splat(g, d.x, d.z, sd, sd, amp, true);
@@ -584,9 +621,52 @@ impl Microscope {
         self.static_grid = Some(*g);
     }
 
-    /// Multiplies a straight dark line (vertical at x = `pos` if `vertical`) between
-    /// `from` and `to` along it.
+    /// Multiplies a wall (a straight dark line, vertical at x = `pos` if `vertical`,
+    /// from `from` to `to` along it) made of segments `seg` long, segment `k` blurred
+    /// by `sigmas[k]`: each pixel along the line is darkened once, by its segment's
+    /// profile.
     #[allow(clippy::too_many_arguments)]
+    fn multiply_wall(
+        &mut self,
+        g: &Grid,
+        vertical: bool,
+        pos: f64,
+        sigmas: &[f64],
+        seg: f64,
+        from: f64,
+        to: f64,
+    ) {
+        let (c0, n) = if vertical {
+            (g.z0, g.height)
+        } else {
+            (g.x0, g.width)
+        };
+        let (a0, a1) = span(c0, g.pitch, n, from, to);
+        let Some(&first) = sigmas.first() else {
+            return;
+        };
+        if sigmas.iter().all(|&s| s == first) {
+            self.multiply_line(g, vertical, pos, first, 0.10, (a0, a1));
+            return;
+        }
+        let mut start = a0;
+        for (k, &sigma) in sigmas.iter().enumerate() {
+            let end = if k + 1 == sigmas.len() {
+                a1
+            } else {
+                // The first pixel at or past the segment's end.
+                let b = ((from + (k + 1) as f64 * seg - c0) / g.pitch).ceil();
+                (b.max(0.0) as usize).clamp(start, a1)
+            };
+            if end > start {
+                self.multiply_line(g, vertical, pos, sigma, 0.10, (start, end));
+            }
+            start = end;
+        }
+    }
+
+    /// Multiplies a straight dark line (vertical at x = `pos` if `vertical`) over the
+    /// pixels `along` (rows if vertical, else columns).
     fn multiply_line(
         &mut self,
         g: &Grid,
@@ -594,13 +674,12 @@ impl Microscope {
         pos: f64,
         sigma: f64,
         depth: f32,
-        from: f64,
-        to: f64,
+        along: (usize, usize),
     ) {
         let reach = 4.0 * sigma;
         if vertical {
             let (i0, i1) = span(g.x0, g.pitch, g.width, pos - reach, pos + reach);
-            let (j0, j1) = span(g.z0, g.pitch, g.height, from, to);
+            let (j0, j1) = along;
             gauss_row(&mut self.scratch_x, g.x0, g.pitch, i0, i1, pos, sigma);
             for j in j0..j1 {
                 let row = &mut self.static_layer[j * g.width + i0..j * g.width + i1];
@@ -610,7 +689,7 @@ impl Microscope {
             }
         } else {
             let (j0, j1) = span(g.z0, g.pitch, g.height, pos - reach, pos + reach);
-            let (i0, i1) = span(g.x0, g.pitch, g.width, from, to);
+            let (i0, i1) = along;
             gauss_row(&mut self.scratch_z, g.z0, g.pitch, j0, j1, pos, sigma);
             for (k, j) in (j0..j1).enumerate() {
                 let a = depth * self.scratch_z[k];
@@ -651,14 +730,12 @@ impl Microscope {
         if self.looks.is_empty() {
             return;
         }
-        let blur2 = self.plate_blur().powi(2) + g.pitch * g.pitch / 12.0;
-        let sigma = blur2.sqrt();
-        let ring = (2.0 * (0.5e-6f64.powi(2) + blur2), self.ring_gain());
         let g = &self.plate_grid(g);
         for (k, look) in &self.looks {
             let Some(c) = self.scene.cells.get(*k) else {
                 continue;
             };
+            let (_, sigma, ring) = self.plate_sigma(g, [c.x, c.z]);
             let reach = c.radius * look.scale.max(1.0)
                 + look.offset[0].abs().max(look.offset[1].abs())
                 + 4.0 * sigma

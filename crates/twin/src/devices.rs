@@ -18,6 +18,7 @@ use cellinject_rig::{Backend, Devices, Rig, RigError};
 use crate::biology::{Biology, Fault};
 use crate::camera::{Grid, Microscope, PipetteView, TipPose};
 use crate::scene::Scene;
+use crate::surface::PlateSurface;
 pub use crate::world::TwinParams;
 use crate::world::{TwinError, World};
 
@@ -64,6 +65,8 @@ pub struct Twin {
     pulse_rng: Rng,
     /// Frames rendered by [`Twin::peek`].
     peeks: u64,
+    /// The loaded plate's floor (flat without a plate).
+    surface: PlateSurface,
 }
 
 /// A twin shared by its device handles.
@@ -80,6 +83,21 @@ impl Twin {
         let params = *self.world.params();
         let seed = params.sim.seed;
         self.camera.set_scene(Scene::from_plate(plate, seed));
+        // The floor tilted and bowed about the plate's centre: the feeder must focus
+        // each field.
+        let q = 0.5 * plate.pitch;
+        let extent = [
+            plate.origin[0] - q,
+            plate.origin[1] - q,
+            plate.origin[0] + plate.cols.saturating_sub(1) as f64 * plate.pitch + q,
+            plate.origin[1] + plate.rows.saturating_sub(1) as f64 * plate.pitch + q,
+        ];
+        self.surface = PlateSurface::draw(
+            &params.sim.feeder,
+            extent,
+            &mut Rng::new(seed, crate::world::stream::SURFACE),
+        );
+        self.camera.set_surface(self.surface);
         let mut rng = Rng::new(seed, crate::world::stream::BIOLOGY);
         self.biology = Some(Biology::new(
             params.sim.biology,
@@ -147,7 +165,8 @@ impl Twin {
         let o = self.plate_offset();
         tip.x -= o[0];
         tip.z -= o[1];
-        tip.depth -= o[2];
+        // The floor under the tip stands `surface` higher (flat at a cell's scale).
+        tip.depth -= o[2] + self.surface.height([tip.x, tip.z]);
         if let Some(b) = self.biology.as_mut() {
             let fx = b.interact(&tip);
             if fx.dark_frames > 0 {
@@ -215,6 +234,7 @@ impl Twin {
             biology: None,
             pulse_rng: Rng::new(sim.seed, crate::world::stream::PULSES),
             peeks: 0,
+            surface: PlateSurface::FLAT,
         })
     }
 
@@ -227,6 +247,13 @@ impl Twin {
             self.world.feeder.true_position(1),
             self.world.feeder.true_position(2),
         ]
+    }
+
+    /// The loaded plate's floor: how much higher than at the plate's centre it lies
+    /// at each plate point ([`PlateSurface::FLAT`] without a plate). The truth a
+    /// focusing routine is measured against.
+    pub fn surface(&self) -> PlateSurface {
+        self.surface
     }
 
     /// Where the pipette tip is in the object plane now (stage plus end-effector,

@@ -18,6 +18,7 @@ pub mod dynamics;
 pub mod piezo;
 pub mod scene;
 pub mod stage;
+pub mod surface;
 pub mod world;
 
 /// The twin's random generator (crate `cellinject-numeric`).
@@ -30,4 +31,5 @@ pub use camera::{CellLook, Grid, Microscope, PipetteView, TipPose};
 pub use devices::{
     SharedTwin, Twin, TwinBackend, TwinCamera, TwinParams, View, devices, dyn_rig, guarded, rig,
 };
+pub use surface::PlateSurface;
 pub use world::{Snapshot, TwinError, World};

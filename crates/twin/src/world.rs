@@ -33,6 +33,8 @@ pub(crate) mod stream {
     pub const PULSES: u64 = 12;
     /// A live display's copy of the microscope ([`crate::Twin::view_camera`]).
     pub const VIEW: u64 = 13;
+    /// A loaded plate's floor (its tilt and bow).
+    pub const SURFACE: u64 = 14;
 }
 
 /// Why a twin could not be built.

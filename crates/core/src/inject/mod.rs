@@ -45,6 +45,25 @@ const RETRACT_TIMEOUT: f64 = 2.0;
 /// the line between two wells stays clear of every cell (they lie within their wells).
 const A3_PROBE: f64 = 20e-6;
 
+/// m, half the range of the first field's focus sweep: a plate's floor may lie this
+/// far from the focal plane where it is loaded.
+const FOCUS_RANGE: f64 = 40e-6;
+
+/// m, how close a field's centre must lie to one focused before for that field's
+/// plane to serve it, extended (the plan made on the measured image map moves the
+/// first field by some micrometres from the one the calibration focused).
+const FOCUS_REUSE: f64 = 0.25e-3;
+
+/// Binning of the focus frames the tiles' foci are read from.
+const FOCUS_BINNING: u32 = 2;
+
+/// Tiles (columns, rows) of a focus frame: each gives the floor's focus at its centre.
+const FOCUS_TILES: [usize; 2] = [3, 3];
+
+/// s, waited after each step of the feeder's height before a focus frame (its
+/// residual vibration).
+const FOCUS_SETTLE: f64 = 0.05;
+
 /// Mean |frame / background - 1| over a cell's disc below which it has not moved
 /// since the background was taken (the sensor's noise gives 0.015; a move of 1.5 um
 /// leaves rims several times that).
@@ -518,6 +537,8 @@ pub struct RunReport {
     pub attempts: Vec<Attempt>,
     /// The transitions outside attempts (calibration, survey, the end).
     pub transitions: Vec<Transition>,
+    /// The fields' planes of best focus, in the order they were measured.
+    pub focus: Vec<FieldFocus>,
 }
 
 /// The closed loops that hold the stacks: A1/A2 in the control crate's sensor loop
@@ -716,6 +737,49 @@ pub struct Workflow<'r, B: Backend> {
     feeder_at: [f64; 2],
     /// The field each surveyed cell is injected in, by the cell's index.
     target_field: Vec<usize>,
+    /// The planes of best focus measured so far, one per field focused (plate
+    /// coordinates; `z` the feeder height that focuses the field's centre).
+    focused: Vec<FieldFocus>,
+    /// The current field's plane of best focus, once measured.
+    field_focus: Option<FieldFocus>,
+}
+
+/// A field's plane of best focus, from a through-focus sweep of the feeder's height
+/// (see `cellinject_cells::focus`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FieldFocus {
+    /// m, plate point (x, y) of the field's centre.
+    pub centre_m: [f64; 2],
+    /// m, the plate rectangle in view, `[x_lo, y_lo, x_hi, y_hi]`.
+    pub rect_m: [f64; 4],
+    /// m, the feeder height that brings the floor at the centre into focus.
+    pub feeder_z_m: f64,
+    /// m/m, how much higher the feeder must go per metre along plate x and y to focus
+    /// the floor there (the floor falls by as much).
+    pub slope: [f64; 2],
+    /// Tiles of the frame whose focus the plane rests on (0: the whole frame's focus,
+    /// no tilt measured).
+    pub tiles: usize,
+    /// m, rms distance of those tiles' foci from the plane.
+    pub residual_m: f64,
+    /// Frames the sweep took (0: the plane of a field focused before, centred within
+    /// 0.25 mm of this one, extended to it).
+    pub frames: usize,
+}
+
+impl FieldFocus {
+    /// m, the feeder height that focuses plate point `p`.
+    pub fn feeder_z_at(&self, p: [f64; 2]) -> f64 {
+        self.feeder_z_m
+            + self.slope[0] * (p[0] - self.centre_m[0])
+            + self.slope[1] * (p[1] - self.centre_m[1])
+    }
+
+    /// m, how far above the focal plane the floor at plate point `p` stands with
+    /// the feeder at this field's height.
+    pub fn floor_at(&self, p: [f64; 2]) -> f64 {
+        self.feeder_z_m - self.feeder_z_at(p)
+    }
 }
 
 /// Why an attempt was skipped (the cell not touched), for what follows it.
@@ -824,6 +888,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
             field: None,
             feeder_at: [0.0; 2],
             target_field: Vec::new(),
+            focused: Vec::new(),
+            field_focus: None,
         })
     }
 
@@ -1020,6 +1086,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 map: self.map,
                 attempts,
                 transitions: std::mem::take(&mut self.log),
+                focus: self.focused.clone(),
             },
             cal,
         ))
@@ -1052,9 +1119,10 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let of = self.plan.as_ref().map_or(1, |p| p.fields.len());
         obs.field(k, of, field.rect, self.feeder_at);
         let r = format!(
-            "field {k} under the objective (feeder at {:.3}, {:.3} mm; {:.1} s)",
+            "field {k} under the objective (feeder at {:.3}, {:.3} mm{}; {:.1} s)",
             self.feeder_at[0] * 1e3,
             self.feeder_at[1] * 1e3,
+            self.focus_note(),
             self.now() - t0
         );
         self.fire(Event::FieldReached, r, obs, None)?;
@@ -1225,6 +1293,11 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 }
             }
         };
+        self.shoot_with(s)
+    }
+
+    /// A frame taken with camera settings `s`.
+    fn shoot_with(&mut self, s: CameraSettings) -> Result<Shot, WorkflowError> {
         if self.rig.camera.settings() != s {
             self.rig.camera.configure(s).map_err(dev("camera"))?;
         }
@@ -1513,6 +1586,29 @@ impl<'r, B: Backend> Workflow<'r, B> {
         }
         if let Err(e) = self.stage_to([Some(away), Some(lift), None])? {
             return Ok(Err(format!("the pipette cannot be moved out of view: {e}")));
+        }
+        if self.field_focus.is_none() {
+            // The plate moves up and down through focus: the pipette goes as much
+            // higher first.
+            let half = if self.focused.is_empty() {
+                FOCUS_RANGE
+            } else {
+                12e-6
+            };
+            // (a sweep moved three times goes 5.5 half-ranges from where it started).
+            if let Err(e) = self.stage_to([None, Some(lift + 6.0 * half), None])? {
+                return Ok(Err(format!("the pipette cannot be lifted: {e}")));
+            }
+            match self.focus_field()? {
+                Ok(f) => {
+                    self.field_focus = Some(f);
+                    self.focused.push(f);
+                }
+                Err(e) => return Ok(Err(e)),
+            }
+            if let Err(e) = self.stage_to([None, Some(lift), None])? {
+                return Ok(Err(format!("the pipette cannot be lowered: {e}")));
+            }
         }
         let mean = |p: &[u16]| p.iter().map(|&v| v as f64).sum::<f64>() / p.len().max(1) as f64;
         // A background taken again must be lit like the first (a flicker of the lamp
@@ -1895,8 +1991,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
     fn bootstrap_plan(&mut self) -> Result<FieldPlan, WorkflowError> {
         let frame = self.rig.camera.grab().map_err(dev("camera"))?;
         let pixel = frame.pixel_size / self.rig.camera.settings().binning as f64;
+        let nominal = self.nominal_map(pixel);
+        let at = self.feeder_position()?;
+        self.plan_for(&nominal, BOOTSTRAP_MARGIN, at)
+    }
+
+    /// The image-to-stage map before it is measured: the frame's centre at the
+    /// stage's origin, image columns and rows along stage x and z, `pixel` m each.
+    fn nominal_map(&self, pixel: f64) -> ImageMap {
         let (sw, sh) = self.rig.camera.sensor_size();
-        let nominal = ImageMap {
+        ImageMap {
             pixel0: [0.5 * (sw as f64 - 1.0), 0.5 * (sh as f64 - 1.0)],
             stage0: [0.0, 0.0],
             b: [[1.0 / pixel, 0.0], [0.0, 1.0 / pixel]],
@@ -1904,9 +2008,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             a1: [0.0; 2],
             a3: [0.0; 2],
             pixel_size: pixel,
-        };
-        let at = self.feeder_position()?;
-        self.plan_for(&nominal, BOOTSTRAP_MARGIN, at)
+        }
     }
 
     /// m, where the feeder is (x, y).
@@ -1935,12 +2037,52 @@ impl<'r, B: Backend> Workflow<'r, B> {
             return Ok(Err(format!("the pipette cannot be lifted: {e}")));
         }
         let now = self.feeder_position()?;
+        let now_z = self.rig.feeder.position(2).map_err(dev("feeder stage"))?;
+        // The field's height: measured if it (or a field centred within FOCUS_REUSE of
+        // it, its plane extended) was focused, else predicted from the nearest field
+        // focused, else where the feeder stands.
+        let known = self
+            .focused
+            .iter()
+            .map(|f| {
+                (
+                    f,
+                    (f.centre_m[0] - field.centre[0]).hypot(f.centre_m[1] - field.centre[1]),
+                )
+            })
+            .filter(|(_, d)| *d < FOCUS_REUSE)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(f, d)| {
+                if d < 1e-6 {
+                    *f
+                } else {
+                    FieldFocus {
+                        centre_m: field.centre,
+                        rect_m: field.rect,
+                        feeder_z_m: f.feeder_z_at(field.centre),
+                        frames: 0,
+                        ..*f
+                    }
+                }
+            });
+        if let Some(k) = known
+            && k.frames == 0
+            && !self.focused.iter().any(|f| f.centre_m == k.centre_m)
+        {
+            self.focused.push(k);
+        }
+        let z = match known {
+            Some(f) => f.feeder_z_m,
+            None => self.predicted_focus(field.centre).unwrap_or(now_z),
+        };
+        self.field_focus = known;
         let far = (field.feeder[0] - now[0])
             .abs()
-            .max((field.feeder[1] - now[1]).abs());
+            .max((field.feeder[1] - now[1]).abs())
+            .max((z - now_z).abs());
         // Within the feeder's resolution: already there.
         if far > 0.05e-6 {
-            for (a, v) in field.feeder.iter().enumerate() {
+            for (a, v) in [field.feeder[0], field.feeder[1], z].iter().enumerate() {
                 if let Err(e) = self.rig.feeder.move_to(a, *v) {
                     return Ok(Err(format!(
                         "the feeder stage refused the move to field {} ({:.3}, {:.3}) mm: {e}",
@@ -1968,6 +2110,245 @@ impl<'r, B: Backend> Workflow<'r, B> {
         self.feeder_at = self.feeder_position()?;
         self.field = Some(field);
         Ok(Ok(()))
+    }
+
+    /// How the current field was focused, for the log.
+    fn focus_note(&self) -> String {
+        match self.field_focus {
+            Some(f) => format!(
+                ", height {:.1} um: the floor slopes {:.2} um/mm{}",
+                f.feeder_z_m * 1e6,
+                f.slope[0].hypot(f.slope[1]) * 1e3,
+                if f.tiles > 0 {
+                    format!(
+                        " ({} tiles, {:.2} um rms, {} focus frames)",
+                        f.tiles,
+                        f.residual_m * 1e6,
+                        f.frames
+                    )
+                } else {
+                    format!(" (whole frame, {} focus frames)", f.frames)
+                }
+            ),
+            None => String::new(),
+        }
+    }
+
+    /// m, the feeder height predicted to focus plate point `p`: the plane of the
+    /// nearest field focused, extended; `None` before any.
+    fn predicted_focus(&self, p: [f64; 2]) -> Option<f64> {
+        self.focused
+            .iter()
+            .min_by(|a, b| {
+                let d = |f: &FieldFocus| (f.centre_m[0] - p[0]).hypot(f.centre_m[1] - p[1]);
+                d(a).total_cmp(&d(b))
+            })
+            .map(|f| f.feeder_z_at(p))
+    }
+
+    /// m, how far above the focal plane the floor at plate point `p` stands in the
+    /// current field (its measured tilt; 0 before it is measured).
+    fn floor_at(&self, p: [f64; 2]) -> f64 {
+        self.field_focus.map_or(0.0, |f| f.floor_at(p))
+    }
+
+    /// Moves the feeder's height to `z` and waits for it to settle.
+    fn feeder_height(&mut self, z: f64) -> Result<Result<(), String>, WorkflowError> {
+        if let Err(e) = self.rig.feeder.move_to(2, z) {
+            return Ok(Err(format!(
+                "the feeder stage refused the height {:.1} um: {e}",
+                z * 1e6
+            )));
+        }
+        let t0 = self.now();
+        while self.rig.feeder.is_busy().map_err(dev("feeder stage"))? {
+            if self.now() - t0 > self.options.stage_deadline {
+                return Err(WorkflowError::Device {
+                    what: "feeder stage",
+                    source: HwError::Timeout {
+                        device: "feeder stage (missed its deadline)".into(),
+                        seconds: self.options.stage_deadline,
+                    },
+                });
+            }
+            self.idle(0.005)?;
+        }
+        self.idle(FOCUS_SETTLE)?;
+        Ok(Ok(()))
+    }
+
+    /// One frame of a focus sweep: the feeder's height moved to `z`, a whole frame
+    /// binned by `binning`, and its tiles' sharpness.
+    fn focus_sample(
+        &mut self,
+        z: f64,
+        binning: u32,
+    ) -> Result<Result<(f64, Vec<f64>), String>, WorkflowError> {
+        if let Err(e) = self.feeder_height(z)? {
+            return Ok(Err(e));
+        }
+        let full = self.settings_full.expect("full settings");
+        let shot = self.shoot_with(CameraSettings { binning, ..full })?;
+        let f = shot.frame;
+        let w = f.width as usize;
+        let sharp = cellinject_cells::focus::tile_sharpness(&f.pixels, w, FOCUS_TILES);
+        Ok(Ok((z, sharp)))
+    }
+
+    /// Focuses the current field (the pipette lifted out of view): the feeder's
+    /// height swept through focus in equal steps, a full frame at each; the frame cut
+    /// into 3 x 3 tiles, each tile's best focus the midpoint of its sharpness curve's
+    /// half-height crossings, the plane through them the field's tilt
+    /// (`cellinject_cells::focus`). The first field is swept over ±[`FOCUS_RANGE`] in
+    /// 4 um steps (frames binned 4 x 4), then again over ±8 um in 1.5 um steps about its peak; a later
+    /// one over ±12 um in 1.5 um steps about the height its nearest focused
+    /// neighbour's plane predicts. A peak beyond a sweep's end moves the sweep that way
+    /// (three times at most). The feeder ends at the plane's height at the field's
+    /// centre.
+    fn focus_field(&mut self) -> Result<Result<FieldFocus, String>, WorkflowError> {
+        use cellinject_cells::focus;
+        let field = self.field.expect("field");
+        let first = self.focused.is_empty();
+        let now_z = self.rig.feeder.position(2).map_err(dev("feeder stage"))?;
+        let mut centre = self.predicted_focus(field.centre).unwrap_or(now_z);
+        let mut frames = 0;
+        // (half range, step, binning): the first field's coarse pass binned 4 x 4 (a
+        // sixteenth of the pixels to move and read: the peak within a few um), the
+        // passes the tiles are read from binned 2 x 2 (a quarter).
+        let passes: &[(f64, f64, u32)] = if first {
+            &[(FOCUS_RANGE, 4e-6, 4), (8e-6, 1.5e-6, FOCUS_BINNING)]
+        } else {
+            &[(12e-6, 1.5e-6, FOCUS_BINNING)]
+        };
+        // The last pass's samples, by height: (z, each tile's sharpness).
+        let mut samples: Vec<(f64, Vec<f64>)> = Vec::new();
+        let mut whole = None;
+        let mut step = 0.0;
+        for &(half, dz, binning) in passes {
+            step = dz;
+            let mut shifts = 0;
+            loop {
+                let n = (2.0 * half / step).round() as usize + 1;
+                samples.clear();
+                for k in 0..n {
+                    match self.focus_sample(centre - half + k as f64 * step, binning)? {
+                        Ok(s) => samples.push(s),
+                        Err(e) => return Ok(Err(e)),
+                    }
+                    frames += 1;
+                }
+                let zs: Vec<f64> = samples.iter().map(|s| s.0).collect();
+                let total: Vec<f64> = samples.iter().map(|s| s.1.iter().sum()).collect();
+                match focus::peak(&zs, &total, focus::FRAME_CONTRAST) {
+                    Ok(p) => {
+                        centre = p.z;
+                        whole = Some(p);
+                        break;
+                    }
+                    Err(focus::FocusError::OutOfRange { side, .. }) if shifts < 3 => {
+                        shifts += 1;
+                        centre += if side == "above" { 1.5 } else { -1.5 } * half;
+                    }
+                    Err(e) => {
+                        return Ok(Err(format!(
+                            "field {} could not be focused: {e}",
+                            field.index
+                        )));
+                    }
+                }
+            }
+        }
+        let whole = whole.expect("a pass found the peak");
+        // A tile whose focus lies beyond an end (the floor tilted steeply across the
+        // field) extends the sweep on that side, up to FOCUS_RANGE from the peak.
+        let tiles = FOCUS_TILES[0] * FOCUS_TILES[1];
+        let curve = |samples: &[(f64, Vec<f64>)], t: usize| {
+            let zs: Vec<f64> = samples.iter().map(|s| s.0).collect();
+            let c: Vec<f64> = samples
+                .iter()
+                .map(|s| s.1.get(t).copied().unwrap_or(0.0))
+                .collect();
+            focus::peak(&zs, &c, focus::TILE_CONTRAST)
+        };
+        loop {
+            let (lo, hi) = (samples[0].0, samples[samples.len() - 1].0);
+            let (mut below, mut above) = (false, false);
+            for t in 0..tiles {
+                if let Err(focus::FocusError::OutOfRange { side, .. }) = curve(&samples, t) {
+                    below |= side == "below";
+                    above |= side == "above";
+                }
+            }
+            let below = below && whole.z - lo < FOCUS_RANGE;
+            let above = above && hi - whole.z < FOCUS_RANGE;
+            if !below && !above {
+                break;
+            }
+            for k in 1..=3 {
+                if below {
+                    match self.focus_sample(lo - k as f64 * step, FOCUS_BINNING)? {
+                        Ok(s) => samples.insert(0, s),
+                        Err(e) => return Ok(Err(e)),
+                    }
+                    frames += 1;
+                }
+                if above {
+                    match self.focus_sample(hi + k as f64 * step, FOCUS_BINNING)? {
+                        Ok(s) => samples.push(s),
+                        Err(e) => return Ok(Err(e)),
+                    }
+                    frames += 1;
+                }
+            }
+        }
+        // Each tile's focus where its sharpness comes from (read in a frame at the whole
+        // frame's focus), at that point of the plate.
+        if let Err(e) = self.feeder_height(whole.z)? {
+            return Ok(Err(e));
+        }
+        let full = self.shoot(None)?.frame;
+        frames += 1;
+        let at = focus::tile_centroids(&full.pixels, full.width as usize, FOCUS_TILES);
+        let map = self
+            .map
+            .unwrap_or_else(|| self.nominal_map(full.pixel_size));
+        let mut points = Vec::new();
+        for t in 0..tiles {
+            // A real focus curve spans several steps; noise peaks in one.
+            let Ok(p) = curve(&samples, t) else { continue };
+            if p.width < 2.0 * step {
+                continue;
+            }
+            let Some(&px) = at.get(t) else {
+                continue;
+            };
+            let st = map.stage_of(px);
+            points.push(([st[0] - self.feeder_at[0], st[1] - self.feeder_at[1]], p.z));
+        }
+        let result = match focus::fit_plane(&points, field.centre) {
+            Ok(plane) => FieldFocus {
+                centre_m: field.centre,
+                rect_m: field.rect,
+                feeder_z_m: plane.z,
+                slope: plane.slope,
+                tiles: plane.points,
+                residual_m: plane.residual,
+                frames,
+            },
+            Err(_) => FieldFocus {
+                centre_m: field.centre,
+                rect_m: field.rect,
+                feeder_z_m: whole.z,
+                slope: [0.0; 2],
+                tiles: 0,
+                residual_m: 0.0,
+                frames,
+            },
+        };
+        if let Err(e) = self.feeder_height(result.feeder_z_m)? {
+            return Ok(Err(e));
+        }
+        Ok(Ok(result))
     }
 
     /// The cells in the current field's background frame (the pipette out of view):
@@ -2026,7 +2407,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             obs.field(field.index, n, field.rect, self.feeder_at);
             let found = self.detect_field()?;
             let r = format!(
-                "field {} of {n} surveyed: plate x {:.3} to {:.3} mm, y {:.3} to {:.3} mm (feeder at {:.3}, {:.3} mm): {} cells whole in it",
+                "field {} of {n} surveyed: plate x {:.3} to {:.3} mm, y {:.3} to {:.3} mm (feeder at {:.3}, {:.3} mm{}): {} cells whole in it",
                 field.index,
                 field.rect[0] * 1e3,
                 field.rect[2] * 1e3,
@@ -2034,6 +2415,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 field.rect[3] * 1e3,
                 self.feeder_at[0] * 1e3,
                 self.feeder_at[1] * 1e3,
+                self.focus_note(),
                 found.len()
             );
             self.fire(Event::FieldReached, r, obs, None)?;
@@ -2390,11 +2772,17 @@ impl<B: Backend> Workflow<'_, B> {
         // `depth_limit` radii past the centre; the glass must keep 0.5 um from every
         // other cell; the aim may move sideways by up to `max_off_centre` of the radius
         // (the membrane takes an entry that far off-centre), else the cell is skipped.
-        let height = |d: f64| 0.5 * (d - self.mean_diameter);
+        // The floor under each cell lies as far off the focal plane as the field's
+        // measured tilt puts it.
+        let origin = self.plate.origin;
+        let height = |t: &Target| {
+            0.5 * (t.diameter_m - self.mean_diameter)
+                + self.floor_at([t.x_m + origin[0], t.y_m + origin[1]])
+        };
         let sphere = |t: &Target| approach::Sphere {
             index: t.index,
             well: t.well,
-            centre: [t.stage_m[0], height(t.diameter_m), t.stage_m[1]],
+            centre: [t.stage_m[0], height(t), t.stage_m[1]],
             radius: 0.5 * t.diameter_m,
         };
         let neighbours: Vec<approach::Sphere> = self.survey_cells.iter().map(sphere).collect();
@@ -2453,7 +2841,7 @@ impl<B: Backend> Workflow<'_, B> {
             aim[0] - d1[0] * lead - d3[0] * back * cos,
             aim[1] - d1[1] * lead - d3[1] * back * cos,
         ];
-        let start_height = self.focus + height(a.target.diameter_m) + raise * cos + back * sin;
+        let start_height = self.focus + height(&a.target) + raise * cos + back * sin;
         // Where the tip goes in the image, relative to the cell's centre (pixels).
         let aim_off = {
             let (p, q) = (map.pixel_of(aim), map.pixel_of(c));
