@@ -866,6 +866,37 @@ fn print_text(s: &Summary) {
             outln!("the pipette's glass ran into {g} other cells");
         }
     }
+    if !s.focus.is_empty() {
+        let swept: Vec<&FocusRow> = s.focus.iter().filter(|f| f.focus.frames > 0).collect();
+        let tilt = |f: &&FocusRow| f.focus.slope[0].hypot(f.focus.slope[1]) * 1e3;
+        let (lo, hi) = swept
+            .iter()
+            .map(tilt)
+            .fold((f64::INFINITY, 0.0f64), |(a, b), t| (a.min(t), b.max(t)));
+        let worst = s
+            .focus
+            .iter()
+            .filter_map(|f| f.true_error_m)
+            .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.max(e))));
+        let slope = if format!("{lo:.1}") == format!("{hi:.1}") {
+            format!("{hi:.1}")
+        } else {
+            format!("{lo:.1}-{hi:.1}")
+        };
+        outln!(
+            "{} focused ({} focus frames), the floor sloping {slope} um/mm{}",
+            if swept.len() == 1 {
+                "1 field".to_string()
+            } else {
+                format!("{} fields", swept.len())
+            },
+            swept.iter().map(|f| f.focus.frames).sum::<usize>(),
+            worst.map_or(String::new(), |w| format!(
+                "; the floor under the cells at most {:.2} um from where the focus put it",
+                w * 1e6
+            ))
+        );
+    }
     for e in s
         .events
         .iter()
