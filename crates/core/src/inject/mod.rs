@@ -54,7 +54,7 @@ const FOCUS_RANGE: f64 = 40e-6;
 /// first field by some micrometres from the one the calibration focused).
 const FOCUS_REUSE: f64 = 0.25e-3;
 
-/// Binning of the focus frames the tiles' foci are read from.
+/// Binning of the focus frames (2 x 2: 1.76 um pixels at the lowest zoom).
 const FOCUS_BINNING: u32 = 2;
 
 /// Tiles (columns, rows) of a focus frame: each gives the floor's focus at its centre.
@@ -2200,7 +2200,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// into 3 x 3 tiles, each tile's best focus the midpoint of its sharpness curve's
     /// half-height crossings, the plane through them the field's tilt
     /// (`cellinject_cells::focus`). The first field is swept over ±[`FOCUS_RANGE`] in
-    /// 4 um steps (frames binned 4 x 4), then again over ±8 um in 1.5 um steps about its peak; a later
+    /// 4 um steps, then again over ±8 um in 1.5 um steps about its peak; a later
     /// one over ±12 um in 1.5 um steps about the height its nearest focused
     /// neighbour's plane predicts. A peak beyond a sweep's end moves the sweep that way
     /// (three times at most). The feeder ends at the plane's height at the field's
@@ -2212,26 +2212,26 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let now_z = self.rig.feeder.position(2).map_err(dev("feeder stage"))?;
         let mut centre = self.predicted_focus(field.centre).unwrap_or(now_z);
         let mut frames = 0;
-        // (half range, step, binning): the first field's coarse pass binned 4 x 4 (a
-        // sixteenth of the pixels to move and read: the peak within a few um), the
-        // passes the tiles are read from binned 2 x 2 (a quarter).
-        let passes: &[(f64, f64, u32)] = if first {
-            &[(FOCUS_RANGE, 4e-6, 4), (8e-6, 1.5e-6, FOCUS_BINNING)]
+        // (half range, step): every frame binned 2 x 2 (a quarter of the pixels to
+        // move and read). Not 4 x 4: pixels of 3.5 um average the walls' and rings'
+        // edges away, and such frames were sharpest far from focus.
+        let passes: &[(f64, f64)] = if first {
+            &[(FOCUS_RANGE, 4e-6), (8e-6, 1.5e-6)]
         } else {
-            &[(12e-6, 1.5e-6, FOCUS_BINNING)]
+            &[(12e-6, 1.5e-6)]
         };
         // The last pass's samples, by height: (z, each tile's sharpness).
         let mut samples: Vec<(f64, Vec<f64>)> = Vec::new();
         let mut whole = None;
         let mut step = 0.0;
-        for &(half, dz, binning) in passes {
+        for &(half, dz) in passes {
             step = dz;
             let mut shifts = 0;
             loop {
                 let n = (2.0 * half / step).round() as usize + 1;
                 samples.clear();
                 for k in 0..n {
-                    match self.focus_sample(centre - half + k as f64 * step, binning)? {
+                    match self.focus_sample(centre - half + k as f64 * step, FOCUS_BINNING)? {
                         Ok(s) => samples.push(s),
                         Err(e) => return Ok(Err(e)),
                     }
