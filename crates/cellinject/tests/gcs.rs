@@ -104,6 +104,43 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
     // The twin's calibrations (made fast, on simulated time).
     let o = run(&d, &["calibrate", "all", "--out", "cal"]);
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    // The twin's side of each comparison, in a thread beside the wire's (each side
+    // keeps about one core busy; the test's wall time is the longer side's).
+    let twin_side = {
+        let d = d.clone();
+        std::thread::spawn(move || {
+            let rep = run(
+                &d,
+                &[
+                    "experiment",
+                    "repeatability",
+                    "--runs",
+                    "6",
+                    "--calibration",
+                    "cal",
+                    "--format",
+                    "json",
+                    "--out",
+                    "rt",
+                ],
+            );
+            let inj = run(
+                &d,
+                &[
+                    "run",
+                    "--plate",
+                    "p.toml",
+                    "--calibration",
+                    "cal/hysteresis.json",
+                    "--db",
+                    "t.sqlite",
+                    "--format",
+                    "json",
+                ],
+            );
+            (rep, inj)
+        })
+    };
     // The bench as the calibrations find it (no plate under the microscope).
     let emu = Emulator::start(&d, &[]);
     let backend = format!("gcs://{}", emu.gcs);
@@ -139,8 +176,9 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
         }
     }
     // Repeatability: the same experiment, the same magnitude of scatter (tens of nm).
-    let rep = |extra: &[&str], out: &str| {
-        let mut a = vec![
+    let g = ok(&run(
+        &d,
+        &[
             "experiment",
             "repeatability",
             "--runs",
@@ -150,13 +188,13 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
             "--format",
             "json",
             "--out",
-            out,
-        ];
-        a.extend_from_slice(extra);
-        ok(&run(&d, &a))
-    };
-    let g = rep(&["--backend", &backend], "rg");
-    let t = rep(&[], "rt");
+            "rg",
+            "--backend",
+            &backend,
+        ],
+    ));
+    let (rep_twin, run_twin) = twin_side.join().unwrap();
+    let t = ok(&rep_twin);
     let (eg, et) = (rms(&g), rms(&t));
     assert!(eg < 80e-9 && et < 80e-9, "RMS gcs {eg}, twin {et}");
     assert!(
@@ -186,20 +224,7 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
         ],
     );
     let g = ok(&o);
-    let t = ok(&run(
-        &d,
-        &[
-            "run",
-            "--plate",
-            "p.toml",
-            "--calibration",
-            "cal/hysteresis.json",
-            "--db",
-            "t.sqlite",
-            "--format",
-            "json",
-        ],
-    ));
+    let t = ok(&run_twin);
     assert_eq!(g["backend"], backend.as_str());
     assert_eq!(g["cells_found"], t["cells_found"]);
     let inj = |v: &Value| v["injected"].as_i64().unwrap();
