@@ -164,9 +164,13 @@ impl Subset {
         }
     }
 
-    /// Whether the subset centred at (x, y) lies inside a `w x h` image.
+    /// Whether the subset centred at (x, y) lies inside a `w x h` image (false, not an
+    /// overflow, for a centre near `usize::MAX`).
     pub fn fits(&self, x: usize, y: usize, w: usize, h: usize) -> bool {
-        x >= self.half_w && y >= self.half_h && x + self.half_w < w && y + self.half_h < h
+        x >= self.half_w
+            && y >= self.half_h
+            && x.checked_add(self.half_w).is_some_and(|r| r < w)
+            && y.checked_add(self.half_h).is_some_and(|b| b < h)
     }
 }
 
@@ -926,4 +930,21 @@ pub fn refine_prepared(
         sigma_noise,
         subset: 2 * subset.half_w.max(subset.half_h) + 1,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Subset;
+
+    #[test]
+    fn a_subset_fits_exactly_its_image_and_a_centre_near_usize_max_does_not_overflow() {
+        let s = Subset::square(31);
+        assert!(s.fits(15, 15, 31, 31));
+        assert!(!s.fits(15, 15, 30, 31));
+        assert!(!s.fits(15, 15, 31, 30));
+        assert!(!s.fits(14, 15, 64, 64));
+        // `dic --at 1e300,1e300` saturates to usize::MAX: refused, not an overflow.
+        assert!(!s.fits(usize::MAX, 20, 64, 64));
+        assert!(!s.fits(20, usize::MAX - 3, 64, 64));
+    }
 }

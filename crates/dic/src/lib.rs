@@ -65,7 +65,11 @@ pub enum DicError {
         max: usize,
     },
     /// The subset around a point leaves the image.
-    #[error("the {size}x{size} subset at ({x}, {y}) leaves the {width}x{height} image")]
+    #[error(
+        "the {size}x{size} subset at ({}, {}) leaves the {width}x{height} image",
+        short(.x),
+        short(.y)
+    )]
     SubsetOutside {
         /// Point.
         x: f64,
@@ -271,4 +275,14 @@ pub fn correlate_points(
             Some(res)
         })
         .collect())
+}
+
+/// A coordinate for a message: as typed when it is image-sized, in exponent form when
+/// it is not (`1e300`, not three hundred digits).
+fn short(v: &f64) -> String {
+    if v.abs() < 1e9 {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
 }
