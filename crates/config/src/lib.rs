@@ -281,6 +281,19 @@ mod tests {
     }
 
     #[test]
+    fn a_pipette_angle_typed_in_degrees_is_refused_with_its_radians() {
+        let from = "pipette_angle = 0.9599310885968813";
+        let e = replace(from, "pipette_angle = 45").unwrap_err();
+        assert_eq!(e.key(), Some("injector.pipette_angle"), "{e}");
+        let m = e.to_string();
+        assert!(m.contains("45° would be 0.7854"), "{m}");
+        // Out of range in radians: no degrees hint.
+        let e = replace(from, "pipette_angle = 0.1").unwrap_err();
+        assert!(!e.to_string().contains('°'), "{e}");
+        assert!(replace(from, "pipette_angle = 0.7853981633974483").is_ok());
+    }
+
+    #[test]
     fn wrong_types_are_named() {
         let e = replace("b1 = 0.030", "b1 = \"thirty\"").unwrap_err();
         assert!(

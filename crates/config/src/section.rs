@@ -166,6 +166,9 @@ pub(crate) enum Check {
     NonNegative,
     /// Finite and within [lo, hi].
     Between(f64, f64),
+    /// An angle in radians within [lo, hi]; a value that reads as degrees is refused
+    /// with the radians it would be.
+    Angle(f64, f64),
 }
 
 impl Check {
@@ -183,6 +186,14 @@ impl Check {
             Check::Positive if v <= 0.0 => bad("must be positive".into()),
             Check::NonNegative if v < 0.0 => bad("must not be negative".into()),
             Check::Between(lo, hi) if v < lo || v > hi => bad(format!("must lie in [{lo}, {hi}]")),
+            Check::Angle(lo, hi) if v < lo || v > hi => {
+                let degrees = if (1.0..=360.0).contains(&v.abs()) {
+                    format!(" (radians, in SI: {v}° would be {:.4})", v.to_radians())
+                } else {
+                    String::new()
+                };
+                bad(format!("must lie in [{lo}, {hi}] rad{degrees}"))
+            }
             _ => Ok(()),
         }
     }

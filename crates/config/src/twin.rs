@@ -253,7 +253,7 @@ pub(crate) fn bench(
             pipette.angle,
             // 10-75°: the glass must rise from the plate behind the tip, and the
             // microscope must still see the tip come along the plate.
-            Check::Between(0.17, 1.31),
+            Check::Angle(0.17, 1.31),
         )?;
         let tip_outer_radius = s.num(
             "tip_outer_radius",
