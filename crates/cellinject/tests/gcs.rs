@@ -97,6 +97,41 @@ fn rms(v: &Value) -> f64 {
     r[0].as_f64().unwrap().hypot(r[1].as_f64().unwrap())
 }
 
+/// `experiment repeatability` (6 runs, JSON) writing to `out`, with `extra` options.
+fn repeatability<'a>(out: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "experiment",
+        "repeatability",
+        "--runs",
+        "6",
+        "--calibration",
+        "cal",
+        "--format",
+        "json",
+        "--out",
+        out,
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// `run` of p.toml (JSON) recorded in `db`, with `extra` options.
+fn injection<'a>(db: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "run",
+        "--plate",
+        "p.toml",
+        "--calibration",
+        "cal/hysteresis.json",
+        "--db",
+        db,
+        "--format",
+        "json",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
 #[test]
 fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
     let d = dir("match");
@@ -109,35 +144,8 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
     let twin_side = {
         let d = d.clone();
         std::thread::spawn(move || {
-            let rep = run(
-                &d,
-                &[
-                    "experiment",
-                    "repeatability",
-                    "--runs",
-                    "6",
-                    "--calibration",
-                    "cal",
-                    "--format",
-                    "json",
-                    "--out",
-                    "rt",
-                ],
-            );
-            let inj = run(
-                &d,
-                &[
-                    "run",
-                    "--plate",
-                    "p.toml",
-                    "--calibration",
-                    "cal/hysteresis.json",
-                    "--db",
-                    "t.sqlite",
-                    "--format",
-                    "json",
-                ],
-            );
+            let rep = run(&d, &repeatability("rt", &[]));
+            let inj = run(&d, &injection("t.sqlite", &[]));
             (rep, inj)
         })
     };
@@ -176,23 +184,7 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
         }
     }
     // Repeatability: the same experiment, the same magnitude of scatter (tens of nm).
-    let g = ok(&run(
-        &d,
-        &[
-            "experiment",
-            "repeatability",
-            "--runs",
-            "6",
-            "--calibration",
-            "cal",
-            "--format",
-            "json",
-            "--out",
-            "rg",
-            "--backend",
-            &backend,
-        ],
-    ));
+    let g = ok(&run(&d, &repeatability("rg", &["--backend", &backend])));
     let (rep_twin, run_twin) = twin_side.join().unwrap();
     let t = ok(&rep_twin);
     let (eg, et) = (rms(&g), rms(&t));
@@ -207,22 +199,7 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
     // either way with the survey's noise), every injected cell alive with its dose.
     let emu = Emulator::start(&d, &["--plate", "p.toml"]);
     let backend = format!("gcs://{}", emu.gcs);
-    let o = run(
-        &d,
-        &[
-            "run",
-            "--plate",
-            "p.toml",
-            "--calibration",
-            "cal/hysteresis.json",
-            "--db",
-            "g.sqlite",
-            "--backend",
-            &backend,
-            "--format",
-            "json",
-        ],
-    );
+    let o = run(&d, &injection("g.sqlite", &["--backend", &backend]));
     let g = ok(&o);
     let t = ok(&run_twin);
     assert_eq!(g["backend"], backend.as_str());
