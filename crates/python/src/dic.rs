@@ -87,7 +87,7 @@ fn same_size(r: &cellinject_dic::Image, c: &cellinject_dic::Image) -> PyResult<(
 ///     >>> from cellinject import dic
 ///     >>> ref, cur = dic.synth(size=(128, 128), shift=(0.25, 0.0), noise=0.0)
 ///     >>> r = dic.points(ref, cur, [(64, 64)])
-///     >>> abs(r["u"][0] - 0.25) < 0.01
+///     >>> bool(abs(r["u"][0] - 0.25) < 0.01)
 ///     True
 #[pyfunction]
 #[pyo3(signature = (reference, current, at, subset=31, shape="affine", search=64,

@@ -55,7 +55,7 @@ fn hinge_error(e: HingeError) -> PyErr {
 ///     >>> from cellinject import flexure
 ///     >>> r = flexure.hinge("circular", thickness=0.5e-3, width=5e-3, radius=2e-3)
 ///     >>> round(r["k_bend"], 2)
-///     35.67
+///     8.68
 #[pyfunction]
 #[pyo3(signature = (profile, thickness, width, radius=None, length=None, youngs=None,
     poisson=None, yield_strength=None, method="beam", plane="stress", angle=None))]

@@ -73,6 +73,11 @@ fn runs_list(py: Python<'_>, db: PathBuf) -> PyResult<Py<PyAny>> {
 /// Returns:
 ///     dict: ``run`` (as in :func:`list`), ``attempts`` (as in :func:`attempts`),
 ///     ``events`` (``t`` in s, ``from``, ``event``, ``to``, ``reason``).
+///
+/// Example:
+///     >>> from cellinject import runs
+///     >>> runs.show("runs.sqlite")["run"]["status"]  # doctest: +SKIP
+///     'finished'
 #[pyfunction]
 #[pyo3(signature = (db, run=None))]
 fn runs_show(py: Python<'_>, db: PathBuf, run: Option<i64>) -> PyResult<Py<PyAny>> {
@@ -98,6 +103,11 @@ fn runs_show(py: Python<'_>, db: PathBuf, run: Option<i64>) -> PyResult<Py<PyAny
 ///     ``diameter_m``, ``tip_error_m`` (m; the twin's truth), ``measured_tip_error_m``,
 ///     ``depth_m``, ``dose_fraction``, ``alive``, ``outcome``, ``reason``, ``t_start``,
 ///     ``t_end`` (s), ``transitions``.
+///
+/// Example:
+///     >>> from cellinject import runs
+///     >>> [a["outcome"] for a in runs.attempts("runs.sqlite")]  # doctest: +SKIP
+///     ['injected', 'injected']
 #[pyfunction]
 #[pyo3(signature = (db, run=None))]
 fn runs_attempts(py: Python<'_>, db: PathBuf, run: Option<i64>) -> PyResult<Py<PyAny>> {
