@@ -351,29 +351,12 @@ fn run_points(a: &PointArgs) -> Result<()> {
 
 /// The acceptance rule of `dic` and `dic field`, checked.
 fn acceptance(min_zncc: f64, max_sigma: f64) -> Result<Acceptance> {
-    if !(-1.0..=1.0).contains(&min_zncc) {
-        return Err(InputError(format!("--min-zncc must lie in [-1, 1], got {min_zncc}")).into());
-    }
-    if max_sigma.is_nan() || max_sigma <= 0.0 {
-        return Err(InputError(format!(
-            "--max-sigma must be a positive number of pixels, got {max_sigma}"
-        ))
-        .into());
-    }
-    Ok(Acceptance {
-        min_zncc,
-        max_sigma,
-    })
+    cellinject_core::dic::acceptance(min_zncc, max_sigma)
+        .map_err(|e| InputError(format!("--{e}")).into())
 }
 
 fn check_prefilter(sigma: f64) -> Result<()> {
-    if !(0.0..=20.0).contains(&sigma) {
-        return Err(InputError(format!(
-            "--prefilter must lie in [0, 20] pixels, got {sigma}"
-        ))
-        .into());
-    }
-    Ok(())
+    cellinject_core::dic::check_prefilter(sigma).map_err(|e| InputError(format!("--{e}")).into())
 }
 
 /// The settings of `dic field`.
@@ -766,29 +749,20 @@ fn run_synth(size: &[usize], a: SynthArgs, reference: &Path, current: &Path) -> 
         seed,
         format,
     } = a;
-    if size.len() != 2 || size[0] < 16 || size[1] < 16 || size[0] > 20000 || size[1] > 20000 {
+    if size.len() != 2 {
         return Err(InputError(format!(
             "--size takes WIDTH,HEIGHT between 16 and 20000, got {size:?}"
         ))
         .into());
     }
-    if !(noise >= 0.0 && noise.is_finite()) {
-        return Err(InputError(format!(
-            "--noise must be a non-negative number, got {noise}"
-        ))
-        .into());
-    }
+    cellinject_core::dic::check_synth((size[0], size[1]), noise)
+        .map_err(|e| InputError(format!("--{e}")))?;
     let mut plan = Plan::new();
     plan.output("--reference", reference, &[Kind::Png, Kind::Tiff])?;
     plan.output("--current", current, &[Kind::Png, Kind::Tiff])?;
     plan.check()?;
-    let mut p = cellinject_dic::synth::SpeckleParams::default_for(size[0], size[1]);
-    p.noise = noise;
-    let sp = cellinject_dic::synth::Speckle::new(&p, seed);
-    // Two independent noise streams for any seed (wrapping: every u64 is a seed).
-    let noise_seed = |k: u64| seed.wrapping_mul(2).wrapping_add(k);
-    let r = sp.render_shifted(0.0, 0.0, 0.0, noise_seed(1));
-    let c = sp.render_shifted(shift.0, shift.1, rotation.to_radians(), noise_seed(2));
+    let (r, c) = cellinject_core::dic::synth_pair((size[0], size[1]), shift, rotation, noise, seed)
+        .map_err(|e| InputError(format!("--{e}")))?;
     let mut staged = Staged::new();
     staged.add(reference, &encode_grey8(&r, reference)?)?;
     staged.add(current, &encode_grey8(&c, current)?)?;

@@ -7,9 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use cellinject_config::Description;
-use cellinject_fea::{
-    Approach, DirCache, FeaError, FeaModel, FeaOptions, JointStore, Member, NoCache, PreloadKind,
-};
+use cellinject_fea::{Approach, FeaError, FeaModel, FeaOptions, JointStore, Member, PreloadKind};
 use cellinject_plot::contour::{
     Member as PlotMember, StructurePanel, structure_rgb, structure_svg,
 };
@@ -224,11 +222,8 @@ fn fea_error(e: FeaError) -> anyhow::Error {
 }
 
 /// The joint cache: the platform's directory, unless `--no-cache` or there is none.
-fn joint_store(c: &CacheArgs) -> Box<dyn JointStore> {
-    match DirCache::default_location() {
-        Some(dir) if !c.no_cache => Box::new(DirCache::new(dir)),
-        _ => Box::new(NoCache),
-    }
+fn joint_store(c: &CacheArgs) -> Box<dyn JointStore + Send + Sync> {
+    cellinject_fea::default_store(!c.no_cache)
 }
 
 /// J3's yield check for the safety envelope of a bench assembled with `approach`: the
@@ -238,35 +233,16 @@ pub(crate) fn j3_yield_check(
     d: &Description,
     approach: Approach,
 ) -> Result<cellinject_rig::guard::YieldCheck> {
-    use cellinject_rig::guard::{StressPoint, YIELD_POINTS, YieldCheck};
-    let store: Box<dyn JointStore> = match DirCache::default_location() {
-        Some(dir) => Box::new(DirCache::new(dir)),
-        None => Box::new(NoCache),
-    };
-    let why = |e: FeaError| {
-        anyhow::anyhow!(
-            "the safety envelope checks J3 against its yield strength with the structural model, which failed: {e}"
-        )
-    };
+    let store = cellinject_fea::default_store(true);
     let _p =
         crate::progress::spinner("J3's stresses for the safety envelope (joint FEM or its cache)");
-    let m = FeaModel::build(
-        &d.design,
-        &d.structure,
-        FeaOptions::default(),
-        store.as_ref(),
+    cellinject_fea::j3_yield_check(&d.design, &d.structure, approach, store.as_ref()).map_err(
+        |e| {
+            anyhow::anyhow!(
+                "the safety envelope checks J3 against its yield strength with the structural model, which failed: {e}"
+            )
+        },
     )
-    .map_err(why)?;
-    let map = m.j3_yield_map(approach, YIELD_POINTS).map_err(why)?;
-    Ok(YieldCheck::new(
-        "J3",
-        map.yield_strength,
-        map.fit_error,
-        map.points.iter().map(|a| StressPoint {
-            at_zero: a.at_zero,
-            per_newton: a.per_newton,
-        }),
-    ))
 }
 
 /// The structural model of a description on its FEM joints.

@@ -1,9 +1,9 @@
 //! `cellinject hinge`: stiffness and stress of one flexure hinge.
 
 use anyhow::Result;
-use cellinject_core::hinge::{self as core, HingeError, Method};
+use cellinject_core::hinge::{self as core, HingeError, Method, ProfileKind};
 use cellinject_fem::hinge2d::Plane;
-use cellinject_flexure::{FlexureError, Hinge, Material, Profile};
+use cellinject_flexure::{FlexureError, Hinge, Material};
 use clap::{Args, ValueEnum};
 
 use crate::files::{Kind, Plan, write_one};
@@ -89,20 +89,6 @@ pub struct HingeArgs {
     format: Format,
 }
 
-fn need(v: Option<f64>, flag: &str, profile: &str) -> Result<f64> {
-    let article = if profile.starts_with(['a', 'e', 'i', 'o', 'u']) {
-        "an"
-    } else {
-        "a"
-    };
-    v.ok_or_else(|| {
-        InputError(format!(
-            "--{flag} is required for {article} {profile} hinge"
-        ))
-        .into()
-    })
-}
-
 fn hinge_error(e: HingeError) -> anyhow::Error {
     match e {
         HingeError::Flexure(FlexureError::Invalid {
@@ -112,7 +98,17 @@ fn hinge_error(e: HingeError) -> anyhow::Error {
         }) => InputError(format!("--{name} {value}: {reason}")).into(),
         HingeError::Flexure(other) => InputError(format!("--method: {other}")).into(),
         HingeError::Fem(e) => anyhow::anyhow!("hinge FEM: {e}"),
-        e @ HingeError::NotFinite { .. } => InputError(e.to_string()).into(),
+        HingeError::Missing {
+            name,
+            article,
+            profile,
+        } => InputError(format!(
+            "--{name} is required for {article} {profile} hinge"
+        ))
+        .into(),
+        e @ (HingeError::NotFinite { .. } | HingeError::UnknownProfile(_)) => {
+            InputError(e.to_string()).into()
+        }
     }
 }
 
@@ -134,31 +130,15 @@ fn export_mesh(hinge: &Hinge, m: &Material, plane: Plane, path: &std::path::Path
 
 /// Runs `cellinject hinge`.
 pub fn run(a: &HingeArgs) -> Result<()> {
-    let profile = match a.profile {
-        ProfileArg::Circular => Profile::Circular {
-            radius: need(a.radius, "radius", "circular")?,
-        },
-        ProfileArg::Corner => Profile::CornerFilleted {
-            radius: need(a.radius, "radius", "corner-filleted")?,
-            length: need(a.length, "length", "corner-filleted")?,
-        },
-        ProfileArg::Elliptic => Profile::Elliptic {
-            half_length: 0.5 * need(a.length, "length", "elliptic")?,
-            depth: need(a.radius, "radius", "elliptic")?,
-        },
-        ProfileArg::Leaf => Profile::Leaf {
-            length: need(a.length, "length", "leaf")?,
-        },
+    let kind = match a.profile {
+        ProfileArg::Circular => ProfileKind::Circular,
+        ProfileArg::Corner => ProfileKind::Corner,
+        ProfileArg::Elliptic => ProfileKind::Elliptic,
+        ProfileArg::Leaf => ProfileKind::Leaf,
     };
+    let profile = kind.profile(a.radius, a.length).map_err(hinge_error)?;
     // An option the profile does not use is said, not silently dropped.
-    let unused = match a.profile {
-        ProfileArg::Circular => a.length.map(|_| ("length", "its length is 2R")),
-        ProfileArg::Leaf => a
-            .radius
-            .map(|_| ("radius", "a straight leaf has no notch radius")),
-        _ => None,
-    };
-    if let Some((flag, why)) = unused {
+    if let Some((flag, why)) = kind.unused(a.radius, a.length) {
         eprintln!(
             "warning: --{flag} is not used by a {:?} hinge: {why}",
             a.profile

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use cellinject_config::Description;
 use cellinject_core::hysteresis::{self as core, Kind};
-use cellinject_hysteresis::{AnyModel, HysteresisError, Model, Range};
+use cellinject_hysteresis::{AnyModel, HysteresisError, Model};
 use cellinject_plot::{Chart, Series, Style};
 use clap::{Subcommand, ValueEnum};
 
@@ -241,23 +241,17 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             }
             let volts = column(&t, "voltage_v").to_vec();
             let disp = column(&t, "displacement_m").to_vec();
-            let top = v_max.unwrap_or_else(|| volts.iter().copied().fold(0.0, f64::max));
-            if !(top.is_finite() && top > 0.0) {
-                return Err(InputError(format!(
+            let range = core::fit_range(&volts, *v_max).map_err(|e| match e {
+                core::RangeError::NoPositiveVoltage => InputError(format!(
                     "--data `{}`, column `voltage_v`: no voltage above 0 V (and no --v-max)",
                     data.display()
-                ))
-                .into());
-            }
-            if let Some(k) = volts.iter().position(|v| *v < -1e-9 || *v > top + 1e-9) {
-                return Err(InputError(format!(
-                    "--data `{}`, line {}, column `voltage_v`: {} V lies outside the model's range [0, {top}] V (--v-max)",
+                )),
+                core::RangeError::Outside { index, value, top } => InputError(format!(
+                    "--data `{}`, line {}, column `voltage_v`: {value} V lies outside the model's range [0, {top}] V (--v-max)",
                     data.display(),
-                    t.line(k),
-                    volts[k]
-                ))
-                .into());
-            }
+                    t.line(index),
+                )),
+            })?;
             let kind = match model {
                 ModelArg::Preisach => Kind::Preisach,
                 ModelArg::Pi => Kind::Pi,
@@ -265,14 +259,8 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             };
             let r = {
                 let _p = crate::progress::spinner("fitting");
-                core::fit(
-                    kind,
-                    *size as usize,
-                    Range { min: 0.0, max: top },
-                    &volts,
-                    &disp,
-                )
-                .map_err(|e| hysteresis_error("--data", data, e))?
+                core::fit(kind, *size as usize, range, &volts, &disp)
+                    .map_err(|e| hysteresis_error("--data", data, e))?
             };
             let d = &r.data;
             if d.merged > 0 {

@@ -5,11 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Result, anyhow};
 use cellinject_config::Description;
-use cellinject_core::calibrate::HysteresisCalibration;
-use cellinject_core::inject::{Attempt, ImageMap, Observer, Options, Target, Transition, Workflow};
-use cellinject_plate::{GenerateOptions, Plate, generate};
-use cellinject_records::{AttemptRow, EventRow, Records, RecordsError, RunRow};
-use cellinject_twin::{Fault, FaultAt, SharedTwin};
+use cellinject_core::inject::Options;
+use cellinject_plate::Plate;
+use cellinject_records::{Records, RecordsError};
+use cellinject_run_sim::{FocusRow, RunError, RunProgress, Summary, summary};
+pub(crate) use cellinject_run_sim::{Job, execute};
+use cellinject_twin::{Fault, FaultAt};
 use clap::{Args, Subcommand};
 use serde::Serialize;
 
@@ -134,21 +135,49 @@ pub(crate) fn resolve_faults(
         .collect()
 }
 
-/// The default plate: 8 x 12 wells of 150 um centred in the 2.5x field of view.
-pub fn default_plate(seed: u64) -> Result<Plate> {
-    let (rows, cols, pitch) = (8u32, 12u32, 150e-6);
-    generate(&GenerateOptions {
-        rows,
-        cols,
-        pitch,
-        origin: [
-            -0.5 * (cols - 1) as f64 * pitch,
-            -0.5 * (rows - 1) as f64 * pitch + 30e-6,
-        ],
-        seed,
-        ..GenerateOptions::default()
-    })
-    .map_err(|e| anyhow!("default plate: {e}"))
+/// `run`'s default plate for `seed` and its text as the run records keep it.
+pub(crate) fn default_plate_text(seed: u64) -> Result<(Plate, String)> {
+    cellinject_run_sim::default_plate_text(seed).map_err(|e| anyhow!("default plate: {e}"))
+}
+
+/// A new run record for `plate_text`, created now.
+pub(crate) fn new_run(
+    db: &mut Records,
+    plate_text: &str,
+    seed: Option<u64>,
+    backend: &str,
+    settings: &serde_json::Value,
+) -> Result<i64> {
+    cellinject_run_sim::new_run(db, plate_text, seed, backend, settings).map_err(records_error)
+}
+
+/// A run's failure outside its workflow as the user's error (exit 2) or not.
+pub(crate) fn run_error(e: RunError) -> anyhow::Error {
+    match e {
+        RunError::Input(s) => InputError(s).into(),
+        RunError::Fault(s) => InputError(format!("--fault: {s}")).into(),
+        RunError::Records(e) => records_error(e),
+    }
+}
+
+/// The progress bar of `run`: the cells left after the survey, one tick per attempt.
+#[derive(Default)]
+pub(crate) struct Bar(Option<crate::progress::Progress>);
+
+impl RunProgress for Bar {
+    fn surveyed(&mut self, left: u64) {
+        self.0 = Some(crate::progress::rate_bar(left, "cells"));
+    }
+    fn attempt_done(&mut self) {
+        if let Some(b) = &self.0 {
+            b.inc();
+        }
+    }
+}
+
+/// Whether `CELLINJECT_DEBUG` asks for every transition and each cell's truth.
+pub(crate) fn debug() -> bool {
+    std::env::var_os("CELLINJECT_DEBUG").is_some()
 }
 
 /// A records failure as the user's error: the file's own faults name `--db`, the only
@@ -161,421 +190,6 @@ pub(crate) fn records_error(e: RecordsError) -> anyhow::Error {
         | RecordsError::Unreadable { .. } => InputError(format!("--db {e}")).into(),
         other => InputError(other.to_string()).into(),
     }
-}
-
-/// What `run` prints as JSON.
-#[derive(Debug, Serialize)]
-struct Summary {
-    run: i64,
-    status: String,
-    /// `twin` or the controller's address (`gcs://...`).
-    backend: String,
-    cells_found: i64,
-    injected: usize,
-    failed: usize,
-    skipped: usize,
-    interrupted: usize,
-    sim_time_s: f64,
-    cell_time_s: f64,
-    cells_per_min: f64,
-    stopped: Option<String>,
-    attempts: Vec<AttemptRow>,
-    /// The run's own transitions: calibration, survey, re-checks, the end.
-    events: Vec<EventRow>,
-    /// Other cells the pipette's glass ran into during this command's attempts (the
-    /// twin's truth; absent on hardware and from `runs show`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    grazed: Option<u32>,
-    /// The fields' planes of best focus this command measured (absent from `runs
-    /// show`).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    focus: Vec<FocusRow>,
-}
-
-/// A field's focus as measured, and on the twin how far it is from the truth.
-#[derive(Debug, Serialize)]
-struct FocusRow {
-    #[serde(flatten)]
-    focus: cellinject_core::inject::FieldFocus,
-    /// m, the twin's truth: the largest distance over the field's cells between the
-    /// floor's height the plane puts under them and its true height.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    true_error_m: Option<f64>,
-}
-
-fn summary(run: &RunRow, attempts: Vec<AttemptRow>, events: Vec<EventRow>) -> Summary {
-    let n = |o: &str| attempts.iter().filter(|a| a.outcome == o).count();
-    Summary {
-        run: run.id,
-        status: run.status.clone(),
-        backend: run.backend.clone(),
-        cells_found: run.cells_found,
-        injected: n("injected"),
-        failed: n("failed"),
-        skipped: n("skipped"),
-        interrupted: n("interrupted"),
-        sim_time_s: run.sim_time_s,
-        cell_time_s: run.cell_time_s,
-        cells_per_min: if run.cell_time_s > 0.0 {
-            attempts.len() as f64 / run.cell_time_s * 60.0
-        } else {
-            0.0
-        },
-        stopped: run.stopped.clone(),
-        attempts,
-        events,
-        grazed: None,
-        focus: Vec::new(),
-    }
-}
-
-/// The twin's truth and the run records, as the workflow's observer.
-struct Recorder<'a> {
-    /// The twin, when it is the backend (else no truth).
-    twin: Option<SharedTwin>,
-    plate: Plate,
-    db: &'a mut Records,
-    run: i64,
-    current: Option<i64>,
-    previous: Vec<AttemptRow>,
-    bar: Option<crate::progress::Progress>,
-    /// Show a progress bar.
-    progress: bool,
-}
-
-impl Recorder<'_> {
-    fn row(&self, a: &Attempt, outcome: &str) -> AttemptRow {
-        AttemptRow {
-            id: 0,
-            cell: a.target.index as i64,
-            well: a.target.well,
-            x_m: a.target.x_m,
-            y_m: a.target.y_m,
-            diameter_m: a.target.diameter_m,
-            tip_error_m: a.truth.tip_error_m,
-            measured_tip_error_m: a.measured_tip_error_m,
-            depth_m: a.depth_m,
-            dose_fraction: a.truth.dose_fraction.or(a.measured_dose_fraction),
-            measured_dose_fraction: a.measured_dose_fraction,
-            alive: a.truth.alive,
-            outcome: outcome.into(),
-            reason: a.reason.clone(),
-            t_start: a.t[0],
-            t_end: (a.t[1] > 0.0).then_some(a.t[1]),
-            transitions: serde_json::to_value(&a.transitions).unwrap_or_default(),
-        }
-    }
-
-    /// The twin's cell nearest to a target (plate coordinates).
-    fn nearest(&self, t: &Target) -> Option<cellinject_twin::CellState> {
-        let p = [t.x_m + self.plate.origin[0], t.y_m + self.plate.origin[1]];
-        nearest_cell(self.twin.as_ref()?, p)
-    }
-}
-
-impl Observer for Recorder<'_> {
-    fn transition(&mut self, t: &Transition) {
-        if std::env::var_os("CELLINJECT_DEBUG").is_some() {
-            let Some(twin) = &self.twin else {
-                eprintln!("{:?} -> {:?}: {}", t.from, t.to, t.reason);
-                return;
-            };
-            let twin = twin.lock().unwrap_or_else(|e| e.into_inner());
-            let tip = twin.tip();
-            let (strikes, lost, grazed) = twin.biology.as_ref().map_or((0, 0.0, 0), |b| {
-                (
-                    b.floor_strikes,
-                    b.tip_loss,
-                    b.cells.iter().filter(|c| c.grazed).count(),
-                )
-            });
-            eprintln!(
-                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um; floor strikes {strikes}, tip lost {:.1} um, grazed {grazed}]",
-                t.from,
-                t.to,
-                t.reason,
-                tip.x * 1e6,
-                tip.z * 1e6,
-                tip.depth * 1e6,
-                lost * 1e6
-            );
-        }
-    }
-    fn logged(&mut self, t: &Transition) -> Result<(), String> {
-        let name = |v: serde_json::Value| v.as_str().unwrap_or_default().to_string();
-        let row = EventRow {
-            t: t.t,
-            from: name(serde_json::to_value(t.from).unwrap_or_default()),
-            event: name(serde_json::to_value(t.event).unwrap_or_default()),
-            to: name(serde_json::to_value(t.to).unwrap_or_default()),
-            reason: t.reason.clone(),
-        };
-        self.db
-            .write_event(self.run, &row)
-            .map_err(|e| e.to_string())
-    }
-    fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
-        if self.progress {
-            let left = targets.iter().filter(|t| !self.done(t)).count();
-            self.bar = Some(crate::progress::rate_bar(left as u64, "cells"));
-        }
-        Ok(())
-    }
-    fn done(&self, t: &Target) -> bool {
-        self.previous
-            .iter()
-            .any(|a| a.well == t.well && (a.x_m - t.x_m).hypot(a.y_m - t.y_m) < 3e-6)
-    }
-    fn started(&mut self, a: &Attempt) -> Result<(), String> {
-        let row = self.row(a, "started");
-        self.current = Some(
-            self.db
-                .write_attempt(self.run, None, &row)
-                .map_err(|e| e.to_string())?,
-        );
-        Ok(())
-    }
-    fn contact(&mut self, a: &Attempt) -> Result<(), String> {
-        let row = self.row(a, "contact");
-        self.db
-            .write_attempt(self.run, self.current, &row)
-            .map_err(|e| e.to_string())?;
-        Ok(())
-    }
-    fn finished(&mut self, a: &Attempt) -> Result<(), String> {
-        let row = self.row(a, a.outcome.name());
-        self.db
-            .write_attempt(self.run, self.current.take(), &row)
-            .map_err(|e| e.to_string())?;
-        if let Some(b) = &self.bar {
-            b.inc();
-        }
-        Ok(())
-    }
-    fn tip_error(&mut self, t: &Target) -> Option<f64> {
-        let c = self.nearest(t)?;
-        // The tip in the plate's frame: the cells lie where the feeder has moved it.
-        let (mut tip, o) = {
-            let twin = self
-                .twin
-                .as_ref()?
-                .lock()
-                .unwrap_or_else(|e| e.into_inner());
-            (twin.tip(), twin.plate_offset())
-        };
-        tip.x -= o[0];
-        tip.z -= o[1];
-        if std::env::var_os("CELLINJECT_DEBUG").is_some() {
-            eprintln!(
-                "tip - cell: ({:.2}, {:.2}) um; target ({:.2}, {:.2}) um vs true ({:.2}, {:.2})",
-                (tip.x - c.centre[0]) * 1e6,
-                (tip.z - c.centre[1]) * 1e6,
-                (t.x_m + self.plate.origin[0]) * 1e6,
-                (t.y_m + self.plate.origin[1]) * 1e6,
-                c.centre[0] * 1e6,
-                c.centre[1] * 1e6
-            );
-        }
-        Some((tip.x - c.centre[0]).hypot(tip.z - c.centre[1]))
-    }
-    fn cell_truth(&mut self, t: &Target) -> Option<(f64, bool)> {
-        let c = self.nearest(t)?;
-        if std::env::var_os("CELLINJECT_DEBUG").is_some() {
-            eprintln!(
-                "cell {}: punctures {}, max depth {:.2} um of r {:.2}, inside x {:.2} um, dead {:?}",
-                t.index,
-                c.punctures,
-                c.max_depth * 1e6,
-                c.radius * 1e6,
-                (c.inside_x[1] - c.inside_x[0]) * 1e6,
-                c.dead
-            );
-        }
-        Some((c.dose_fraction(), c.dead.is_none()))
-    }
-    fn grazed(&mut self) -> Option<u32> {
-        let twin = self
-            .twin
-            .as_ref()?
-            .lock()
-            .unwrap_or_else(|e| e.into_inner());
-        let b = twin.biology.as_ref()?;
-        Some(b.cells.iter().filter(|c| c.grazed).count() as u32)
-    }
-}
-
-/// One run on an opened bench: what [`execute`] needs.
-pub(crate) struct Job<'a> {
-    pub d: &'a Description,
-    pub options: Options,
-    pub hysteresis: Option<HysteresisCalibration>,
-    /// The twin, when it is the backend (its truth goes into the records).
-    pub twin: Option<SharedTwin>,
-    pub plate: Plate,
-    /// The run's record.
-    pub run_id: i64,
-    /// Attempts already recorded (a resumed run).
-    pub previous: Vec<AttemptRow>,
-    /// Device time of earlier segments (a resumed run): whole run, cells.
-    pub base: (f64, f64),
-    /// A progress bar on standard error.
-    pub progress: bool,
-}
-
-/// The twin's cell whose true centre is nearest to stage point `p` (m).
-fn nearest_cell(twin: &SharedTwin, p: [f64; 2]) -> Option<cellinject_twin::CellState> {
-    let twin = twin.lock().unwrap_or_else(|e| e.into_inner());
-    let b = twin.biology.as_ref()?;
-    b.cells
-        .iter()
-        .min_by(|a, c| {
-            let da = (a.centre[0] - p[0]).hypot(a.centre[1] - p[1]);
-            let dc = (c.centre[0] - p[0]).hypot(c.centre[1] - p[1]);
-            da.total_cmp(&dc)
-        })
-        .copied()
-}
-
-/// The workflow's observer calls go to the records and, if given, to a second
-/// observer (the dashboard); the records answer the questions.
-struct Tee<'a, 'b> {
-    rec: Recorder<'a>,
-    extra: Option<&'b mut dyn Observer>,
-}
-
-impl Observer for Tee<'_, '_> {
-    fn transition(&mut self, t: &Transition) {
-        self.rec.transition(t);
-        if let Some(x) = self.extra.as_mut() {
-            x.transition(t);
-        }
-    }
-    fn logged(&mut self, t: &Transition) -> Result<(), String> {
-        self.rec.logged(t)?;
-        self.extra.as_mut().map_or(Ok(()), |x| x.logged(t))
-    }
-    fn field(&mut self, index: usize, of: usize, rect: [f64; 4], feeder: [f64; 2]) {
-        self.rec.field(index, of, rect, feeder);
-        if let Some(x) = self.extra.as_mut() {
-            x.field(index, of, rect, feeder);
-        }
-    }
-    fn surveyed(&mut self, targets: &[Target]) -> Result<(), String> {
-        self.rec.surveyed(targets)?;
-        self.extra.as_mut().map_or(Ok(()), |x| x.surveyed(targets))
-    }
-    fn done(&self, t: &Target) -> bool {
-        self.rec.done(t)
-    }
-    fn started(&mut self, a: &Attempt) -> Result<(), String> {
-        self.rec.started(a)?;
-        self.extra.as_mut().map_or(Ok(()), |x| x.started(a))
-    }
-    fn contact(&mut self, a: &Attempt) -> Result<(), String> {
-        self.rec.contact(a)?;
-        self.extra.as_mut().map_or(Ok(()), |x| x.contact(a))
-    }
-    fn finished(&mut self, a: &Attempt) -> Result<(), String> {
-        self.rec.finished(a)?;
-        self.extra.as_mut().map_or(Ok(()), |x| x.finished(a))
-    }
-    fn proceed(&mut self) -> Result<(), String> {
-        self.extra.as_mut().map_or(Ok(()), |x| x.proceed())
-    }
-    fn mapped(&mut self, map: &ImageMap) {
-        if let Some(x) = self.extra.as_mut() {
-            x.mapped(map);
-        }
-    }
-    fn tip_error(&mut self, t: &Target) -> Option<f64> {
-        self.rec.tip_error(t)
-    }
-    fn cell_truth(&mut self, t: &Target) -> Option<(f64, bool)> {
-        self.rec.cell_truth(t)
-    }
-    fn grazed(&mut self) -> Option<u32> {
-        self.rec.grazed()
-    }
-}
-
-/// What a run's workflow returned.
-pub(crate) type Outcome = Result<
-    (cellinject_core::inject::RunReport, HysteresisCalibration),
-    cellinject_core::inject::WorkflowError,
->;
-
-/// Runs `job` on `rig`, recording every attempt in `db` and the run's end: `finished`,
-/// `stopped`, or `aborted` when `aborted()` says the operator stopped it. Returns the
-/// workflow's result and why the run stopped, if it did.
-pub(crate) fn execute(
-    job: Job<'_>,
-    db: &mut Records,
-    rig: &mut cellinject_rig::Rig<cellinject_rig::DynBackend>,
-    extra: Option<&mut dyn Observer>,
-    aborted: &dyn Fn() -> bool,
-) -> Result<(Outcome, Option<String>)> {
-    let Job {
-        d,
-        options,
-        hysteresis,
-        twin,
-        plate,
-        run_id,
-        previous,
-        base,
-        progress,
-    } = job;
-    let mut tee = Tee {
-        rec: Recorder {
-            twin,
-            plate: plate.clone(),
-            db,
-            run: run_id,
-            current: None,
-            previous,
-            bar: None,
-            progress,
-        },
-        extra,
-    };
-    let wf = Workflow::new(rig, &d.design, &d.rig, &plate, options)
-        .map_err(|e| InputError(e.to_string()))?;
-    let result = wf.run(hysteresis, &mut tee);
-    let rec = tee.rec;
-    let (status, stopped, sim, cell, found) = match &result {
-        Ok((r, cal)) => {
-            rec.db
-                .set_calibration(
-                    run_id,
-                    &serde_json::json!({ "hysteresis": cal, "map": r.map }),
-                )
-                .map_err(records_error)?;
-            (
-                if r.stopped.is_some() {
-                    "stopped"
-                } else {
-                    "finished"
-                },
-                r.stopped.clone(),
-                r.sim_time_s,
-                r.cell_time_s,
-                r.cells_found as i64,
-            )
-        }
-        Err(e) => ("stopped", Some(e.to_string()), 0.0, 0.0, 0),
-    };
-    let status = if aborted() { "aborted" } else { status };
-    rec.db
-        .update_run(
-            run_id,
-            status,
-            base.0 + sim,
-            base.1 + cell,
-            found,
-            stopped.as_deref(),
-        )
-        .map_err(records_error)?;
-    Ok((result, stopped))
 }
 
 /// `cellinject run`.
@@ -726,14 +340,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     let (twin, mut rig) = if args.backend.is_twin() {
         let o = crate::backend::open(d, &crate::sim::TwinArgs::with_seed(seed), &args.backend)?;
         let twin = o.twin.expect("the twin backend has a twin");
-        {
-            let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
-            t.load_plate(&plate);
-            t.set_faults(&faults)
-                .map_err(|e| InputError(format!("--fault: {e}")))?;
-            // The macro stage starts with the pipette lifted above the plate.
-            t.world.stage.place(1, options.focus + options.lift);
-        }
+        cellinject_run_sim::prepare_twin(&twin, &plate, &faults, &options).map_err(run_error)?;
         (Some(twin), o.rig)
     } else {
         // The emulator (or the real bench) holds the plate and the stage's start.
@@ -741,6 +348,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         (None, o.rig)
     };
     let truth = twin.clone();
+    let mut bar = Bar::default();
     let job = Job {
         d,
         options,
@@ -750,9 +358,10 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         run_id,
         previous,
         base,
-        progress: true,
+        progress: Some(&mut bar),
+        debug: debug(),
     };
-    let (result, stopped) = execute(job, &mut db, &mut rig, None, &|| false)?;
+    let (result, stopped) = execute(job, &mut db, &mut rig, None, &|| false).map_err(run_error)?;
     let r = db.run(Some(run_id)).map_err(records_error)?;
     let mut s = summary(
         &r,
@@ -760,40 +369,15 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         db.events(run_id).map_err(records_error)?,
     );
     if let Ok((report, _)) = &result {
-        let g: Vec<u32> = report
-            .attempts
-            .iter()
-            .filter_map(|a| a.truth.grazed)
-            .collect();
-        s.grazed = (!g.is_empty()).then(|| g.iter().sum());
-        s.focus = report
-            .focus
-            .iter()
-            .map(|f| FocusRow {
-                focus: *f,
-                true_error_m: truth.as_ref().map(|t| focus_error(t, &plate, f)),
-            })
-            .collect();
+        s = cellinject_run_sim::with_report(s, report, truth.as_ref(), &plate);
     }
     if let Err(e) = &result
-        && matches!(
-            e,
-            cellinject_core::inject::WorkflowError::Plan(_)
-                | cellinject_core::inject::WorkflowError::PitchTooLarge { .. }
-        )
+        && cellinject_run_sim::refused_input(e)
     {
         // Bad input leaves no record: a new run refused before any cell goes, and so
         // does the database file if this command created it.
         if !args.resume {
-            db.discard_run(run_id).map_err(records_error)?;
-            if !db_existed {
-                drop(db);
-                for suffix in ["", "-wal", "-shm"] {
-                    let mut p = args.db.clone().into_os_string();
-                    p.push(suffix);
-                    let _ = std::fs::remove_file(p);
-                }
-            }
+            cellinject_run_sim::discard(db, run_id, &args.db, db_existed).map_err(records_error)?;
         }
         return Err(InputError(e.to_string()).into());
     }
@@ -1014,32 +598,6 @@ fn read_text(p: &Path) -> Result<String> {
         .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", p.display())).into())
 }
 
-/// `run`'s default plate for `seed` and its text as the run records keep it.
-pub(crate) fn default_plate_text(seed: u64) -> Result<(Plate, String)> {
-    let plate = default_plate(seed)?;
-    let text = cellinject_config::plate::to_toml(
-        &plate,
-        &format!("cellinject run's default plate: 8 x 12 wells, seed {seed}"),
-    );
-    Ok((plate, text))
-}
-
-/// A new run record for `plate_text`, created now.
-pub(crate) fn new_run(
-    db: &mut Records,
-    plate_text: &str,
-    seed: Option<u64>,
-    backend: &str,
-    settings: &serde_json::Value,
-) -> Result<i64> {
-    let created = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs() as i64)
-        .unwrap_or(0);
-    db.create_run(plate_text, seed, backend, settings, created)
-        .map_err(records_error)
-}
-
 /// The plate file `p` (`--plate`), parsed and checked, and its text.
 pub(crate) fn read_plate(p: &Path) -> Result<(Plate, String)> {
     let text = read_text(p)?;
@@ -1081,38 +639,15 @@ pub(crate) fn open_existing(p: &Path) -> Result<Records> {
     Records::open(p).map_err(records_error)
 }
 
-/// m, the largest distance over the cells of field `f` (the plate's true cells in
-/// its rectangle; its centre if it holds none) between the floor's height its plane of
-/// focus gives and the twin's truth, the feeder at the plane's height.
-fn focus_error(
-    twin: &cellinject_twin::SharedTwin,
-    plate: &cellinject_plate::Plate,
-    f: &cellinject_core::inject::FieldFocus,
-) -> f64 {
-    let surface = twin.lock().unwrap_or_else(|e| e.into_inner()).surface();
-    let r = f.rect_m;
-    let mut at: Vec<[f64; 2]> = plate
-        .cells
-        .iter()
-        .map(|c| plate.centre(c))
-        .filter(|p| p[0] >= r[0] && p[0] <= r[2] && p[1] >= r[1] && p[1] <= r[3])
-        .collect();
-    if at.is_empty() {
-        at.push(f.centre_m);
-    }
-    at.iter()
-        .map(|&p| (f.feeder_z_m + surface.height(p) - f.floor_at(p)).abs())
-        .fold(0.0, f64::max)
-}
-
 #[cfg(test)]
 mod tests {
     use std::path::PathBuf;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
 
-    use cellinject_core::inject::Event;
+    use cellinject_core::inject::{Attempt, Event, ImageMap, Observer, Target, Transition};
     use cellinject_hw::{Camera, CameraSettings, Clock, HwError, PiezoChannel, Roi};
+    use cellinject_run_sim::nearest_cell;
 
     use super::*;
     use crate::backend::Opened;
@@ -1144,7 +679,7 @@ mod tests {
         opened: Opened,
         db: Records,
         run_id: i64,
-        result: super::Outcome,
+        result: cellinject_run_sim::Outcome,
         stopped: Option<String>,
         dir: PathBuf,
     }
@@ -1199,7 +734,8 @@ mod tests {
             run_id,
             previous: Vec::new(),
             base: (0.0, 0.0),
-            progress: false,
+            progress: None,
+            debug: false,
         };
         let (result, stopped) =
             execute(job, &mut db, &mut opened.rig, Some(obs), &|| true).unwrap();

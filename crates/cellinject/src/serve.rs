@@ -133,10 +133,11 @@ impl Station for BenchStation {
             run_id: id,
             previous: Vec::new(),
             base: (0.0, 0.0),
-            progress: false,
+            progress: None,
+            debug: crate::run::debug(),
         };
         let (result, stopped) = execute(job, &mut db, &mut self.rig, Some(watch), aborted)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| crate::run::run_error(e).to_string())?;
         let r = db.run(Some(id)).map_err(|e| records_error(e).to_string())?;
         let (cells_per_min, calibration) = match result {
             Ok((report, cal)) => (report.cells_per_min, Some(cal)),

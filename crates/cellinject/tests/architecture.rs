@@ -70,10 +70,13 @@ fn closure(all: &Packages, name: &str) -> BTreeSet<String> {
 
 const TWIN: &str = "cellinject-twin";
 
-/// Crates allowed to depend on the twin: the binary and those whose names say they
-/// simulate or emulate.
+/// The front ends: the binary and the Python bindings.
+const FRONT_ENDS: [&str; 2] = ["cellinject", "cellinject-python"];
+
+/// Crates allowed to depend on the twin: the front ends and those whose names say
+/// they simulate or emulate.
 fn may_use_the_twin(name: &str) -> bool {
-    name == "cellinject" || name.contains("-sim") || name.contains("emul")
+    FRONT_ENDS.contains(&name) || name.contains("-sim") || name.contains("emul")
 }
 
 #[test]
@@ -164,6 +167,8 @@ fn heavy_dependencies_stay_in_their_one_crate() {
     only_in(&all, "serialport", "gcs");
     only_in(&all, "axum", "dashboard");
     only_in(&all, "tokio", "dashboard");
+    only_in(&all, "pyo3", "python");
+    only_in(&all, "numpy", "python");
     // The dashboard knows no driver and no database: the front end hands it a
     // station, a viewer and an archive.
     let c = closure(&all, "cellinject-dashboard");
@@ -208,5 +213,25 @@ fn the_hardware_vocabulary_depends_on_nothing_of_ours() {
         ] {
             assert!(!c.contains(bad), "{name} depends on {bad}");
         }
+    }
+}
+
+#[test]
+fn nothing_depends_on_a_front_end_and_the_bindings_use_libraries_only() {
+    let all = packages();
+    for fe in FRONT_ENDS {
+        assert!(all.contains_key(fe), "{fe} is missing");
+        for (name, (_, deps)) in &all {
+            assert!(
+                !deps.iter().any(|(d, _)| d == fe),
+                "{name} depends on the front end {fe}: front ends are leaves"
+            );
+        }
+    }
+    // The Python bindings call the library crates, never the binary (whatever they
+    // share with the CLI lives in a library), and add no CLI machinery.
+    let c = closure(&all, "cellinject-python");
+    for bad in ["cellinject", "clap", "anyhow", "indicatif"] {
+        assert!(!c.contains(bad), "cellinject-python depends on {bad}");
     }
 }

@@ -7,6 +7,95 @@ use cellinject_dic::{
 };
 use serde::Serialize;
 
+/// A DIC setting out of its domain: `name` (the command line's, without dashes, e.g.
+/// `min-zncc`) `rule`, and the value given. Displays as `min-zncc must lie in [-1, 1],
+/// got 2`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{name} {rule}, got {value}")]
+pub struct ArgError {
+    /// The setting, as the command line names it without its dashes.
+    pub name: &'static str,
+    /// What it must be.
+    pub rule: &'static str,
+    /// The value given, as text.
+    pub value: String,
+}
+
+fn arg_error(name: &'static str, rule: &'static str, value: impl std::fmt::Display) -> ArgError {
+    ArgError {
+        name,
+        rule,
+        value: value.to_string(),
+    }
+}
+
+/// The acceptance rule of `dic` and `dic field`, checked: `min_zncc` in [-1, 1],
+/// `max_sigma` (px) positive.
+pub fn acceptance(min_zncc: f64, max_sigma: f64) -> Result<Acceptance, ArgError> {
+    if !(-1.0..=1.0).contains(&min_zncc) {
+        return Err(arg_error("min-zncc", "must lie in [-1, 1]", min_zncc));
+    }
+    if max_sigma.is_nan() || max_sigma <= 0.0 {
+        return Err(arg_error(
+            "max-sigma",
+            "must be a positive number of pixels",
+            max_sigma,
+        ));
+    }
+    Ok(Acceptance {
+        min_zncc,
+        max_sigma,
+    })
+}
+
+/// A Gaussian prefilter's sigma, checked: in [0, 20] px.
+pub fn check_prefilter(sigma: f64) -> Result<(), ArgError> {
+    if !(0.0..=20.0).contains(&sigma) {
+        return Err(arg_error("prefilter", "must lie in [0, 20] pixels", sigma));
+    }
+    Ok(())
+}
+
+/// The settings of [`synth_pair`], checked: each side 16 to 20000 px, the noise
+/// non-negative.
+pub fn check_synth(size: (usize, usize), noise: f64) -> Result<(), ArgError> {
+    let (w, h) = size;
+    if w < 16 || h < 16 || w > 20000 || h > 20000 {
+        return Err(arg_error(
+            "size",
+            "takes WIDTH,HEIGHT between 16 and 20000",
+            format!("{:?}", [w, h]),
+        ));
+    }
+    if !(noise >= 0.0 && noise.is_finite()) {
+        return Err(arg_error("noise", "must be a non-negative number", noise));
+    }
+    Ok(())
+}
+
+/// `dic synth`: the exact speckle pair, `width` x `height` px (16 to 20000 each), the
+/// current image shifted by `shift` (px) and rotated by `rotation` (degrees) about the
+/// centre, each with Gaussian noise of `noise` grey levels (independent streams of
+/// `seed`).
+pub fn synth_pair(
+    size: (usize, usize),
+    shift: (f64, f64),
+    rotation: f64,
+    noise: f64,
+    seed: u64,
+) -> Result<(Image, Image), ArgError> {
+    check_synth(size, noise)?;
+    let (w, h) = size;
+    let mut p = cellinject_dic::synth::SpeckleParams::default_for(w, h);
+    p.noise = noise;
+    let sp = cellinject_dic::synth::Speckle::new(&p, seed);
+    // Two independent noise streams for any seed (wrapping: every u64 is a seed).
+    let noise_seed = |k: u64| seed.wrapping_mul(2).wrapping_add(k);
+    let r = sp.render_shifted(0.0, 0.0, 0.0, noise_seed(1));
+    let c = sp.render_shifted(shift.0, shift.1, rotation.to_radians(), noise_seed(2));
+    Ok((r, c))
+}
+
 /// One point of `cellinject dic` (an element of its JSON list). A point without a
 /// trustworthy match has `u`, `v`, `zncc`, `sigma_u` null, `converged` false and an
 /// `error`.
@@ -127,6 +216,22 @@ pub fn points(
     options: &PointOptions,
     acceptance: &Acceptance,
 ) -> Result<Vec<PointReport>, DicError> {
+    // A point off the image is refused here with the error the DIC gives any point
+    // whose subset leaves the image: the DIC's own check overflows on coordinates
+    // near usize::MAX (`--at 1e300,1e300` panicked).
+    let (w, h) = (reference.width() as f64, reference.height() as f64);
+    if let Some(&(x, y)) = at
+        .iter()
+        .find(|(x, y)| !(*x >= 0.0 && *x < w && *y >= 0.0 && *y < h))
+    {
+        return Err(DicError::SubsetOutside {
+            x,
+            y,
+            size: options.subset,
+            width: reference.width(),
+            height: reference.height(),
+        });
+    }
     // The subset grows by the same rule the results are judged by.
     let options = PointOptions {
         acceptance: *acceptance,

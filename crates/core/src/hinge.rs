@@ -16,6 +16,20 @@ pub enum HingeError {
     /// The FEM failed.
     #[error("hinge FEM: {0}")]
     Fem(#[from] FemError),
+    /// A dimension the profile needs was not given (names the argument: `radius`,
+    /// `length`).
+    #[error("`{name}` is required for {article} {profile} hinge")]
+    Missing {
+        /// The argument.
+        name: &'static str,
+        /// "a" or "an".
+        article: &'static str,
+        /// The profile's long name (`circular`, `corner-filleted`, ...).
+        profile: &'static str,
+    },
+    /// A profile name that is none of `circular`, `corner`, `elliptic`, `leaf`.
+    #[error("profile must be circular, corner, elliptic or leaf, got `{0}`")]
+    UnknownProfile(String),
     /// A result is not a finite number: the dimensions or constants are out of all
     /// physical scale (they are metres and pascals).
     #[error(
@@ -65,6 +79,80 @@ pub fn profile_name(p: &Profile) -> &'static str {
         Profile::CornerFilleted { .. } => "corner",
         Profile::Elliptic { .. } => "elliptic",
         Profile::Leaf { .. } => "leaf",
+    }
+}
+
+/// The four notch profiles by their command-line names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProfileKind {
+    /// `circular`: radius R, length 2R.
+    Circular,
+    /// `corner`: fillet radius R, total length L.
+    Corner,
+    /// `elliptic`: depth R across, total length L along.
+    Elliptic,
+    /// `leaf`: length L.
+    Leaf,
+}
+
+impl ProfileKind {
+    /// The kind a command-line name (`circular`, `corner`, `elliptic`, `leaf`) names.
+    pub fn from_name(name: &str) -> Result<Self, HingeError> {
+        Ok(match name {
+            "circular" => ProfileKind::Circular,
+            "corner" => ProfileKind::Corner,
+            "elliptic" => ProfileKind::Elliptic,
+            "leaf" => ProfileKind::Leaf,
+            other => return Err(HingeError::UnknownProfile(other.to_string())),
+        })
+    }
+
+    /// The notch of this kind from the arguments `radius` and `length` (m), refusing
+    /// a missing one ([`HingeError::Missing`]); an elliptic notch's `length` is its
+    /// total length (twice the semi-axis).
+    pub fn profile(self, radius: Option<f64>, length: Option<f64>) -> Result<Profile, HingeError> {
+        let need = |v: Option<f64>, name: &'static str, profile: &'static str| {
+            let article = if profile.starts_with(['a', 'e', 'i', 'o', 'u']) {
+                "an"
+            } else {
+                "a"
+            };
+            v.ok_or(HingeError::Missing {
+                name,
+                article,
+                profile,
+            })
+        };
+        Ok(match self {
+            ProfileKind::Circular => Profile::Circular {
+                radius: need(radius, "radius", "circular")?,
+            },
+            ProfileKind::Corner => Profile::CornerFilleted {
+                radius: need(radius, "radius", "corner-filleted")?,
+                length: need(length, "length", "corner-filleted")?,
+            },
+            ProfileKind::Elliptic => Profile::Elliptic {
+                half_length: 0.5 * need(length, "length", "elliptic")?,
+                depth: need(radius, "radius", "elliptic")?,
+            },
+            ProfileKind::Leaf => Profile::Leaf {
+                length: need(length, "length", "leaf")?,
+            },
+        })
+    }
+
+    /// An argument given that this kind does not use, and why (said, not silently
+    /// dropped): a circular notch's length is 2R, a leaf has no radius.
+    pub fn unused(
+        self,
+        radius: Option<f64>,
+        length: Option<f64>,
+    ) -> Option<(&'static str, &'static str)> {
+        match self {
+            ProfileKind::Circular => length.map(|_| ("length", "its length is 2R")),
+            ProfileKind::Leaf => radius.map(|_| ("radius", "a straight leaf has no notch radius")),
+            _ => None,
+        }
     }
 }
 

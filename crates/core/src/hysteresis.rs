@@ -24,6 +24,53 @@ pub enum Kind {
     PiAsymmetric,
 }
 
+impl Kind {
+    /// The kind a command-line name (`preisach`, `pi`, `pi-asym`) names.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "preisach" => Some(Kind::Preisach),
+            "pi" => Some(Kind::Pi),
+            "pi-asym" => Some(Kind::PiAsymmetric),
+            _ => None,
+        }
+    }
+}
+
+/// Why the data cannot set a model's input range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RangeError {
+    /// No voltage above 0 V and no `v_max` given (or `v_max` not positive).
+    #[error("no voltage above 0 V (and no v_max)")]
+    NoPositiveVoltage,
+    /// A voltage outside `[0, top]`, at sample `index` (0-based).
+    #[error("sample {index}: {value} V lies outside the model's range [0, {top}] V (v_max)")]
+    Outside {
+        /// 0-based sample.
+        index: usize,
+        /// The voltage, V.
+        value: f64,
+        /// The range's top, V.
+        top: f64,
+    },
+}
+
+/// The input range `hysteresis fit` gives a model: `[0, v_max]`, `v_max` by default
+/// the data's highest voltage; refuses data outside it (1e-9 V of slack).
+pub fn fit_range(volts: &[f64], v_max: Option<f64>) -> Result<Range, RangeError> {
+    let top = v_max.unwrap_or_else(|| volts.iter().copied().fold(0.0, f64::max));
+    if !(top.is_finite() && top > 0.0) {
+        return Err(RangeError::NoPositiveVoltage);
+    }
+    if let Some(index) = volts.iter().position(|v| *v < -1e-9 || *v > top + 1e-9) {
+        return Err(RangeError::Outside {
+            index,
+            value: volts[index],
+            top,
+        });
+    }
+    Ok(Range { min: 0.0, max: top })
+}
+
 /// The identification run of `hysteresis identify`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct IdentifyReport {

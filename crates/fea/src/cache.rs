@@ -180,6 +180,16 @@ pub trait JointStore {
     }
 }
 
+/// The joint cache every front end uses: the platform's directory
+/// ([`DirCache::default_location`]) when `use_cache` and there is one, else
+/// [`NoCache`].
+pub fn default_store(use_cache: bool) -> Box<dyn JointStore + Send + Sync> {
+    match DirCache::default_location() {
+        Some(dir) if use_cache => Box::new(DirCache::new(dir)),
+        _ => Box::new(NoCache),
+    }
+}
+
 /// No cache: every joint is solved, nothing is read or written.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct NoCache;

@@ -47,7 +47,7 @@ use nalgebra::Vector6;
 use serde::Serialize;
 use thiserror::Error;
 
-pub use cache::{CacheStatus, DirCache, JointKey, JointStore, NoCache};
+pub use cache::{CacheStatus, DirCache, JointKey, JointStore, NoCache, default_store};
 pub use cellinject_model::Approach;
 pub use cellinject_structure::{Equilibrium, Member, Structure, StructureParams};
 pub use report::{
@@ -903,4 +903,29 @@ pub fn joints(
         },
         joints: rows,
     })
+}
+
+/// J3's yield check for the safety envelope of a bench assembled with `approach`: the
+/// structural model of `design` and `structure` on level-1 FEM joints (from `store`
+/// when it holds them), reduced to numbers the envelope evaluates without the FEM
+/// ([`cellinject_rig::guard::YieldCheck`]). Every front end that builds a twin or a
+/// guarded rig calls this.
+pub fn j3_yield_check(
+    design: &Design,
+    structure: &StructureParams,
+    approach: Approach,
+    store: &dyn JointStore,
+) -> Result<cellinject_rig::guard::YieldCheck, FeaError> {
+    use cellinject_rig::guard::{StressPoint, YIELD_POINTS, YieldCheck};
+    let m = FeaModel::build(design, structure, FeaOptions::default(), store)?;
+    let map = m.j3_yield_map(approach, YIELD_POINTS)?;
+    Ok(YieldCheck::new(
+        "J3",
+        map.yield_strength,
+        map.fit_error,
+        map.points.iter().map(|a| StressPoint {
+            at_zero: a.at_zero,
+            per_newton: a.per_newton,
+        }),
+    ))
 }

@@ -1,0 +1,342 @@
+//! `cellinject.twin`: the digital twin of the bench, driven through its guarded rig
+//! (the same safety envelope as every front end), and the injection workflow on it.
+
+use std::path::PathBuf;
+use std::sync::{Mutex, MutexGuard};
+
+use cellinject_hw::{Camera as _, Clock as _, HwError, PiezoChannel as _, PositionSensor as _};
+use cellinject_rig::Rig;
+use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
+use numpy::{IntoPyArray, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::{Kind, description, err, finite, input};
+
+fn hw_error(name: &str, e: HwError) -> PyErr {
+    match e {
+        HwError::Refused(_) | HwError::OutOfRange { .. } | HwError::NotFinite { .. } => {
+            input(format!("{name}: {e}"))
+        }
+        e => err(Kind::Other, format!("{name}: {e}")),
+    }
+}
+
+struct Inner {
+    twin: SharedTwin,
+    rig: Rig<TwinBackend>,
+}
+
+/// The digital twin of the bench: three piezo stacks behind the safety envelope, their
+/// position sensors, the microscope (``"top"``) and side cameras, the stages, on a
+/// simulated clock that moves only when you advance it.
+///
+/// Args:
+///     approach: the pre-tensioning approach it is assembled with, 1 or 2 (None: the
+///         description's ``twin.approach``).
+///     seed: of its random processes (None: the description's ``twin.seed``).
+///     config: a description file; None: the prototype.
+///
+/// Building it evaluates J3's yield check with the structural model (joint FEM or the
+/// joint cache the CLI shares), with the GIL released.
+///
+/// Example:
+///     >>> from cellinject import twin
+///     >>> t = twin.Twin(seed=1)
+///     >>> t.set_voltages(20.0, 20.0, 0.0)
+///     [20.0, 20.0, 0.0]
+///     >>> t.advance(0.05)
+///     >>> frame = t.grab("top")["image"]
+#[pyclass(module = "cellinject.twin", name = "Twin", frozen)]
+pub(crate) struct PyTwin {
+    inner: Mutex<Inner>,
+}
+
+impl PyTwin {
+    /// Runs `f` on the twin with the GIL released; the lock is taken and given back
+    /// without the GIL, so two Python threads sharing a twin cannot deadlock.
+    fn with<R: Send>(&self, py: Python<'_>, f: impl FnOnce(&mut Inner) -> R + Send) -> R {
+        py.detach(|| {
+            let mut g: MutexGuard<'_, Inner> = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+            f(&mut g)
+        })
+    }
+}
+
+/// The twin of a description, `approach` and `seed` overriding its own, with J3's
+/// yield check from the structural model (as the CLI builds it).
+pub(crate) fn build(
+    py: Python<'_>,
+    approach: Option<i64>,
+    seed: Option<u64>,
+    config: Option<&std::path::Path>,
+) -> PyResult<SharedTwin> {
+    let d = description(config)?;
+    let mut p = TwinParams {
+        rig: d.rig,
+        sim: d.sim,
+    };
+    if let Some(a) = approach {
+        p.rig.approach = crate::approach("approach", a)?;
+    }
+    if let Some(s) = seed {
+        p.sim.seed = s;
+    }
+    let store = cellinject_fea::default_store(true);
+    let check = py
+        .detach(|| {
+            cellinject_fea::j3_yield_check(&d.design, &d.structure, p.rig.approach, store.as_ref())
+        })
+        .map_err(|e| {
+            err(
+                Kind::NotConverged,
+                format!("the safety envelope checks J3 against its yield strength with the structural model, which failed: {e}"),
+            )
+        })?;
+    p.rig.j3_yield = Some(check);
+    Ok(Twin::new(&d.design, p)
+        .map_err(|e| input(format!("cannot build the twin: {e}")))?
+        .into_shared())
+}
+
+#[pymethods]
+impl PyTwin {
+    #[new]
+    #[pyo3(signature = (approach=None, seed=None, config=None))]
+    fn new(
+        py: Python<'_>,
+        approach: Option<i64>,
+        seed: Option<u64>,
+        config: Option<PathBuf>,
+    ) -> PyResult<Self> {
+        let twin = build(py, approach, seed, config.as_deref())?;
+        let rig = cellinject_twin::rig(&twin)
+            .map_err(|e| input(format!("cannot build the twin: {e}")))?;
+        Ok(PyTwin {
+            inner: Mutex::new(Inner { twin, rig }),
+        })
+    }
+
+    /// Commands the stacks' amplifiers A1, A2, A3, V. A1 and A2 go together through
+    /// the safety envelope, shortened to its edge where they would leave it; A3 is
+    /// refused outside its range.
+    ///
+    /// Returns:
+    ///     list[float]: the voltages applied, V.
+    ///
+    /// Raises:
+    ///     InputError: a NaN, or a refused A3 (named).
+    fn set_voltages(&self, py: Python<'_>, a1: f64, a2: f64, a3: f64) -> PyResult<Vec<f64>> {
+        finite("a1", a1)?;
+        finite("a2", a2)?;
+        finite("a3", a3)?;
+        self.with(py, |g| {
+            let tilt = g.rig.command_tilt([a1, a2]).map_err(|e| ("a1, a2", e))?;
+            g.rig.piezo[2].set_voltage(a3).map_err(|e| ("a3", e))?;
+            Ok(vec![tilt[0], tilt[1], g.rig.piezo[2].commanded_voltage()])
+        })
+        .map_err(|(n, e)| hw_error(n, e))
+    }
+
+    /// The voltages commanded to A1, A2, A3, V.
+    fn voltages(&self, py: Python<'_>) -> Vec<f64> {
+        self.with(py, |g| {
+            g.rig.piezo.iter().map(|p| p.commanded_voltage()).collect()
+        })
+    }
+
+    /// The stacks' position sensors A1, A2, A3: extensions, m (with their noise).
+    fn sensors(&self, py: Python<'_>) -> PyResult<Vec<f64>> {
+        self.with(py, |g| {
+            g.rig
+                .sensors
+                .iter_mut()
+                .map(|s| s.read())
+                .collect::<Result<Vec<f64>, HwError>>()
+        })
+        .map_err(|e| hw_error("sensors", e))
+    }
+
+    /// Advances the simulated clock by ``seconds`` (the structure rings, the stacks
+    /// creep), with the GIL released.
+    ///
+    /// Raises:
+    ///     InputError: a negative or non-finite duration.
+    fn advance(&self, py: Python<'_>, seconds: f64) -> PyResult<()> {
+        if !(seconds.is_finite() && seconds >= 0.0) {
+            return Err(input(format!(
+                "seconds must be a non-negative number, got {seconds}"
+            )));
+        }
+        self.with(py, |g| g.rig.clock.sleep(seconds))
+            .map_err(|e| hw_error("seconds", e))
+    }
+
+    /// The simulated clock, s.
+    #[getter]
+    fn time(&self, py: Python<'_>) -> f64 {
+        self.with(py, |g| g.rig.clock.now())
+    }
+
+    /// One frame of a camera: ``"top"`` (the microscope, looking along y) or
+    /// ``"side"``.
+    ///
+    /// Returns:
+    ///     dict: ``image`` (2-D uint16 NumPy array, rows x columns), ``bit_depth``,
+    ///     ``timestamp`` and ``exposure`` (s), ``pixel_size`` (m in the object plane),
+    ///     ``index``.
+    #[pyo3(signature = (camera="top"))]
+    fn grab(&self, py: Python<'_>, camera: &str) -> PyResult<Py<PyAny>> {
+        let f = self
+            .with(py, |g| match camera {
+                "top" => Ok(g.rig.camera.grab()),
+                "side" => Ok(g.rig.side_camera.grab()),
+                _ => Err(()),
+            })
+            .map_err(|()| input(format!("camera must be top or side, got `{camera}`")))?
+            .map_err(|e| hw_error("camera", e))?;
+        let d = PyDict::new(py);
+        let image = f
+            .pixels
+            .into_pyarray(py)
+            .reshape([f.height as usize, f.width as usize])?;
+        d.set_item("image", image)?;
+        d.set_item("bit_depth", f.bit_depth)?;
+        d.set_item("timestamp", f.timestamp)?;
+        d.set_item("exposure", f.exposure)?;
+        d.set_item("pixel_size", f.pixel_size)?;
+        d.set_item("index", f.index)?;
+        Ok(d.into_any().unbind())
+    }
+
+    /// Puts a plate file's cells and debris under the microscope (``plate generate``
+    /// writes one).
+    ///
+    /// Raises:
+    ///     InputError: the file cannot be read, or what it holds cannot be (the key).
+    fn load_plate(&self, py: Python<'_>, plate: PathBuf) -> PyResult<()> {
+        let (p, _) = crate::runs::read_plate(&plate)?;
+        self.with(py, |g| {
+            g.twin
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .load_plate(&p)
+        });
+        Ok(())
+    }
+
+    /// The pipette tip's true pose (the twin's truth, never measured): ``x`` and ``z``
+    /// (m, along the top camera's columns and rows), ``depth`` (m from the focal plane).
+    fn tip(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        let t = self.with(py, |g| {
+            g.twin.lock().unwrap_or_else(|e| e.into_inner()).tip()
+        });
+        let d = PyDict::new(py);
+        d.set_item("x", t.x)?;
+        d.set_item("z", t.z)?;
+        d.set_item("depth", t.depth)?;
+        Ok(d.into_any().unbind())
+    }
+
+    fn __repr__(&self, py: Python<'_>) -> String {
+        format!("<cellinject.twin.Twin t={:.6} s>", self.time(py))
+    }
+}
+
+/// The unattended injection workflow on a fresh twin (``cellinject run``): every cell
+/// of the plate found, injected and checked, each attempt recorded in ``db``; the GIL
+/// is released while it runs.
+///
+/// Args:
+///     plate: a plate file (``plate generate`` writes one); None: the default 8 x 12
+///         plate generated from ``seed``.
+///     seed: of the twin and the default plate (None: the description's ``twin.seed``).
+///     db: the run database, created if missing (``cellinject runs`` and
+///         :mod:`cellinject.runs` read it).
+///     config: a description file; None: the prototype.
+///
+/// Returns:
+///     dict: the run summary of ``cellinject run --format json`` (docs/json.md):
+///     ``run``, ``status``, ``injected``, ``failed``, ``attempts`` (``tip_error_m``,
+///     ...), ``events``, ``focus``, ...; a run that stopped on a fault is returned too,
+///     with ``status`` ``"stopped"`` and ``stopped`` saying why.
+///
+/// Raises:
+///     InputError: a plate that cannot be read or served (nothing is recorded then).
+///
+/// Example:
+///     >>> from cellinject import twin
+///     >>> s = twin.run(plate="plate.toml", db="runs.sqlite")  # doctest: +SKIP
+///     >>> s["injected"], s["status"]  # doctest: +SKIP
+#[pyfunction]
+#[pyo3(signature = (plate=None, seed=None, db=PathBuf::from("runs.sqlite"), config=None))]
+fn twin_run(
+    py: Python<'_>,
+    plate: Option<PathBuf>,
+    seed: Option<u64>,
+    db: PathBuf,
+    config: Option<PathBuf>,
+) -> PyResult<Py<PyAny>> {
+    use cellinject_run_sim as run;
+    let d = description(config.as_deref())?;
+    let options = cellinject_core::inject::Options::default();
+    options.check(&d.rig).map_err(|e| input(e.to_string()))?;
+    let seed = seed.unwrap_or(d.sim.seed);
+    let (plate, text) = match &plate {
+        Some(p) => crate::runs::read_plate(p)?,
+        None => run::default_plate_text(seed)
+            .map_err(|e| err(Kind::Other, format!("default plate: {e}")))?,
+    };
+    let twin = build(py, None, Some(seed), config.as_deref())?;
+    let mut rig = cellinject_twin::guarded(&twin, cellinject_twin::devices(&twin).boxed())
+        .map_err(|e| input(format!("cannot build the twin: {e}")))?;
+    let existed = db.exists();
+    let mut records = cellinject_records::Records::open(&db).map_err(crate::runs::records_error)?;
+    let settings = serde_json::json!({ "options": options, "faults": Vec::<String>::new() });
+    let run_id = run::new_run(&mut records, &text, Some(seed), "twin", &settings)
+        .map_err(crate::runs::records_error)?;
+    run::prepare_twin(&twin, &plate, &[], &options).map_err(|e| input(e.to_string()))?;
+    let (result, records) = py.detach(|| {
+        let job = run::Job {
+            d: &d,
+            options,
+            hysteresis: None,
+            twin: Some(twin.clone()),
+            plate: plate.clone(),
+            run_id,
+            previous: Vec::new(),
+            base: (0.0, 0.0),
+            progress: None,
+            debug: false,
+        };
+        let r = run::execute(job, &mut records, &mut rig, None, &|| false);
+        (r, records)
+    });
+    let (result, _stopped) = result.map_err(|e| match e {
+        run::RunError::Records(e) => crate::runs::records_error(e),
+        e => input(e.to_string()),
+    })?;
+    if let Err(e) = &result
+        && run::refused_input(e)
+    {
+        run::discard(records, run_id, &db, existed).map_err(crate::runs::records_error)?;
+        return Err(input(format!("plate: {e}")));
+    }
+    let r = records
+        .run(Some(run_id))
+        .map_err(crate::runs::records_error)?;
+    let attempts = records
+        .attempts(run_id)
+        .map_err(crate::runs::records_error)?;
+    let events = records.events(run_id).map_err(crate::runs::records_error)?;
+    let mut s = run::summary(&r, attempts, events);
+    if let Ok((report, _)) = &result {
+        s = run::with_report(s, report, Some(&twin), &plate);
+    }
+    crate::to_py(py, &s)
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyTwin>()?;
+    m.add_function(wrap_pyfunction!(twin_run, m)?)
+}

@@ -1,0 +1,12 @@
+from . import dic as dic
+from . import fea as fea
+from . import flexure as flexure
+from . import hysteresis as hysteresis
+from . import model as model
+from . import runs as runs
+from . import twin as twin
+from ._errors import Error as Error
+from ._errors import InputError as InputError
+from ._errors import NotConverged as NotConverged
+
+__version__: str
