@@ -13,7 +13,7 @@ class Twin:
         config: Optional[PathLike] = None,
     ) -> None: ...
     def set_voltages(self, a1: float, a2: float, a3: float) -> List[float]:
-        """Commands A1, A2 (through the envelope) and A3, V; returns what was applied."""
+        """Commands A1, A2, A3, V, each through the safety envelope; a refused voltage raises InputError and moves nothing. Returns what was applied."""
     def voltages(self) -> List[float]:
         """The commanded voltages, V."""
     def sensors(self) -> List[float]:

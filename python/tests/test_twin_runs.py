@@ -50,6 +50,12 @@ def test_bad_commands_are_input_errors(t):
     for args, msg in [((np.nan, 0.0, 0.0), "a1 must be a finite"), ((0.0, 0.0, np.inf), "a3 must be a finite"), ((0.0, 0.0, 1e6), "a3")]:
         with pytest.raises(cellinject.InputError, match=msg):
             t.set_voltages(*args)
+    # Past a stack's travel: refused like `sim frame --volts 200,0,0`, nothing moved.
+    t.set_voltages(10.0, 10.0, 0.0)
+    for args, msg in [((200.0, 0.0, 0.0), "a1"), ((0.0, -50.0, 0.0), "a2")]:
+        with pytest.raises(cellinject.InputError, match=msg):
+            t.set_voltages(*args)
+        assert t.voltages() == [10.0, 10.0, 0.0]
     with pytest.raises(cellinject.InputError, match="seconds must be a non-negative"):
         t.advance(-1.0)
     with pytest.raises(cellinject.InputError, match="camera must be top or side"):

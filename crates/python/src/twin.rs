@@ -117,23 +117,42 @@ impl PyTwin {
         })
     }
 
-    /// Commands the stacks' amplifiers A1, A2, A3, V. A1 and A2 go together through
-    /// the safety envelope, shortened to its edge where they would leave it; A3 is
-    /// refused outside its range.
+    /// Commands the stacks' amplifiers A1, A2, A3, V, each through the safety
+    /// envelope (as `cellinject sim frame --volts` does): a voltage outside the
+    /// amplifier's range, or one that would drive a stack, a flexure or a joint past
+    /// its limit, is refused, and a refused call leaves every stack where it was.
     ///
     /// Returns:
     ///     list[float]: the voltages applied, V.
     ///
     /// Raises:
-    ///     InputError: a NaN, or a refused A3 (named).
+    ///     InputError: a NaN, or a refused voltage (the stack named).
     fn set_voltages(&self, py: Python<'_>, a1: f64, a2: f64, a3: f64) -> PyResult<Vec<f64>> {
         finite("a1", a1)?;
         finite("a2", a2)?;
         finite("a3", a3)?;
         self.with(py, |g| {
-            let tilt = g.rig.command_tilt([a1, a2]).map_err(|e| ("a1, a2", e))?;
-            g.rig.piezo[2].set_voltage(a3).map_err(|e| ("a3", e))?;
-            Ok(vec![tilt[0], tilt[1], g.rig.piezo[2].commanded_voltage()])
+            // Each stack through the guard, as `sim frame --volts` does: a voltage
+            // outside the amplifier's range, or one that would leave the safety
+            // envelope, is refused, and a refused call leaves every stack where it was.
+            let before: Vec<f64> = g.rig.piezo.iter().map(|p| p.commanded_voltage()).collect();
+            let target = [a1, a2, a3];
+            let names = ["a1", "a2", "a3"];
+            let mut result = Ok(());
+            for ch in 0..3 {
+                if let Err(e) = g.rig.piezo[ch].set_voltage(target[ch]) {
+                    result = Err((names[ch], e));
+                    break;
+                }
+            }
+            if let Err(e) = result {
+                // Back in the reverse order, each to where it was (inside the envelope).
+                for ch in (0..3).rev() {
+                    let _ = g.rig.piezo[ch].set_voltage(before[ch]);
+                }
+                return Err(e);
+            }
+            Ok(g.rig.piezo.iter().map(|p| p.commanded_voltage()).collect())
         })
         .map_err(|(n, e)| hw_error(n, e))
     }
