@@ -147,6 +147,12 @@ impl Kinematics {
         Matrix3::from_columns(&[r * du1, r * du2, u])
     }
 
+    /// m, the loop-closure residual at which [`Self::solve_chain`] stops: `8ε` of the
+    /// chain's reach, the rounding floor of its actuator extension.
+    pub fn rounding_floor(&self, i: usize) -> f64 {
+        8.0 * f64::EPSILON * self.chains[i].reach
+    }
+
     /// Solves the loop closure of chain `i` for its flexure angles and actuator extension
     /// at pose `q` (Newton's method, starting from the home state).
     pub fn solve_chain(&self, i: usize, q: &Pose) -> Result<ChainState, ModelError> {
@@ -154,9 +160,9 @@ impl Kinematics {
             w: [0.0; 2],
             l: 0.0,
         };
-        let reach = self.chains[i].reach;
         // Iterate to the rounding floor: stop once the residual no longer decreases.
-        let floor = 8.0 * f64::EPSILON * reach;
+        let floor = self.rounding_floor(i);
+        let reach = self.chains[i].reach;
         let mut res = self.loop_residual(i, q, &s).norm();
         for _ in 0..MAX_ITER {
             if res <= floor {

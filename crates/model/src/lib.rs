@@ -32,7 +32,7 @@ pub mod tension;
 pub use design::{ACTUATOR_NAMES, Actuator, Design, Flexures, Geometry, TensionSpec};
 pub use error::ModelError;
 pub use kinematics::{ChainState, Jacobians, Kinematics, Pose};
-pub use nonlinear::{Deviation, Linearisation, NonlinearState};
+pub use nonlinear::{ACCEPT as NONLINEAR_ACCEPT, Deviation, Linearisation, NonlinearState};
 pub use statics::Statics;
 pub use tension::{Approach, Assembly, Margins, Mechanism, State, Tension};
 

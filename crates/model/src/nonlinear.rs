@@ -41,13 +41,19 @@ pub struct NonlinearState {
     pub iterations: usize,
     /// Relative residual of eq. (19) at the solution.
     pub residual: f64,
+    /// Relative residual that rounding alone leaves at this state: the actuator
+    /// extensions come from loop closures solved to `8ε·reach`, so each actuator force
+    /// carries `Kl·8ε·reach` of noise, and eq. (19) `‖Lᵀ·δF‖` of it. A light preload on
+    /// a stiff stack makes this larger than [`ACCEPT`]; the solver accepts it then.
+    pub floor: f64,
 }
 
 /// Relative residual at which the Newton iteration stops early.
 const TOLERANCE: f64 = 1e-12;
 /// Relative residual accepted once the iteration has reached its rounding floor (the
-/// actuator force is `Kl·(l_r − l)`, a difference of lengths of order `a11 + a12`).
-const ACCEPT: f64 = 1e-9;
+/// actuator force is `Kl·(l_r − l)`, a difference of lengths of order `a11 + a12`), or
+/// four times the state's own [`NonlinearState::floor`] where that is larger.
+pub const ACCEPT: f64 = 1e-9;
 const MAX_ITER: usize = 60;
 
 impl Mechanism {
@@ -81,6 +87,16 @@ impl Mechanism {
         let c = jac.l.transpose() * force;
         let g = a + b - c;
         let scale = a.norm() + b.norm() + c.norm();
+        let noise = Vector3::new(
+            kl[0] * kin.rounding_floor(0),
+            kl[1] * kin.rounding_floor(1),
+            0.0,
+        );
+        let floor = if scale > 0.0 {
+            (jac.l.transpose().abs() * noise).norm() / scale
+        } else {
+            0.0
+        };
         let state = NonlinearState {
             q: *q,
             w,
@@ -91,6 +107,7 @@ impl Mechanism {
             dx: kin.end_effector(q),
             iterations: 0,
             residual: 0.0,
+            floor,
         };
         Ok((Vector2::new(g[0], g[1]), scale, state))
     }
@@ -113,7 +130,7 @@ impl Mechanism {
             let rel = if scale > 0.0 { g.norm() / scale } else { 0.0 };
             stalled = if rel < 0.5 * last { 0 } else { stalled + 1 };
             last = last.min(rel);
-            if rel <= TOLERANCE || (stalled >= 3 && rel <= ACCEPT) {
+            if rel <= TOLERANCE || (stalled >= 3 && rel <= ACCEPT.max(4.0 * state.floor)) {
                 state.iterations = it;
                 state.residual = rel;
                 return Ok(state);

@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use approx::assert_relative_eq;
-use cellinject_model::{Approach, Design, Mechanism, prototype};
+use cellinject_model::{Approach, Design, Mechanism, NONLINEAR_ACCEPT, prototype};
 use nalgebra::{Matrix3, Matrix4, Matrix4x3, Vector3, Vector4};
 use proptest::prelude::*;
 
@@ -230,7 +230,11 @@ proptest! {
                 ds.tension.work_shift = [d.tension.work_shift[0] * s, d.tension.work_shift[1] * s];
                 let m = Mechanism::new(&ds).unwrap();
                 let lin = m.linearisation(a).unwrap();
-                prop_assert!(lin.tensioned.residual < 1e-9 && lin.work.residual < 1e-9);
+                // Converged to 1e-9, or to the rounding floor where a light preload
+                // on a stiff stack puts that higher (the floor is computed, not tuned).
+                for st in [&lin.tensioned, &lin.work] {
+                    prop_assert!(st.residual < NONLINEAR_ACCEPT.max(4.0 * st.floor), "{st:?}");
+                }
                 errs.push(lin.dx_tensioned.relative.max(lin.dx_work.relative));
             }
             // Second-order terms: the relative error shrinks with the load.
