@@ -146,6 +146,15 @@ impl Gcs {
         Self::new(Box::new(link), timeout)
     }
 
+    /// Changes how long a reply may take from now on (e.g. a generous timeout to
+    /// connect, a short one for a fast control loop).
+    pub fn set_timeout(&mut self, timeout: Duration) -> R<()> {
+        self.timeout = timeout;
+        self.link
+            .set_timeout(timeout)
+            .map_err(|e| self.link_error(&e))
+    }
+
     /// The axis identifiers the controller reported at connection.
     pub fn axis_ids(&self) -> &[String] {
         &self.axes
