@@ -47,6 +47,11 @@ impl<'a> Section<'a> {
         self.table.get(k)
     }
 
+    /// Whether the table sets `k` (without consuming it).
+    pub(crate) fn has(&self, k: &str) -> bool {
+        self.table.contains_key(k)
+    }
+
     pub(crate) fn require(&mut self, k: &str) -> Result<&'a toml::Value, ConfigError> {
         self.get(k)
             .ok_or_else(|| ConfigError::Missing { key: self.key(k) })

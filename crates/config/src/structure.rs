@@ -2,7 +2,7 @@
 //! the masses of the whole-manipulator model. Every key is optional and defaults to the
 //! prototype's value (`StructureParams::default()`).
 
-use cellinject_structure::{JointDimensions, MassSpec, StructureParams};
+use cellinject_structure::{BodyShape, JointDimensions, StructureParams};
 
 use crate::ConfigError;
 use crate::section::{Check, Section};
@@ -23,18 +23,39 @@ pub(crate) fn structure(top: &mut Section<'_>) -> Result<StructureParams, Config
             joint,
             throat_j12: s.num("throat_J12", d.throat_j12, below(side))?,
             throat_j3: s.num("throat_J3", d.throat_j3, below(side))?,
-            mass: MassSpec {
-                body_mass: s.num("body_mass", d.mass.body_mass, Check::Positive)?,
-                body_com: s.num("body_com", d.mass.body_com, Check::NonNegative)?,
-                body_inertia: s.arr("body_inertia", d.mass.body_inertia, Check::Positive)?,
-                stack_mass: s.num("stack_mass", d.mass.stack_mass, Check::Positive)?,
-            },
+            shape: shape(s, &d.shape)?,
             youngs: s.num("youngs", d.youngs, Check::Positive)?,
             poisson: poisson(s, d.poisson)?,
             yield_strength: s.num("yield_strength", d.yield_strength, Check::Positive)?,
         })
     })?;
     Ok(p)
+}
+
+/// Keys of the fixed masses before they followed the dimensions.
+const FIXED_MASS_KEYS: [&str; 4] = ["body_mass", "body_com", "body_inertia", "stack_mass"];
+
+/// The bodies' shapes and densities; the fixed masses of earlier files are refused with
+/// the keys that replace them.
+fn shape(s: &mut Section<'_>, d: &BodyShape) -> Result<BodyShape, ConfigError> {
+    for key in FIXED_MASS_KEYS {
+        if s.has(key) {
+            return Err(ConfigError::Invalid {
+                key: s.key(key),
+                reason: "the masses follow the dimensions now: set body_side, body_density, \
+                         tool_mass, stack_side and stack_density instead (configs/prototype.toml \
+                         documents the shapes)"
+                    .into(),
+            });
+        }
+    }
+    Ok(BodyShape {
+        body_side: s.num("body_side", d.body_side, Check::Positive)?,
+        body_density: s.num("body_density", d.body_density, Check::Positive)?,
+        tool_mass: s.num("tool_mass", d.tool_mass, Check::NonNegative)?,
+        stack_side: s.num("stack_side", d.stack_side, Check::Positive)?,
+        stack_density: s.num("stack_density", d.stack_density, Check::Positive)?,
+    })
 }
 
 /// `structure.poisson`: within the open interval (−1, 0.5), where the elasticity
@@ -55,7 +76,7 @@ mod tests {
     use crate::{ConfigError, PROTOTYPE_TOML, parse};
 
     fn with_line(line: &str) -> Result<crate::Description, ConfigError> {
-        let at = "stack_mass = 0.05";
+        let at = "stack_density = 7800.0";
         assert!(PROTOTYPE_TOML.contains(at));
         parse(&PROTOTYPE_TOML.replacen(at, &format!("{line}\n{at}"), 1))
     }

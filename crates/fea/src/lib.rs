@@ -459,7 +459,7 @@ impl FeaModel {
         let spec = StructureSpec {
             j3: joint_model(&j3, "structure.throat_J3")?,
             j12: [m12, m12],
-            mass: params.mass,
+            mass: params.masses(&design.geometry),
         };
         let structure = Structure::new(design, &spec).map_err(FeaError::Structure)?;
         let convergence = JointConvergence {

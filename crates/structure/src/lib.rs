@@ -35,7 +35,7 @@
 //! **Architecture invariant:** pure computation: no IO, no time, no devices; joint
 //! compliances come in as numbers, so this crate does not depend on the FEM.
 
-use cellinject_model::Design;
+use cellinject_model::{Design, Geometry};
 use cellinject_numeric::{Newton2Error, Newton2Options, newton2};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Rotation3, SMatrix, SVector, Vector3, Vector6};
 use thiserror::Error;
@@ -48,6 +48,10 @@ const SCALE: f64 = 1e-6;
 const NSTRAIN: usize = 20;
 /// Newton iterations allowed.
 const MAX_ITER: usize = 30;
+/// Newton iterations allowed for approach 2's pre-deflection: each evaluation is an
+/// equilibrium solved to [`TOLERANCE`], whose rounding makes the last digits of the
+/// slider travel noisy.
+const DEFLECTION_MAX_ITER: usize = 60;
 /// Largest gradient component, relative to the load, accepted at equilibrium.
 const TOLERANCE: f64 = 1e-7;
 
@@ -140,7 +144,8 @@ pub struct JointDimensions {
     pub gap: f64,
 }
 
-/// The description's `[structure]` section: joint dimensions, throats, masses.
+/// The description's `[structure]` section: joint dimensions, throats, the bodies'
+/// shapes and densities, the joints' material.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StructureParams {
     /// Joint dimensions common to J1-J3.
@@ -149,8 +154,8 @@ pub struct StructureParams {
     pub throat_j12: f64,
     /// m, throat Δ3 of J3 (paper: 2.0 mm).
     pub throat_j3: f64,
-    /// Masses for the natural modes.
-    pub mass: MassSpec,
+    /// Shapes and densities the masses follow from ([`StructureParams::masses`]).
+    pub shape: BodyShape,
     /// Pa, Young's modulus of the joints' material (X2CrNi18-9: 190 GPa, Sec. 3.1).
     pub youngs: f64,
     /// Poisson's ratio of the joints' material (0.3; not in the paper).
@@ -164,9 +169,8 @@ impl Default for StructureParams {
     /// The prototype: a 13.99 mm square rod, slots with 2 mm fillets and 2.31 mm
     /// straight throats, 2 mm between the notches (fitted by the 3-D FEM to 91.3 and
     /// 340.3 N·m/rad at Δ = 1.2 and 2.0 mm; the fillet is the smallest that keeps J3
-    /// below yield over both approaches' working ranges); body 1 of 0.2 kg with its centre of mass 60 mm
-    /// above J3 (1.2e-3 kg·m² about J3, as the twin's dynamics), stacks of 50 g
-    /// (10 x 10 x 66 mm of PZT); X2CrNi18-9 (E = 190 GPa, ν = 0.3, yield 465 MPa).
+    /// below yield over both approaches' working ranges); the bodies of
+    /// [`BodyShape::default`]; X2CrNi18-9 (E = 190 GPa, ν = 0.3, yield 465 MPa).
     fn default() -> Self {
         StructureParams {
             joint: JointDimensions {
@@ -177,15 +181,79 @@ impl Default for StructureParams {
             },
             throat_j12: 1.2e-3,
             throat_j3: 2.0e-3,
-            mass: MassSpec {
-                body_mass: 0.2,
-                body_com: 0.06,
-                body_inertia: [4.8e-4, 4.8e-4, 5.0e-5],
-                stack_mass: 0.05,
-            },
+            shape: BodyShape::default(),
             youngs: 190e9,
             poisson: 0.3,
             yield_strength: 465e6,
+        }
+    }
+}
+
+impl StructureParams {
+    /// The masses of a design with lever arms `geometry`: [`BodyShape::masses`].
+    pub fn masses(&self, geometry: &Geometry) -> MassSpec {
+        self.shape.masses(geometry)
+    }
+}
+
+/// The shapes the bodies' masses follow from, so that a design's mass and inertia move
+/// with its dimensions (a design study changes `b2` or the stacks' length, and the first
+/// natural frequency follows).
+///
+/// * Body 1 is a uniform square rod of side `body_side` and density `body_density`
+///   from J3 (z = 0) to the end-effector (z = `b2`), carrying the tool (A3, the pipette
+///   holder and the pipette) as a point mass `tool_mass` at the end-effector.
+/// * A1 and A2 are uniform square rods of side `stack_side` and density
+///   `stack_density` over their length `a_i2`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyShape {
+    /// m, side of body 1's square section.
+    pub body_side: f64,
+    /// kg/m³, body 1's density (steel: 7900).
+    pub body_density: f64,
+    /// kg, A3 with the pipette holder and the pipette, at the end-effector.
+    pub tool_mass: f64,
+    /// m, side of the stacks' square section.
+    pub stack_side: f64,
+    /// kg/m³, the stacks' density (PZT: 7800).
+    pub stack_density: f64,
+}
+
+impl Default for BodyShape {
+    /// The prototype: a 6 mm steel rod (7900 kg/m³) with a 20 g tool (the twin's
+    /// `dynamics.a3_mass`), which gives body 1 the twin's 1.2e-3 kg·m² about J3 at
+    /// b2 = 180 mm; stacks of 10 x 10 mm PZT (7800 kg/m³): 51 g at 66 mm.
+    fn default() -> Self {
+        BodyShape {
+            body_side: 6.0e-3,
+            body_density: 7900.0,
+            tool_mass: 0.02,
+            stack_side: 10.0e-3,
+            stack_density: 7800.0,
+        }
+    }
+}
+
+impl BodyShape {
+    /// Mass, centre of mass and inertia of body 1 and the stacks' masses for the lever
+    /// arms of `geometry` (rod: `m = ρ s² b2`, `I = m (b2² + s²)/12` about its centre,
+    /// `m s²/6` about its axis; parallel axes to the joint centre of mass).
+    pub fn masses(&self, geometry: &Geometry) -> MassSpec {
+        let b2 = geometry.b2;
+        let rod = self.body_density * self.body_side.powi(2) * b2;
+        let tool = self.tool_mass;
+        let mass = rod + tool;
+        let com = (rod * 0.5 * b2 + tool * b2) / mass;
+        let transverse = rod * (b2 * b2 + self.body_side.powi(2)) / 12.0
+            + rod * (0.5 * b2 - com).powi(2)
+            + tool * (b2 - com).powi(2);
+        let axial = rod * self.body_side.powi(2) / 6.0;
+        let stack = |len: f64| self.stack_density * self.stack_side.powi(2) * len;
+        MassSpec {
+            body_mass: mass,
+            body_com: com,
+            body_inertia: [transverse, transverse, axial],
+            stack_mass: [stack(geometry.a12), stack(geometry.a22)],
         }
     }
 }
@@ -199,8 +267,8 @@ pub struct MassSpec {
     pub body_com: f64,
     /// kg·m², body 1's principal moments of inertia about its centre of mass (x, y, z).
     pub body_inertia: [f64; 3],
-    /// kg, each of A1, A2 (a uniform rod between J_i and the spherical joint).
-    pub stack_mass: f64,
+    /// kg, A1 and A2 (each a uniform rod between J_i and the spherical joint).
+    pub stack_mass: [f64; 2],
 }
 
 /// The model's inputs.
@@ -431,11 +499,12 @@ impl Structure {
         }
         let m = &spec.mass;
         for (key, v) in [
-            ("structure.body_mass", m.body_mass),
-            ("structure.stack_mass", m.stack_mass),
-            ("structure.body_inertia", m.body_inertia[0]),
-            ("structure.body_inertia", m.body_inertia[1]),
-            ("structure.body_inertia", m.body_inertia[2]),
+            ("structure.body_side", m.body_mass),
+            ("structure.stack_side", m.stack_mass[0]),
+            ("structure.stack_side", m.stack_mass[1]),
+            ("structure.body_side", m.body_inertia[0]),
+            ("structure.body_side", m.body_inertia[1]),
+            ("structure.body_side", m.body_inertia[2]),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(bad(key, format!("must be positive, got {v}")));
@@ -686,13 +755,25 @@ impl Structure {
         preload: [f64; 2],
         start: [f64; 2],
     ) -> Result<[f64; 2], StructureError> {
+        self.deflection_to(preload, start, 1e-11)
+    }
+
+    /// [`Structure::deflection_for`] to a slider travel of `tolerance` (m): 1e-11 there;
+    /// design studies on closed-form joints, whose equilibria leave the slider travel
+    /// noisy at a few 1e-11 m, ask for 1e-10 (3 mN on a 27 N/µm stack).
+    pub fn deflection_to(
+        &self,
+        preload: [f64; 2],
+        start: [f64; 2],
+        tolerance: f64,
+    ) -> Result<[f64; 2], StructureError> {
         let travel = |dq0: [f64; 2]| -> Result<[f64; 2], StructureError> {
             Ok(self.solve(preload, Preload::Deflection { dq0 })?.slider)
         };
         let options = Newton2Options {
             fd_step: 1e-6,
-            tolerance: 1e-11,
-            max_iterations: MAX_ITER,
+            tolerance,
+            max_iterations: DEFLECTION_MAX_ITER,
             max_step: f64::INFINITY,
         };
         newton2(travel, start, &options, |_, _, _| {})
@@ -779,12 +860,12 @@ impl Structure {
         mm += m.body_mass * jv[0].transpose() * jv[0] + jw[0].transpose() * ib * jw[0];
         for (b, c) in self.chains.iter().enumerate() {
             let l = c.stack_length;
-            let it = m.stack_mass * l * l / 12.0;
+            let it = m.stack_mass[b] * l * l / 12.0;
             let axis = base[b + 1].1.column(2).into_owned();
             // Uniform rod: no inertia about its own axis beyond a thin-rod estimate.
             let ir = it * (Matrix3::identity() - axis * axis.transpose())
                 + 1e-3 * it * axis * axis.transpose();
-            mm += m.stack_mass * jv[b + 1].transpose() * jv[b + 1]
+            mm += m.stack_mass[b] * jv[b + 1].transpose() * jv[b + 1]
                 + jw[b + 1].transpose() * ir * jw[b + 1];
         }
         0.5 * (mm + mm.transpose())
@@ -998,9 +1079,31 @@ mod tests {
                 body_mass: 0.2,
                 body_com: 0.06,
                 body_inertia: [4.8e-4, 4.8e-4, 5e-5],
-                stack_mass: 0.05,
+                stack_mass: [0.05, 0.05],
             },
         }
+    }
+
+    #[test]
+    fn the_masses_follow_the_dimensions() {
+        let shape = BodyShape::default();
+        let mut g = prototype().geometry;
+        let m = shape.masses(&g);
+        // About J3: a rod of length b2 about its end, ρ s² b2³/3 (plus its section's
+        // s²/12 share), and the tool at b2: the twin's 1.2e-3 kg·m² to 1 %.
+        let about_j3 = m.body_inertia[0] + m.body_mass * m.body_com.powi(2);
+        let rod = 7900.0 * 36e-6 * 0.18;
+        let direct = rod * (0.18f64.powi(2) / 3.0 + 36e-6 / 12.0) + 0.02 * 0.18f64.powi(2);
+        assert!(
+            (about_j3 - direct).abs() < 1e-12 * direct,
+            "{about_j3} vs {direct}"
+        );
+        assert!((about_j3 - 1.2e-3).abs() < 0.01 * 1.2e-3);
+        assert!((m.stack_mass[0] - 7800.0 * 1e-4 * 0.066).abs() < 1e-12);
+        // A longer lever is heavier, its centre of mass higher.
+        g.b2 = 0.25;
+        let longer = shape.masses(&g);
+        assert!(longer.body_mass > m.body_mass && longer.body_com > m.body_com);
     }
 
     #[test]
@@ -1122,7 +1225,7 @@ mod tests {
         let m = &spec.mass;
         let inertia = m.body_inertia[1]
             + m.body_mass * m.body_com.powi(2)
-            + m.stack_mass * g.b1 * g.b1 * (0.25 + 1.0 / 3.0);
+            + g.b1 * g.b1 * (0.25 * m.stack_mass[0] + m.stack_mass[1] / 3.0);
         let f = (k / inertia).sqrt() / (2.0 * std::f64::consts::PI);
         for mode in &modes[..2] {
             assert!(
