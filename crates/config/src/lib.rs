@@ -15,6 +15,7 @@ use cellinject_simparams::{SimParams, StackParams};
 use cellinject_structure::StructureParams;
 use thiserror::Error;
 
+pub mod overrides;
 pub mod plate;
 mod section;
 mod structure;
