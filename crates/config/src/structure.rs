@@ -82,6 +82,23 @@ mod tests {
     }
 
     #[test]
+    fn the_fixed_masses_of_earlier_files_are_refused_with_the_keys_that_replace_them() {
+        for line in [
+            "body_mass = 0.2",
+            "stack_mass = 0.05",
+            "body_inertia = [1e-4, 1e-4, 1e-5]",
+        ] {
+            let e = with_line(line).unwrap_err().to_string();
+            let key = line.split(' ').next().unwrap();
+            assert!(e.contains(&format!("structure.{key}")), "{e}");
+            assert!(e.contains("body_side") && e.contains("tool_mass"), "{e}");
+        }
+        let d =
+            crate::parse(&PROTOTYPE_TOML.replace("tool_mass = 0.02", "tool_mass = 0.05")).unwrap();
+        assert_eq!(d.structure.shape.tool_mass, 0.05);
+    }
+
+    #[test]
     fn the_material_keys_are_read_and_validated() {
         // The prototype sets them to the defaults; without them the defaults hold.
         let d = crate::prototype();
