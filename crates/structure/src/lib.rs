@@ -499,15 +499,23 @@ impl Structure {
         }
         let m = &spec.mass;
         for (key, v) in [
-            ("structure.body_side", m.body_mass),
-            ("structure.stack_side", m.stack_mass[0]),
-            ("structure.stack_side", m.stack_mass[1]),
-            ("structure.body_side", m.body_inertia[0]),
-            ("structure.body_side", m.body_inertia[1]),
-            ("structure.body_side", m.body_inertia[2]),
+            ("body 1's mass", m.body_mass),
+            ("A1's mass", m.stack_mass[0]),
+            ("A2's mass", m.stack_mass[1]),
+            ("body 1's inertia", m.body_inertia[0]),
+            ("body 1's inertia", m.body_inertia[1]),
+            ("body 1's inertia", m.body_inertia[2]),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(bad(key, format!("must be positive, got {v}")));
+                let from = if key.starts_with("body") {
+                    "structure.body_side, body_density, tool_mass and geometry.b2"
+                } else {
+                    "structure.stack_side, stack_density and geometry.a12/a22"
+                };
+                return Err(bad(
+                    from,
+                    format!("{key} must be positive and finite, got {v}"),
+                ));
             }
         }
         Ok(Structure {
