@@ -35,6 +35,8 @@ pub enum Kind {
     Toml,
     /// HTML (`.html`).
     Html,
+    /// JSON lines (`.jsonl`): one JSON document per line.
+    Jsonl,
 }
 
 impl Kind {
@@ -50,6 +52,7 @@ impl Kind {
             "md" => Kind::Markdown,
             "toml" => Kind::Toml,
             "html" | "htm" => Kind::Html,
+            "jsonl" => Kind::Jsonl,
             _ => return None,
         })
     }
@@ -65,6 +68,7 @@ impl Kind {
             Kind::Markdown => "md",
             Kind::Toml => "toml",
             Kind::Html => "html",
+            Kind::Jsonl => "jsonl",
         }
     }
 }

@@ -17,6 +17,7 @@ macro_rules! outln {
 
 mod backend;
 mod commands;
+mod design;
 mod dic;
 mod emulate;
 mod experiment;
@@ -106,6 +107,14 @@ enum Command {
         after_help = "Examples:\n  cellinject fea --approach 1 --forces -111.686,-111.686 --plot fig4.svg\n  cellinject fea tables --level 2\n  cellinject fea modes --approach 2 --count 4"
     )]
     Fea(fea::FeaArgs),
+    /// Design studies: one design's figures (range, stiffness, first modes, safety
+    /// margins, coupling, feasibility), batches in shards, and a multi-objective search
+    /// over description keys (NSGA-II) with its front.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject design evaluate --fidelity fea\n  cellinject design evaluate --batch designs.jsonl --out r0.jsonl --shard 0/4\n  cellinject design merge --out all.jsonl r0.jsonl r1.jsonl r2.jsonl r3.jsonl\n  cellinject design optimise --space configs/design-space.toml --out study\n\nSee docs/design.md."
+    )]
+    Design(design::DesignCommand),
     /// Digital image correlation: points, fields, tracking, synthetic test images.
     #[command(
         after_help = "Examples:\n  cellinject dic synth --shift 0.3,-0.2\n  cellinject dic --reference reference.png --current current.png --at 256,256 --at 100,100\n  cellinject dic field --reference reference.png --current current.png --out field.csv"
@@ -228,6 +237,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             dic::run(&args)
         }
         Some(Command::Fea(args)) => fea::run(&description()?, &args),
+        Some(Command::Design(cmd)) => design::run(cli.config.as_deref(), &cmd),
         Some(Command::Hysteresis(cmd)) => hysteresis::run(description, &cmd),
         Some(Command::Calibrate(cmd)) => experiment::calibrate(&description()?, &cmd),
         Some(Command::Experiment(cmd)) => experiment::run(&description()?, &cmd),

@@ -179,6 +179,19 @@ fn values(opt: &Opt) -> Vec<String> {
         "bind" => v(&["127.0.0.1:0", "nonsense", "127.0.0.1:99999", ""]),
         "serve-for" => v(&["0.2", "0", "-1", "nan", "inf", "x"]),
         "camera" => v(&["", "missing", "frames", "r.png"]),
+        // Design studies: bounded work (a population of 100000 would run for hours).
+        "population" => v(&["0", "3", "4", "5", "-1", "x"]),
+        "generations" => v(&["0", "1", "2", "-1", "x"]),
+        "space" => v(&[
+            "",
+            "missing.toml",
+            "bad.toml",
+            "r.png",
+            "space.toml",
+            "nan-space.toml",
+        ]),
+        "batch" => v(&["", "missing.jsonl", "r.png", "designs.jsonl", "nan.jsonl"]),
+        "shard" => v(&["0/1", "1/2", "2/2", "0/0", "x", "-1/2", "1e300/2"]),
         _ => v(&["-1", "0", "1e-300", "1e300", "nan", "inf", "-inf", "abc"]),
     };
     out.extend(opt.possible.iter().cloned());
@@ -277,6 +290,18 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
             "cmd.csv",
         ],
         ["plate", "generate"] => vec!["--out", "p.toml"],
+        ["design", "evaluate"] => vec![],
+        ["design", "merge"] => vec!["--out", "m.jsonl", "r0.jsonl"],
+        ["design", "optimise"] => vec![
+            "--space",
+            "space.toml",
+            "--population",
+            "4",
+            "--generations",
+            "2",
+            "--out",
+            "study",
+        ],
         ["plate", "check"] => vec!["--plate", "plate.toml"],
         ["plate", "detect"] => vec!["--plate", "plate.toml"],
         ["sim", "tip"] => vec!["--runs", "2"],
@@ -381,6 +406,31 @@ fn setup(tag: &str) -> PathBuf {
     let _ = fs::remove_dir_all(&dir);
     fs::create_dir_all(dir.join("frames")).unwrap();
     fs::write(dir.join("bad.toml"), "name = ").unwrap();
+    fs::write(
+        dir.join("space.toml"),
+        "[variables]\n\"geometry.b2\" = [0.12, 0.24]\n[objectives]\nmaximise = [\"range_min_m\"]\n",
+    )
+    .unwrap();
+    fs::write(
+        dir.join("nan-space.toml"),
+        "[variables]\n\"geometry.b2\" = [nan, 0.24]\n[objectives]\nmaximise = [\"range_min_m\"]\n",
+    )
+    .unwrap();
+    fs::write(
+        dir.join("designs.jsonl"),
+        "{\"variables\": {\"geometry.b2\": 0.2}}\n{\"variables\": {\"geometry.b2\": 1e300}}\n",
+    )
+    .unwrap();
+    fs::write(
+        dir.join("nan.jsonl"),
+        "{\"variables\": {\"geometry.b2\": NaN}}\n",
+    )
+    .unwrap();
+    fs::write(
+        dir.join("r0.jsonl"),
+        "{\"index\":0,\"variables\":{},\"error\":\"x\"}\n",
+    )
+    .unwrap();
     fs::write(
         dir.join("plate.toml"),
         "[plate]\nrows = 2\ncols = 2\npitch = 150e-6\n[[cell]]\nwell = [1, 1]\noffset = [0.0, 0.0]\ndiameter = 20e-6\n",
