@@ -2,6 +2,7 @@
 
 The modules (each a thin layer over the Rust library crates, all imported here):
 
+- ``cellinject.design``: design studies: one design's figures, a multi-objective search on any ``map`` (Dask);
 - ``cellinject.dic``: digital image correlation on NumPy images;
 - ``cellinject.model``: pre-tension, Jacobians, the paper's figures;
 - ``cellinject.flexure``: one flexure hinge;
@@ -17,13 +18,14 @@ named; ``NotConverged`` (also ``RuntimeError``) when nothing usable came out.
 
 from ._errors import Error, InputError, NotConverged
 from ._cellinject import __version__
-from . import dic, fea, flexure, hysteresis, model, runs, twin
+from . import design, dic, fea, flexure, hysteresis, model, runs, twin
 
 __all__ = [
     "Error",
     "InputError",
     "NotConverged",
     "__version__",
+    "design",
     "dic",
     "fea",
     "flexure",

@@ -5,9 +5,9 @@ import doctest
 import numpy as np
 
 import cellinject
-from cellinject import dic, fea, flexure, hysteresis, model, runs, twin
+from cellinject import design, dic, fea, flexure, hysteresis, model, runs, twin
 
-MODULES = [dic, fea, flexure, hysteresis, model, runs, twin]
+MODULES = [design, dic, fea, flexure, hysteresis, model, runs, twin]
 
 
 def objects():

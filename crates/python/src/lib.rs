@@ -17,6 +17,7 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::{PyDict, PyList, PyType};
 
 mod arrays;
+mod design;
 mod dic;
 mod fea;
 mod flexure;
@@ -178,6 +179,7 @@ fn value(py: Python<'_>, v: &serde_json::Value) -> PyResult<Py<PyAny>> {
 #[pymodule]
 fn _cellinject(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    design::register(m)?;
     dic::register(m)?;
     model::register(m)?;
     flexure::register(m)?;
