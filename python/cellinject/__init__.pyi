@@ -1,3 +1,4 @@
+from . import design as design
 from . import dic as dic
 from . import fea as fea
 from . import flexure as flexure
