@@ -460,7 +460,6 @@ fn optimise(config: Option<&Path>, a: &OptimiseArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out)
         .map_err(|e| InputError(format!("cannot create --out `{}`: {e}", a.out.display())))?;
     let store = store(a.no_cache);
-    let screening = study.screening();
     let left = study.generations.saturating_sub(study.search.generation);
     let bar = crate::progress::rate_bar(
         (left * study.search.population) as u64,
@@ -468,20 +467,7 @@ fn optimise(config: Option<&Path>, a: &OptimiseArgs) -> Result<()> {
     );
     while !study.done() {
         let points = study.ask();
-        let records: Vec<Record> = points
-            .iter()
-            .map(|x| {
-                let r = cellinject_design::study::evaluate_point(
-                    &study.space,
-                    &study.base,
-                    x,
-                    &screening,
-                    store.as_ref(),
-                );
-                bar.inc();
-                r
-            })
-            .collect();
+        let records = evaluate_all(&study.task(false), &points, store.as_ref(), &bar);
         study.tell(&points, records).map_err(design_error)?;
         let mut staged = Staged::new();
         staged.add(&files.state, serde_json::to_string(&study)?.as_bytes())?;
@@ -493,22 +479,8 @@ fn optimise(config: Option<&Path>, a: &OptimiseArgs) -> Result<()> {
     let records: Vec<Record> = match study.fidelity {
         Fidelity::Beam => screened.into_iter().map(|(_, r)| r).collect(),
         Fidelity::Fea => {
-            let fin = study.final_options();
             let bar = crate::progress::rate_bar(points.len() as u64, "front designs (FEA)");
-            points
-                .iter()
-                .map(|x| {
-                    let r = cellinject_design::study::evaluate_point(
-                        &study.space,
-                        &study.base,
-                        x,
-                        &fin,
-                        store.as_ref(),
-                    );
-                    bar.inc();
-                    r
-                })
-                .collect()
+            evaluate_all(&study.task(true), &points, store.as_ref(), &bar)
         }
     };
     let front = study.front(&points, &records);
@@ -553,6 +525,23 @@ fn optimise(config: Option<&Path>, a: &OptimiseArgs) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// Evaluates `points` of `task` one after the other, ticking `bar`.
+fn evaluate_all(
+    task: &cellinject_design::study::Task,
+    points: &[Vec<f64>],
+    store: &dyn JointStore,
+    bar: &crate::progress::Progress,
+) -> Vec<Record> {
+    points
+        .iter()
+        .map(|x| {
+            let r = task.evaluate(x, store);
+            bar.inc();
+            r
+        })
+        .collect()
 }
 
 fn print_front(study: &Study, front: &[FrontEntry], base: Option<&Figures>, name: &str) {

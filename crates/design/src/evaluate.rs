@@ -31,7 +31,7 @@ use cellinject_config::Description;
 use cellinject_fea::{FeaModel, FeaOptions, JointStore, SolvedCase};
 use cellinject_flexure::{Hinge, Material, Profile};
 use cellinject_model::{Approach, Design, Mechanism};
-use cellinject_structure::{JointModel, Preload, Structure, StructureParams, StructureSpec};
+use cellinject_structure::{JointModel, Preload, Structure, StructureParams, StructureSpec, skew};
 use nalgebra::{Matrix2, Matrix3, Matrix6, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -290,9 +290,7 @@ pub fn beam_joint(params: &StructureParams, throat: f64) -> JointModel {
     let kr = Matrix3::from_diagonal(&Vector3::new(kb, kb, torsion));
     // The top section moves by u and turns by θ; the springs at the middle see
     // u − θ × arm = u + skew(arm) θ.
-    let sa = Matrix3::new(
-        0.0, -arm[2], arm[1], arm[2], 0.0, -arm[0], -arm[1], arm[0], 0.0,
-    );
+    let sa = skew(&arm);
     let mut k = Matrix6::zeros();
     k.fixed_view_mut::<3, 3>(0, 0).copy_from(&kt);
     k.fixed_view_mut::<3, 3>(0, 3).copy_from(&(kt * sa));

@@ -394,7 +394,8 @@ pub struct Mode {
     pub description: String,
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+/// The cross-product matrix: `skew(a) b = a × b`.
+pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     v.cross_matrix()
 }
 
