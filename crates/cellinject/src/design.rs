@@ -29,7 +29,7 @@ pub enum DesignCommand {
     /// Joins the result slices of `design evaluate --batch --shard`, refusing a missing
     /// or doubled design.
     #[command(
-        after_help = "Example:\n  cellinject design merge --out all.jsonl r0.jsonl r1.jsonl r2.jsonl r3.jsonl"
+        after_help = "Examples:\n  cellinject design merge --out all.jsonl r0.jsonl r1.jsonl r2.jsonl r3.jsonl\n  cellinject design merge --count 1000 --out all.jsonl results-*.jsonl"
     )]
     Merge {
         /// The joined results (JSON lines).

@@ -614,6 +614,7 @@ fn a_closed_pipe_ends_every_printing_command_quietly() {
     for args in [
         vec!["reproduce", "--out", "rep"],
         vec!["tension", "--approach", "1"],
+        vec!["design", "evaluate", "--format", "json"],
         vec!["model", "--format", "json"],
         vec!["hinge-table"],
         vec![
