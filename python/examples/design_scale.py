@@ -32,9 +32,13 @@ def designs(n, seed):
 
 
 def one(variables):
+    import cellinject
     from cellinject import design
 
-    return design.evaluate(variables, fidelity="fea")
+    try:
+        return design.evaluate(variables, fidelity="fea")
+    except cellinject.Error as e:
+        return str(e)
 
 
 def peak_rss_bytes():

@@ -438,6 +438,9 @@ pub fn evaluate(
                 Approach::DriveTranslation => Preload::Translation,
                 Approach::JointDeflection => {
                     let dq0 = t.dq0.unwrap_or_default();
+                    // Closed-form joints leave the slider travel noisy at a few
+                    // 1e-11 m: straight to 1e-10 m, where `deflection_for` would spend
+                    // its iterations at 1e-11 first.
                     let dq0 = beam_structure
                         .deflection_to(design.tension.preload, [dq0[0], dq0[1]], 1e-10)
                         .map_err(DesignError::Structure)?;

@@ -764,12 +764,16 @@ impl Structure {
         preload: [f64; 2],
         start: [f64; 2],
     ) -> Result<[f64; 2], StructureError> {
-        self.deflection_to(preload, start, 1e-11)
+        // To 1e-11 m of slider travel; where the equilibria's own rounding keeps the
+        // travel noisy above that (some joint geometries of a design study), to
+        // 1e-10 m: 3 mN on a 27 N/µm stack, 3e-5 of the paper's 100 N.
+        match self.deflection_to(preload, start, 1e-11) {
+            Err(StructureError::NotConverged { .. }) => self.deflection_to(preload, start, 1e-10),
+            other => other,
+        }
     }
 
-    /// [`Structure::deflection_for`] to a slider travel of `tolerance` (m): 1e-11 there;
-    /// design studies on closed-form joints, whose equilibria leave the slider travel
-    /// noisy at a few 1e-11 m, ask for 1e-10 (3 mN on a 27 N/µm stack).
+    /// [`Structure::deflection_for`] to a slider travel of `tolerance` (m).
     pub fn deflection_to(
         &self,
         preload: [f64; 2],
