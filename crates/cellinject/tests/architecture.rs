@@ -169,6 +169,8 @@ fn heavy_dependencies_stay_in_their_one_crate() {
     only_in(&all, "tokio", "dashboard");
     only_in(&all, "pyo3", "python");
     only_in(&all, "numpy", "python");
+    only_in(&all, "aravis", "genicam");
+    only_in(&all, "aravis-sys", "genicam");
     // The dashboard knows no driver and no database: the front end hands it a
     // station, a viewer and an archive.
     let c = closure(&all, "cellinject-dashboard");
