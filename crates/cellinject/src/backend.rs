@@ -35,12 +35,17 @@ pub struct BackendArgs {
     /// serves them).
     #[arg(long, value_name = "HOST:PORT")]
     pub bench: Option<String>,
-    /// With a GCS backend: the microscope's frames from image files another acquisition
-    /// program writes into DIR (PNG or TIFF, 8- or 16-bit grey, taken in name order;
-    /// write each whole, then rename it), instead of the bench endpoint's top camera.
-    #[arg(long, value_name = "DIR")]
+    /// With a GCS backend: the microscope's top camera instead of the bench endpoint's:
+    /// `aravis:ID`, a GenICam camera (GigE Vision, USB3 Vision) by any id Aravis gives
+    /// it, its serial number or its IP address (a build with the `genicam` feature), or
+    /// DIR, the image files another acquisition program writes into it (PNG or TIFF,
+    /// 8- or 16-bit grey, taken in name order; write each whole, then rename it).
+    #[arg(long, value_name = "aravis:ID|DIR")]
     pub camera: Option<std::path::PathBuf>,
-    /// Frames per second of that acquisition (default 30).
+    /// With a GCS backend: the side camera, in the same forms as --camera.
+    #[arg(long, value_name = "aravis:ID|DIR")]
+    pub side_camera: Option<std::path::PathBuf>,
+    /// Frames per second of a folder acquisition (default 30).
     #[arg(long, value_name = "FPS")]
     pub camera_fps: Option<f64>,
 }
@@ -51,6 +56,7 @@ impl Default for BackendArgs {
             backend: "twin".into(),
             bench: None,
             camera: None,
+            side_camera: None,
             camera_fps: None,
         }
     }
@@ -71,12 +77,17 @@ impl BackendArgs {
                 ))
                 .into());
             }
-            if let Some(c) = &self.camera {
-                return Err(InputError(format!(
-                    "--camera {}: the twin has its own cameras (give --backend gcs://...)",
-                    c.display()
-                ))
-                .into());
+            for (arg, c) in [
+                ("--camera", &self.camera),
+                ("--side-camera", &self.side_camera),
+            ] {
+                if let Some(c) = c {
+                    return Err(InputError(format!(
+                        "{arg} {}: the twin has its own cameras (give --backend gcs://...)",
+                        c.display()
+                    ))
+                    .into());
+                }
             }
             if self.camera_fps.is_some() {
                 return Err(
@@ -89,6 +100,24 @@ impl BackendArgs {
             && !(f.is_finite() && f > 0.0)
         {
             return Err(InputError(format!("--camera-fps must be positive, got {f}")).into());
+        }
+        for (arg, c) in [
+            ("--camera", &self.camera),
+            ("--side-camera", &self.side_camera),
+        ] {
+            if let Some(c) = c {
+                let spec = c.to_string_lossy();
+                match cellinject_genicam::parse_id(&spec) {
+                    Err(e) => return Err(InputError(format!("{arg}: {e}")).into()),
+                    Ok(Some(_)) if !cfg!(feature = "genicam") => {
+                        return Err(InputError(format!(
+                            "{arg} {spec}: this cellinject was built without GenICam cameras (install Debian's libaravis-dev, then `cargo install --path crates/cellinject --features genicam`; docs/cameras.md)"
+                        ))
+                        .into());
+                    }
+                    _ => {}
+                }
+            }
         }
         if let Some(b) = &self.bench {
             let port = b.rsplit_once(':').map(|(_, p)| p);
@@ -103,6 +132,61 @@ impl BackendArgs {
             .map(Some)
             .map_err(|e| InputError(format!("--backend {e}")).into())
     }
+}
+
+/// A camera of `--camera` or `--side-camera`: a GenICam camera (`aravis:ID`) or a
+/// folder of frames. Its pixels measure the sensor's `pitch` over the bench lens's zoom
+/// in the object plane.
+fn camera(
+    arg: &str,
+    spec: &std::path::Path,
+    b: &BackendArgs,
+    bench: &Bench,
+    pitch: f64,
+) -> Result<Box<dyn Camera>> {
+    let lens = bench.clone();
+    let pixel_size = Box::new(move || lens.zoom().map_or(f64::NAN, |z| pitch / z));
+    let text = spec.to_string_lossy();
+    if let Ok(Some(id)) = cellinject_genicam::parse_id(&text) {
+        let clock = bench
+            .clock()
+            .map_err(|e| anyhow::anyhow!("{arg}: the bench's clock: {e}"))?;
+        return Ok(Box::new(cellinject_genicam::OnClock::new(
+            genicam(arg, id, pixel_size)?,
+            Box::new(clock),
+        )));
+    }
+    let cam = cellinject_cameras::FolderCamera::new(
+        spec,
+        pixel_size,
+        b.camera_fps.unwrap_or(30.0),
+        Duration::from_secs(5),
+    )
+    .map_err(|e| InputError(format!("{arg}: {e}")))?;
+    Ok(Box::new(cam))
+}
+
+#[cfg(feature = "genicam")]
+fn genicam(
+    arg: &str,
+    id: &str,
+    pixel_size: Box<dyn Fn() -> f64 + Send>,
+) -> Result<Box<dyn Camera>> {
+    use cellinject_genicam::GenicamError;
+    match cellinject_genicam::device::GenicamCamera::open(id, Duration::from_secs(10), pixel_size) {
+        Ok(c) => Ok(Box::new(c)),
+        Err(e @ GenicamError::Invalid { .. }) => Err(InputError(format!("{arg}: {e}")).into()),
+        Err(e) => Err(anyhow::anyhow!("{arg}: {e}")),
+    }
+}
+
+#[cfg(not(feature = "genicam"))]
+fn genicam(arg: &str, id: &str, _: Box<dyn Fn() -> f64 + Send>) -> Result<Box<dyn Camera>> {
+    // `check` refuses this before anything is opened; kept for completeness.
+    Err(InputError(format!(
+        "{arg} aravis:{id}: this cellinject was built without GenICam cameras"
+    ))
+    .into())
 }
 
 /// An opened bench.
@@ -183,19 +267,12 @@ pub fn open_with(
         sensors: sensors.map(|s| Box::new(s) as Box<dyn PositionSensor>),
         camera: match &b.camera {
             None => Box::new(bench.camera(ViewName::Top).map_err(bench_err)?) as Box<dyn Camera>,
-            Some(dir) => {
-                let (lens, pitch) = (bench.clone(), d.sim.camera.pixel_size);
-                let cam = cellinject_cameras::FolderCamera::new(
-                    dir,
-                    Box::new(move || lens.zoom().map_or(f64::NAN, |z| pitch / z)),
-                    b.camera_fps.unwrap_or(30.0),
-                    Duration::from_secs(5),
-                )
-                .map_err(|e| InputError(format!("--camera: {e}")))?;
-                Box::new(cam) as Box<dyn Camera>
-            }
+            Some(spec) => camera("--camera", spec, b, &bench, d.sim.camera.pixel_size)?,
         },
-        side_camera: Box::new(bench.camera(ViewName::Side).map_err(bench_err)?),
+        side_camera: match &b.side_camera {
+            None => Box::new(bench.camera(ViewName::Side).map_err(bench_err)?) as Box<dyn Camera>,
+            Some(spec) => camera("--side-camera", spec, b, &bench, d.sim.camera.pixel_size)?,
+        },
         stage: Box::new(bench.stage().map_err(bench_err)?) as Box<dyn Stage>,
         feeder: Box::new(bench.feeder().map_err(bench_err)?) as Box<dyn Stage>,
         injector: Box::new(bench.injector().map_err(bench_err)?) as Box<dyn Injector>,

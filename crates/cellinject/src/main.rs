@@ -16,6 +16,7 @@ macro_rules! outln {
 }
 
 mod backend;
+mod camera;
 mod commands;
 mod design;
 mod dic;
@@ -161,6 +162,12 @@ enum Command {
         after_help = "Examples:\n  cellinject runs list\n  cellinject runs show --run 2\n  cellinject runs export --format csv > attempts.csv"
     )]
     Runs(run::RunsCommand),
+    /// GenICam cameras (GigE Vision, USB3 Vision) through Aravis: list them, show one, grab frames (a build with the `genicam` feature).
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject camera list\n  cellinject camera info --camera aravis:Aravis-GV01\n  cellinject camera grab --camera aravis:Aravis-GV01 --frames 3 --out g.tif\n\nSee docs/cameras.md."
+    )]
+    Camera(camera::CameraCommand),
     /// Emulated hardware backed by the twin, for drivers and third-party clients.
     #[command(
         subcommand,
@@ -257,6 +264,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Some(Command::Run(args)) => run::run(&description()?, &args),
         Some(Command::Emulate(cmd)) => emulate::run(&description()?, &cmd),
+        Some(Command::Camera(cmd)) => {
+            unused_config();
+            camera::run(&cmd)
+        }
         Some(Command::Serve(args)) => serve::serve(&description()?, &args),
         Some(Command::Report { db, run, out }) => {
             unused_config();

@@ -698,6 +698,7 @@ mod tests {
             backend: "twin".into(),
             bench: None,
             camera: None,
+            side_camera: None,
             camera_fps: None,
         };
         let mut opened = crate::backend::open_with(

@@ -178,7 +178,7 @@ fn values(opt: &Opt) -> Vec<String> {
         "bench" | "allowed-host" => v(&["127.0.0.1:1", "none", "x", ""]),
         "bind" => v(&["127.0.0.1:0", "nonsense", "127.0.0.1:99999", ""]),
         "serve-for" => v(&["0.2", "0", "-1", "nan", "inf", "x"]),
-        "camera" => v(&["", "missing", "frames", "r.png"]),
+        "camera" | "side-camera" => v(&["", "missing", "frames", "r.png", "aravis:X"]),
         // Design studies: bounded work (a population of 100000 would run for hours).
         "population" => v(&["0", "3", "4", "5", "-1", "x"]),
         "generations" => v(&["0", "1", "2", "-1", "x"]),
@@ -291,6 +291,9 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ],
         ["plate", "generate"] => vec!["--out", "p.toml"],
         ["design", "evaluate"] => vec![],
+        // In the default build these say how to get GenICam support (exit 2).
+        ["camera", "info"] => vec!["--camera", "aravis:X", "--timeout", "1"],
+        ["camera", "grab"] => vec!["--camera", "aravis:X", "--out", "g.tif", "--timeout", "1"],
         ["design", "merge"] => vec!["--out", "m.jsonl", "r0.jsonl"],
         ["design", "optimise"] => vec![
             "--space",
