@@ -552,9 +552,12 @@ fn no_argument_list_makes_any_command_panic() {
     // Two at a time (the machine has two cores).
     let queue = Arc::new(Mutex::new(cases));
     let failures = Arc::new(Mutex::new(Vec::<String>::new()));
+    // Each case's wall time, for the slowest list printed at the end (--nocapture).
+    let times = Arc::new(Mutex::new(Vec::<(Duration, String)>::new()));
     let workers: Vec<_> = (0..2)
         .map(|_| {
             let (queue, failures, dir) = (queue.clone(), failures.clone(), dir.clone());
+            let times = times.clone();
             std::thread::spawn(move || {
                 loop {
                     let Some(args) = queue.lock().unwrap().pop() else {
@@ -562,7 +565,9 @@ fn no_argument_list_makes_any_command_panic() {
                     };
                     // A hang, not a slow machine: a whole run on the twin takes some
                     // 30 s of a debug build alone, minutes on a loaded machine.
+                    let t0 = Instant::now();
                     let r = run(&dir, &args, Duration::from_secs(300));
+                    times.lock().unwrap().push((t0.elapsed(), args.join(" ")));
                     let mut bad = Vec::new();
                     if r.timed_out {
                         bad.push("timed out after 300 s".to_string());
@@ -605,6 +610,13 @@ fn no_argument_list_makes_any_command_panic() {
         .collect();
     for w in workers {
         w.join().unwrap();
+    }
+    let mut t = times.lock().unwrap();
+    t.sort_by_key(|x| std::cmp::Reverse(x.0));
+    let total: Duration = t.iter().map(|x| x.0).sum();
+    eprintln!("{:.1} s of commands; the slowest:", total.as_secs_f64());
+    for (d, a) in t.iter().take(15) {
+        eprintln!("  {:6.2} s  cellinject {a}", d.as_secs_f64());
     }
     let f = failures.lock().unwrap();
     let _ = fs::remove_dir_all(&dir);
