@@ -318,10 +318,21 @@ fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
 
 /// 4-connected components, each a list of pixel indices.
 pub(crate) fn components(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
+    components_from(mask, w, h, 0..mask.len())
+}
+
+/// The 4-connected components of `mask` that hold a pixel of `starts`, in the order of
+/// the first such pixel, each in breadth-first order from it.
+pub(crate) fn components_from(
+    mask: &[bool],
+    w: usize,
+    h: usize,
+    starts: std::ops::Range<usize>,
+) -> Vec<Vec<usize>> {
     let mut seen = vec![false; mask.len()];
     let mut out = Vec::new();
     let mut queue = VecDeque::new();
-    for start in 0..mask.len() {
+    for start in starts {
         if !mask[start] || seen[start] {
             continue;
         }

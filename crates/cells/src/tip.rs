@@ -19,7 +19,7 @@
 //! median of many frames' free fits) passes it to [`locate_with`], whose fit finds
 //! only `t`.
 
-use crate::{CellsError, components};
+use crate::CellsError;
 
 /// The tip found.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,16 +39,17 @@ fn phi(u: f64) -> f64 {
     0.5 * (1.0 + cellinject_numeric::erf(u / std::f64::consts::SQRT_2))
 }
 
-/// Bilinear sample of `d` (a `w × h` image) at (x, y); 0 outside.
-fn sample(d: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
+/// Bilinear sample of the darkness `d` at (x, y) pixels; 0 outside the image.
+fn sample(d: &Darkness<'_>, x: f64, y: f64) -> f64 {
+    let (w, h) = (d.w, d.h);
     if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
         return 0.0;
     }
     let (x0, y0) = (x.floor() as usize, y.floor() as usize);
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-    let a = d[y0 * w + x0] * (1.0 - fx) + d[y0 * w + x1] * fx;
-    let b = d[y1 * w + x0] * (1.0 - fx) + d[y1 * w + x1] * fx;
+    let a = d.at(x0, y0) * (1.0 - fx) + d.at(x1, y0) * fx;
+    let b = d.at(x0, y1) * (1.0 - fx) + d.at(x1, y1) * fx;
     a * (1.0 - fy) + b * fy
 }
 
@@ -118,11 +119,13 @@ pub fn locate_tapered(
         });
     }
     let um = |v: f64| v * 1e-6 / pixel_size;
-    let dark = smooth_darkness(pixels, width, height);
-    let mask: Vec<bool> = dark.iter().map(|d| *d > 0.05).collect();
+    let dark = Darkness::new(pixels, width, height);
+    let mask = dark.mask(0.05);
     // The pipette: of the dark components that enter from the top edge, the widest
     // there (the shank; a feeder wall is a thin line).
-    let pipette = components(&mask, width, height)
+    // (Only those are searched: components from the top row's pixels, in the order
+    // and the pixel order `components` gives them.)
+    let pipette = crate::components_from(&mask, width, height, 0..width.min(mask.len()))
         .into_iter()
         .map(|c| (c.iter().filter(|&&i| i < width).count(), c))
         .filter(|(top, _)| *top > 0)
@@ -161,7 +164,7 @@ pub fn locate_tapered(
         let (mut sw, mut swo) = (0.0, 0.0);
         let mut o = -half;
         while o <= half {
-            let v = sample(&dark, width, height, px + o * n[0], py + o * n[1]).max(0.0);
+            let v = sample(&dark, px + o * n[0], py + o * n[1]).max(0.0);
             sw += v;
             swo += v * o;
             o += 0.5;
@@ -204,7 +207,7 @@ pub fn locate_tapered(
         let mut m = 0.0;
         let mut o = -half;
         while o <= half {
-            m += sample(&dark, width, height, px + o * n[0], py + o * n[1]) * 0.5;
+            m += sample(&dark, px + o * n[0], py + o * n[1]) * 0.5;
             o += 0.5;
         }
         prof.push((s, m));
@@ -277,58 +280,117 @@ fn residual(prof: &[(f64, f64)], t: f64, sig: f64) -> f64 {
 /// every fourth pixel, then again without the pixels clearly darker than the first fit.
 /// A box mean would not do here: the pipette's shank is wider than any window that
 /// still follows the vignetting into the corners.
-fn smooth_darkness(pixels: &[u16], w: usize, h: usize) -> Vec<f64> {
-    let basis = |x: usize, y: usize| {
-        let u = 2.0 * x as f64 / (w - 1) as f64 - 1.0;
-        let v = 2.0 * y as f64 / (h - 1) as f64 - 1.0;
-        let (pu, pv) = ([1.0, u, u * u], [1.0, v, v * v]);
-        let mut b = [0.0; 9];
-        for i in 0..3 {
-            for j in 0..3 {
-                b[3 * i + j] = pu[i] * pv[j];
-            }
-        }
-        b
-    };
-    let fit = |keep: &dyn Fn(usize, usize, f64) -> bool| -> Option<[f64; 9]> {
-        let mut a = [[0.0f64; 9]; 9];
-        let mut r = [0.0f64; 9];
-        for y in (0..h).step_by(4) {
-            for x in (0..w).step_by(4) {
-                let v = pixels[y * w + x] as f64;
-                if !keep(x, y, v) {
-                    continue;
-                }
-                let b = basis(x, y);
-                for i in 0..9 {
-                    for j in 0..9 {
-                        a[i][j] += b[i] * b[j];
+/// The image's darkness, evaluated where it is needed (a full frame's worth of `f64`
+/// would be 40 MB a frame).
+struct Darkness<'a> {
+    pixels: &'a [u16],
+    w: usize,
+    h: usize,
+    /// The background surface's coefficients, `None` if it could not be fitted (then
+    /// nothing is dark).
+    c: Option<[f64; 9]>,
+    /// u of each column, −1 to 1.
+    us: Vec<f64>,
+}
+
+impl<'a> Darkness<'a> {
+    /// The background a biquadratic surface Σᵢⱼ c₃ᵢ₊ⱼ uⁱ vʲ (u, v from −1 to 1 across
+    /// the image; smooth illumination and vignetting), fitted by least squares to every
+    /// fourth pixel of every fourth row, then again without the pixels darker than 0.97
+    /// of the first fit. A tensor product: each row is a quadratic in u with
+    /// coefficients qᵢ = Σⱼ c₃ᵢ₊ⱼ vʲ, and the normal equations gather, row by row, the
+    /// moments Σ uᵐ (m ≤ 4) and Σ uⁱ·value of the row's fitted pixels.
+    fn new(pixels: &'a [u16], w: usize, h: usize) -> Self {
+        let us: Vec<f64> = (0..w)
+            .map(|x| 2.0 * x as f64 / (w - 1) as f64 - 1.0)
+            .collect();
+        let fit = |under: Option<&[f64; 9]>| -> Option<[f64; 9]> {
+            let mut a = [[0.0f64; 9]; 9];
+            let mut r = [0.0f64; 9];
+            for y in (0..h).step_by(4) {
+                let v = v_of(y, h);
+                let pv = [1.0, v, v * v];
+                let q = under.map(|c| row_coefficients(c, v));
+                let (mut mu, mut ru) = ([0.0f64; 5], [0.0f64; 3]);
+                for x in (0..w).step_by(4) {
+                    let val = pixels[y * w + x] as f64;
+                    let u = us[x];
+                    if let Some(q) = q
+                        && val <= 0.97 * (q[0] + u * (q[1] + u * q[2]))
+                    {
+                        continue;
                     }
-                    r[i] += b[i] * v;
+                    let u2 = u * u;
+                    mu[0] += 1.0;
+                    mu[1] += u;
+                    mu[2] += u2;
+                    mu[3] += u2 * u;
+                    mu[4] += u2 * u2;
+                    ru[0] += val;
+                    ru[1] += val * u;
+                    ru[2] += val * u2;
+                }
+                for i in 0..3 {
+                    for j in 0..3 {
+                        for k in 0..3 {
+                            for l in 0..3 {
+                                a[3 * i + j][3 * k + l] += mu[i + k] * pv[j] * pv[l];
+                            }
+                        }
+                        r[3 * i + j] += ru[i] * pv[j];
+                    }
                 }
             }
-        }
-        solve9(a, r)
-    };
-    let eval = |c: &[f64; 9], x: usize, y: usize| {
-        basis(x, y).iter().zip(c).map(|(b, c)| b * c).sum::<f64>()
-    };
-    let Some(c0) = fit(&|_, _, _| true) else {
-        return vec![0.0; w * h];
-    };
-    let c = fit(&|x, y, v| v > 0.97 * eval(&c0, x, y)).unwrap_or(c0);
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let b = eval(&c, x, y);
-            out[y * w + x] = if b > 0.0 {
-                1.0 - pixels[y * w + x] as f64 / b
-            } else {
-                0.0
-            };
+            solve9(a, r)
+        };
+        let c = fit(None).map(|c0| fit(Some(&c0)).unwrap_or(c0));
+        Darkness {
+            pixels,
+            w,
+            h,
+            c,
+            us,
         }
     }
-    out
+
+    /// `1 − image / background` at pixel (x, y) (0 where the surface is not positive).
+    fn at(&self, x: usize, y: usize) -> f64 {
+        let Some(c) = &self.c else { return 0.0 };
+        let q = row_coefficients(c, v_of(y, self.h));
+        darkness(self.pixels[y * self.w + x], self.us[x], &q)
+    }
+
+    /// The pixels darker than `threshold`.
+    fn mask(&self, threshold: f64) -> Vec<bool> {
+        let Some(c) = &self.c else {
+            return vec![false; self.w * self.h];
+        };
+        let mut out = Vec::with_capacity(self.w * self.h);
+        for (y, row) in self.pixels.chunks_exact(self.w).enumerate() {
+            let q = row_coefficients(c, v_of(y, self.h));
+            out.extend(
+                row.iter()
+                    .zip(&self.us)
+                    .map(|(&p, &u)| darkness(p, u, &q) > threshold),
+            );
+        }
+        out
+    }
+}
+
+/// v of row `y` of `h`, −1 to 1.
+fn v_of(y: usize, h: usize) -> f64 {
+    2.0 * y as f64 / (h - 1) as f64 - 1.0
+}
+
+/// The surface's quadratic in u along the row at `v`.
+fn row_coefficients(c: &[f64; 9], v: f64) -> [f64; 3] {
+    std::array::from_fn(|i| c[3 * i] + v * (c[3 * i + 1] + v * c[3 * i + 2]))
+}
+
+fn darkness(p: u16, u: f64, q: &[f64; 3]) -> f64 {
+    let b = q[0] + u * (q[1] + u * q[2]);
+    if b > 0.0 { 1.0 - p as f64 / b } else { 0.0 }
 }
 
 /// Solves a 9×9 system by Gaussian elimination with partial pivoting.

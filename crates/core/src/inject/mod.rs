@@ -638,12 +638,13 @@ impl Shot {
         let (w, h) = (f.width as usize, f.height as usize);
         let (ox, oy) = (self.origin[0] as usize, self.origin[1] as usize);
         let mut norm = Vec::with_capacity(w * h);
-        for j in 0..h {
-            for i in 0..w {
-                let b = background.pixels[(oy + j) * background.width + ox + i].max(1) as f64;
-                let v = f.pixels[j * w + i] as f64 / b * 2000.0;
-                norm.push(v.clamp(0.0, 65535.0) as u16);
-            }
+        for (j, row) in f.pixels.chunks_exact(w).take(h).enumerate() {
+            let start = (oy + j) * background.width + ox;
+            let bg = &background.pixels[start..start + w];
+            norm.extend(row.iter().zip(bg).map(|(&p, &b)| {
+                let v = p as f64 / b.max(1) as f64 * 2000.0;
+                v.clamp(0.0, 65535.0) as u16
+            }));
         }
         let mean = norm.iter().map(|&v| v as f64).sum::<f64>() / norm.len().max(1) as f64;
         (1000.0..4000.0).contains(&mean).then_some(norm)
