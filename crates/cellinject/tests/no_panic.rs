@@ -52,8 +52,7 @@ fn subcommands(help: &str) -> Vec<String> {
 }
 
 /// An option of a help text: its long name, whether it takes a value, its documented
-/// default (`[default: X]`) and its possible
-/// values if clap lists them.
+/// default (`[default: X]`) and its possible values if clap lists them.
 #[derive(Debug, Clone)]
 struct Opt {
     name: String,

@@ -125,7 +125,7 @@ pub fn locate_tapered(
     // there (the shank; a feeder wall is a thin line).
     // (Only those are searched: components from the top row's pixels, in the order
     // and the pixel order `components` gives them.)
-    let pipette = crate::components_from(&mask, width, height, 0..width.min(mask.len()))
+    let pipette = crate::components_from(&mask, width, height, 0..width)
         .into_iter()
         .map(|c| (c.iter().filter(|&&i| i < width).count(), c))
         .filter(|(top, _)| *top > 0)
@@ -275,13 +275,11 @@ fn residual(prof: &[(f64, f64)], t: f64, sig: f64) -> f64 {
     mm - 2.0 * (a * b1 + c * b2) + a * a * a11 + 2.0 * a * c * a12 + c * c * a22
 }
 
-/// `1 − image / background` with the background a biquadratic surface (smooth
-/// illumination and vignetting, across the whole image): fitted by least squares to
-/// every fourth pixel, then again without the pixels clearly darker than the first fit.
-/// A box mean would not do here: the pipette's shank is wider than any window that
-/// still follows the vignetting into the corners.
-/// The image's darkness, evaluated where it is needed (a full frame's worth of `f64`
-/// would be 40 MB a frame).
+/// The image's darkness, `1 − image / background`, evaluated only where it is asked
+/// for (a full frame's worth of `f64` would be 40 MB a frame). The background is a
+/// biquadratic surface (smooth illumination and vignetting, across the whole image); a
+/// box mean would not do here: the pipette's shank is wider than any window that still
+/// follows the vignetting into the corners.
 struct Darkness<'a> {
     pixels: &'a [u16],
     w: usize,
@@ -388,6 +386,7 @@ fn row_coefficients(c: &[f64; 9], v: f64) -> [f64; 3] {
     std::array::from_fn(|i| c[3 * i] + v * (c[3 * i + 1] + v * c[3 * i + 2]))
 }
 
+/// `1 − p / background` for a pixel of value `p` at `u` on the row whose quadratic is `q`.
 fn darkness(p: u16, u: f64, q: &[f64; 3]) -> f64 {
     let b = q[0] + u * (q[1] + u * q[2]);
     if b > 0.0 { 1.0 - p as f64 / b } else { 0.0 }
