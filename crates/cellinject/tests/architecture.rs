@@ -237,3 +237,69 @@ fn nothing_depends_on_a_front_end_and_the_bindings_use_libraries_only() {
         assert!(!c.contains(bad), "cellinject-python depends on {bad}");
     }
 }
+
+/// `cargo tree`'s features of every package reached through `edges` from the packages
+/// `select` picks: "name version" → the sets of features it is built with.
+fn features(select: &[&str], edges: &str) -> BTreeMap<String, BTreeSet<String>> {
+    let o = Command::new(env!("CARGO"))
+        .args(["tree", "--offline", "--locked", "--no-dedupe"])
+        .args(["--prefix", "none", "-e", edges, "-f", "{p}|{f}"])
+        .args(select)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo tree");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut out: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for line in String::from_utf8_lossy(&o.stdout).lines() {
+        let Some((p, f)) = line.rsplit_once('|') else {
+            continue;
+        };
+        let key = p.split_whitespace().take(2).collect::<Vec<_>>().join(" ");
+        out.entry(key).or_default().insert(f.trim().to_string());
+    }
+    out
+}
+
+/// The shared dependencies that the build `select` resolves with other features than
+/// `cargo test --workspace` does (target code; new host-only units compile once and
+/// change nothing downstream), as readable lines.
+fn feature_drift(select: &[&str], except: &[&str]) -> Vec<String> {
+    let edges = "normal,dev,no-proc-macro";
+    let ws = features(&["--workspace"], edges);
+    features(select, edges)
+        .into_iter()
+        .filter(|(k, _)| !except.iter().any(|e| k.starts_with(&format!("{e} "))))
+        .filter_map(|(k, f)| {
+            let w = ws.get(&k)?;
+            (w != &f).then(|| format!("{k}: here {f:?}, cargo test --workspace {w:?}"))
+        })
+        .collect()
+}
+
+/// maturin builds the Python extension alone, and CI's GenICam tests add a feature:
+/// cargo would resolve the shared dependencies' features differently for either and
+/// rebuild the whole graph (190 s and 150 s of CI). The pins in crates/python and
+/// crates/genicam's Cargo.toml keep both on the test build's features; a new dependency
+/// that breaks this is named here.
+#[test]
+fn the_wheel_and_the_genicam_build_reuse_the_test_builds_dependencies() {
+    let wheel = feature_drift(&["-p", "cellinject-python"], &[]);
+    assert!(
+        wheel.is_empty(),
+        "pin these in crates/python/Cargo.toml:\n{}",
+        wheel.join("\n")
+    );
+    let genicam = feature_drift(
+        &[
+            "--workspace",
+            "--features",
+            "cellinject/genicam,cellinject-genicam/aravis",
+        ],
+        &["cellinject", "cellinject-genicam"],
+    );
+    assert!(
+        genicam.is_empty(),
+        "pin these in crates/genicam/Cargo.toml:\n{}",
+        genicam.join("\n")
+    );
+}
