@@ -4,7 +4,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use std::fs;
 use std::path::PathBuf;
@@ -73,7 +73,7 @@ fn a_generated_plate_is_checked_and_reads_back_with_what_was_asked() {
 }
 
 /// The shipped example (`configs/example-plate.toml`).
-const GOOD: &str = include_str!("../../../configs/example-plate.toml");
+const GOOD: &str = include_str!("../../../../configs/example-plate.toml");
 
 #[test]
 fn bad_plate_files_are_refused_naming_the_file_and_the_key() {

@@ -46,7 +46,7 @@ fn csv_rows(text: &str) -> Vec<Vec<f64>> {
         .collect()
 }
 
-const PROTOTYPE: &str = include_str!("../../../configs/prototype.toml");
+const PROTOTYPE: &str = include_str!("../../../../configs/prototype.toml");
 
 fn json(args: &[&str]) -> Value {
     let o = run(args);
