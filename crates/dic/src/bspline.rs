@@ -1,12 +1,157 @@
-//! Cubic B-spline interpolation with the recursive prefilter (Unser, Aldroubi & Eden,
-//! IEEE TSP 1993; Unser, IEEE SP Mag. 1999): the coefficients `c` are computed so that
-//! the spline `Σ c_k β³(x − k)` passes through every pixel exactly; values and
-//! gradients anywhere come from the same spline. Mirror-symmetric boundaries.
+//! B-spline interpolation of degree 3 (cubic) or 5 (quintic) with the recursive
+//! prefilter (Unser, Aldroubi & Eden, IEEE TSP 1993; Unser, "Splines: a perfect fit",
+//! IEEE SP Mag. 1999; Thévenaz, Blu & Unser, "Interpolation revisited", IEEE TMI 19,
+//! 2000): the coefficients `c` are computed so that the spline `Σ c_k βⁿ(x − k)` passes
+//! through every pixel exactly; values and gradients anywhere come from the same
+//! spline. Mirror-symmetric boundaries.
+//!
+//! Field and point mode use the quintic spline (the tracker, at camera rate, and
+//! [`BSpline::new`] keep the cubic): its interpolation error on a sinusoid falls as
+//! ω⁶ instead of ω⁴, which divides the position bias of a subset match (the phase
+//! error of the interpolant, largest at fractional offsets near ¼ and ¾) by about 4 at
+//! a quarter of the Nyquist frequency and by about 2 near half of it (Schreier,
+//! Braasch & Sutton, Opt. Eng. 39, 2000, on the bias of spline degrees in DIC), at the
+//! price of 6 × 6 taps per value instead of 4 × 4.
 
 use crate::image::Image;
 
-/// The pole of the cubic B-spline prefilter, `√3 − 2`.
-const POLE: f64 = -0.267_949_192_431_122_7;
+/// Degree of the B-spline interpolant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Degree {
+    /// Degree 3: one prefilter pole, `√3 − 2`; 4 × 4 taps. The default, used by the
+    /// tracker at camera rate ([`crate::track`]).
+    #[default]
+    Cubic,
+    /// Degree 5: two prefilter poles; 6 × 6 taps. Used by field and point mode.
+    Quintic,
+}
+
+/// Number of taps per axis of the widest kernel (quintic): offsets −2..=+3 from the
+/// integer part. The cubic kernel uses the middle four (−1..=+2) and zero weights at
+/// the ends.
+pub const TAPS: usize = 6;
+
+const SIXTH: f64 = 1.0 / 6.0;
+
+impl Degree {
+    /// The poles of the prefilter (Unser 1999, Table I; Thévenaz et al. 2000).
+    fn poles(self) -> &'static [f64] {
+        match self {
+            Degree::Cubic => &[-0.267_949_192_431_122_7],
+            Degree::Quintic => &[-0.430_575_347_099_973, -0.043_096_288_203_264_7],
+        }
+    }
+
+    /// Weights of the taps at offsets −2..=+3 from the integer part, for the fractional
+    /// offset `t` ∈ [0, 1): `βⁿ(t − k)`.
+    #[inline]
+    pub fn weights(self, t: f64) -> [f64; TAPS] {
+        match self {
+            Degree::Cubic => {
+                let t2 = t * t;
+                let t3 = t2 * t;
+                let u = 1.0 - t;
+                let w0 = u * u * u * SIXTH;
+                let w3 = t3 * SIXTH;
+                let w1 = 0.5 * t3 - t2 + 4.0 * SIXTH;
+                [0.0, w0, w1, 1.0 - w0 - w1 - w3, w3, 0.0]
+            }
+            Degree::Quintic => {
+                // Thévenaz et al. (2000), the published factorisation.
+                let mut w = t;
+                let mut w2 = w * w;
+                let w5 = (1.0 / 120.0) * w * w2 * w2;
+                w2 -= w;
+                let w4 = w2 * w2;
+                w -= 0.5;
+                let tt = w2 * (w2 - 3.0);
+                let w0 = (1.0 / 24.0) * (1.0 / 5.0 + w2 + w4) - w5;
+                let t0 = (1.0 / 24.0) * (w2 * (w2 - 5.0) + 46.0 / 5.0);
+                let t1 = (-1.0 / 12.0) * w * (tt + 4.0);
+                let (w2_, w3_) = (t0 + t1, t0 - t1);
+                let t0 = (1.0 / 16.0) * (9.0 / 5.0 - tt);
+                let t1 = (1.0 / 24.0) * w * (w4 - w2 - 5.0);
+                [w0, t0 + t1, w2_, w3_, t0 - t1, w5]
+            }
+        }
+    }
+
+    /// Derivatives of [`Degree::weights`] with respect to `t`.
+    #[inline]
+    pub fn weights_derivative(self, t: f64) -> [f64; TAPS] {
+        match self {
+            Degree::Cubic => {
+                let t2 = t * t;
+                let u = 1.0 - t;
+                [
+                    0.0,
+                    -0.5 * u * u,
+                    1.5 * t2 - 2.0 * t,
+                    -1.5 * t2 + t + 0.5,
+                    0.5 * t2,
+                    0.0,
+                ]
+            }
+            Degree::Quintic => std::array::from_fn(|j| quintic_derivative(t - (j as f64 - 2.0))),
+        }
+    }
+
+    /// Response of the kernel sampled at the integers, `Σ βⁿ(k) cos kω` (the inverse
+    /// of the prefilter's gain).
+    pub fn sampled_response(self, w: f64) -> f64 {
+        match self {
+            Degree::Cubic => (4.0 + 2.0 * w.cos()) / 6.0,
+            Degree::Quintic => (66.0 + 52.0 * w.cos() + 2.0 * (2.0 * w).cos()) / 120.0,
+        }
+    }
+
+    /// Gain of the spline's derivative at the pixels relative to the exact `iω`:
+    /// for the cubic `(c₊₁ − c₋₁)/2`, for the quintic
+    /// `5(c₊₁ − c₋₁)/12 + (c₊₂ − c₋₂)/24` of the prefiltered coefficients.
+    pub fn derivative_gain(self, w: f64) -> f64 {
+        let d = match self {
+            Degree::Cubic => w.sin(),
+            Degree::Quintic => (5.0 / 6.0) * w.sin() + (1.0 / 12.0) * (2.0 * w).sin(),
+        };
+        d / (w * self.sampled_response(w))
+    }
+
+    /// White-noise gain of the spline derivative at the pixels: the variance of ∂f/∂x
+    /// when f is white noise of unit variance, `(1/π)∫₀^π |ω·derivative_gain(ω)|² dω`:
+    /// `6√3 − 9` for the cubic, 1.8940 for the quintic (numerically).
+    pub fn derivative_noise_gain(self) -> f64 {
+        match self {
+            Degree::Cubic => 1.392_304_845_413_264,
+            Degree::Quintic => 1.893_960_320_410_752,
+        }
+    }
+
+    /// How far the kernel reaches from the integer part, pixels (beyond it the
+    /// mirrored coefficients are used).
+    fn reach(self) -> (isize, isize) {
+        match self {
+            Degree::Cubic => (1, 2),
+            Degree::Quintic => (2, 3),
+        }
+    }
+}
+
+/// `β⁵′(x)`: the derivative of the quintic B-spline.
+#[inline]
+fn quintic_derivative(x: f64) -> f64 {
+    let (a, s) = (x.abs(), x.signum());
+    let a2 = a * a;
+    if a < 1.0 {
+        s * (-a + a2 * a - (5.0 / 12.0) * a2 * a2)
+    } else if a < 2.0 {
+        s * (5.0 / 8.0 - 3.5 * a + 3.75 * a2 - 1.5 * a2 * a + (5.0 / 24.0) * a2 * a2)
+    } else if a < 3.0 {
+        let u = 3.0 - a;
+        -s * u * u * u * u / 24.0
+    } else {
+        0.0
+    }
+}
 
 /// Spline coefficients of an image (same size; mirror boundary conditions).
 #[derive(Debug, Clone)]
@@ -16,17 +161,14 @@ pub struct BSpline {
     c: Vec<f64>,
     /// Offset of the image origin inside a larger image (for local windows).
     origin: (f64, f64),
+    degree: Degree,
 }
 
-/// In-place causal/anticausal recursion along a line of `n` samples with stride `s`.
-fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize) {
+/// In-place causal/anticausal recursion of one pole `z` along a line of `n` samples
+/// with stride `s` (the overall gain is applied by the caller).
+fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize, z: f64) {
     if n < 2 {
         return;
-    }
-    let z = POLE;
-    let gain = (1.0 - z) * (1.0 - 1.0 / z);
-    for k in 0..n {
-        d[start + k * s] *= gain;
     }
     // Causal initialisation (mirror boundary): a sum truncated at machine precision when
     // the line is long enough, the exact mirrored sum otherwise (Unser 1999).
@@ -63,18 +205,22 @@ fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize) {
     }
 }
 
-const SIXTH: f64 = 1.0 / 6.0;
-
-/// Cubic B-spline weights for fractional offset `t` ∈ [0, 1): taps at −1, 0, +1, +2.
-#[inline]
-pub fn weights(t: f64) -> [f64; 4] {
-    let t2 = t * t;
-    let t3 = t2 * t;
-    let u = 1.0 - t;
-    let w0 = u * u * u * SIXTH;
-    let w3 = t3 * SIXTH;
-    let w1 = 0.5 * t3 - t2 + 4.0 * SIXTH;
-    [w0, w1, 1.0 - w0 - w1 - w3, w3]
+/// All the poles of `degree` along one line, with the overall gain.
+fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
+    if n < 2 {
+        return;
+    }
+    let gain: f64 = degree
+        .poles()
+        .iter()
+        .map(|z| (1.0 - z) * (1.0 - 1.0 / z))
+        .product();
+    for k in 0..n {
+        d[start + k * s] *= gain;
+    }
+    for &z in degree.poles() {
+        prefilter_line(d, start, n, s, z);
+    }
 }
 
 /// `floor` without a library call (baseline x86-64 has no rounding instruction).
@@ -82,19 +228,6 @@ pub fn weights(t: f64) -> [f64; 4] {
 fn fast_floor(x: f64) -> f64 {
     let t = x as i64 as f64;
     if t > x { t - 1.0 } else { t }
-}
-
-/// Derivatives of [`weights`] with respect to `t`.
-#[inline]
-pub fn weights_derivative(t: f64) -> [f64; 4] {
-    let t2 = t * t;
-    let u = 1.0 - t;
-    [
-        -0.5 * u * u,
-        1.5 * t2 - 2.0 * t,
-        -1.5 * t2 + t + 0.5,
-        0.5 * t2,
-    ]
 }
 
 #[inline]
@@ -112,22 +245,33 @@ fn mirror(i: isize, n: usize) -> usize {
 }
 
 impl BSpline {
-    /// Coefficients of a whole image.
+    /// Coefficients of a whole image, with the default (cubic) spline.
     pub fn new(img: &Image) -> Self {
+        BSpline::with_degree(img, Degree::default())
+    }
+
+    /// Coefficients of a whole image for a spline of the given degree.
+    pub fn with_degree(img: &Image, degree: Degree) -> Self {
         let (w, h) = (img.width(), img.height());
         let mut c = img.data().to_vec();
         for y in 0..h {
-            prefilter_line(&mut c, y * w, w, 1);
+            prefilter(&mut c, y * w, w, 1, degree);
         }
         for x in 0..w {
-            prefilter_line(&mut c, x, h, w);
+            prefilter(&mut c, x, h, w, degree);
         }
         BSpline {
             width: w,
             height: h,
             c,
             origin: (0.0, 0.0),
+            degree,
         }
+    }
+
+    /// The spline's degree.
+    pub fn degree(&self) -> Degree {
+        self.degree
     }
 
     /// Coefficients of the window `[x0, x0 + w) x [y0, y0 + h)` of `img`, addressed in
@@ -174,13 +318,13 @@ impl BSpline {
     #[inline(always)]
     pub fn value(&self, x: f64, y: f64) -> f64 {
         let (ix, iy, tx, ty) = self.split(x, y);
-        self.combine(ix, iy, &weights(tx), &weights(ty))
+        self.combine(ix, iy, &self.degree.weights(tx), &self.degree.weights(ty))
     }
 
     /// The value at the integer node (fx, fy), image coordinates, plus a fractional
     /// offset whose weights `wx`, `wy` the caller computed once (translation warps).
     #[inline]
-    pub fn value_with(&self, fx: f64, fy: f64, wx: &[f64; 4], wy: &[f64; 4]) -> f64 {
+    pub fn value_with(&self, fx: f64, fy: f64, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> f64 {
         let ix = (fx - self.origin.0) as isize;
         let iy = (fy - self.origin.1) as isize;
         self.combine(ix, iy, wx, wy)
@@ -188,8 +332,8 @@ impl BSpline {
 
     /// The values at `(fx + dx, fy + dy)` for `dy` in `−hh..=hh` (outer) and `dx` in
     /// `−hw..=hw` (inner), for one fractional offset whose weights are `wx`, `wy`
-    /// (a translated subset), written into `out`. Separable: two passes of four taps
-    /// instead of sixteen products per value; `tmp` is scratch.
+    /// (a translated subset), written into `out`. Separable: two passes of six taps
+    /// instead of thirty-six products per value; `tmp` is scratch.
     #[allow(clippy::too_many_arguments)]
     pub fn translated_block(
         &self,
@@ -197,8 +341,8 @@ impl BSpline {
         fy: f64,
         hw: usize,
         hh: usize,
-        wx: &[f64; 4],
-        wy: &[f64; 4],
+        wx: &[f64; TAPS],
+        wy: &[f64; TAPS],
         tmp: &mut Vec<f64>,
         out: &mut Vec<f64>,
     ) {
@@ -206,10 +350,10 @@ impl BSpline {
         let ix0 = (fx - self.origin.0) as isize - hw as isize;
         let iy0 = (fy - self.origin.1) as isize - hh as isize;
         out.clear();
-        let inner = ix0 >= 1
-            && iy0 >= 1
-            && ix0 + nw as isize + 1 < self.width as isize
-            && iy0 + nh as isize + 1 < self.height as isize;
+        let inner = ix0 >= 2
+            && iy0 >= 2
+            && ix0 + nw as isize + 3 <= self.width as isize
+            && iy0 + nh as isize + 3 <= self.height as isize;
         if !inner {
             for j in 0..nh as isize {
                 for i in 0..nw as isize {
@@ -219,46 +363,78 @@ impl BSpline {
             return;
         }
         tmp.clear();
-        tmp.resize((nh + 3) * nw, 0.0);
-        for r in 0..nh + 3 {
-            let base = (iy0 as usize - 1 + r) * self.width + ix0 as usize - 1;
-            let src = &self.c[base..base + nw + 3];
+        tmp.resize((nh + TAPS - 1) * nw, 0.0);
+        for r in 0..nh + TAPS - 1 {
+            let base = (iy0 as usize - 2 + r) * self.width + ix0 as usize - 2;
+            let src = &self.c[base..base + nw + TAPS - 1];
             let dst = &mut tmp[r * nw..(r + 1) * nw];
             for (i, d) in dst.iter_mut().enumerate() {
-                *d = wx[0] * src[i] + wx[1] * src[i + 1] + wx[2] * src[i + 2] + wx[3] * src[i + 3];
+                let s = &src[i..i + TAPS];
+                *d = wx[0] * s[0]
+                    + wx[1] * s[1]
+                    + wx[2] * s[2]
+                    + wx[3] * s[3]
+                    + wx[4] * s[4]
+                    + wx[5] * s[5];
             }
         }
         for j in 0..nh {
-            let (a, b, c, d) = (
-                &tmp[j * nw..(j + 1) * nw],
-                &tmp[(j + 1) * nw..(j + 2) * nw],
-                &tmp[(j + 2) * nw..(j + 3) * nw],
-                &tmp[(j + 3) * nw..(j + 4) * nw],
-            );
+            let rows: [&[f64]; TAPS] =
+                std::array::from_fn(|k| &tmp[(j + k) * nw..(j + k + 1) * nw]);
             for i in 0..nw {
-                out.push(wy[0] * a[i] + wy[1] * b[i] + wy[2] * c[i] + wy[3] * d[i]);
+                out.push(
+                    wy[0] * rows[0][i]
+                        + wy[1] * rows[1][i]
+                        + wy[2] * rows[2][i]
+                        + wy[3] * rows[3][i]
+                        + wy[4] * rows[4][i]
+                        + wy[5] * rows[5][i],
+                );
             }
         }
     }
 
     #[inline(always)]
-    fn combine(&self, ix: isize, iy: isize, wx: &[f64; 4], wy: &[f64; 4]) -> f64 {
+    fn combine(&self, ix: isize, iy: isize, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> f64 {
+        let (lo, hi) = self.degree.reach();
         let inner =
-            ix >= 1 && iy >= 1 && ix + 2 < self.width as isize && iy + 2 < self.height as isize;
+            ix >= lo && iy >= lo && ix + hi < self.width as isize && iy + hi < self.height as isize;
         let mut acc = 0.0;
-        if inner {
-            let base = (iy - 1) as usize * self.width + (ix - 1) as usize;
-            for (j, wyj) in wy.iter().enumerate() {
-                let row = &self.c[base + j * self.width..base + j * self.width + 4];
-                acc += wyj * (wx[0] * row[0] + wx[1] * row[1] + wx[2] * row[2] + wx[3] * row[3]);
-            }
-        } else {
-            for (j, wyj) in wy.iter().enumerate() {
-                let mut r = 0.0;
-                for (i, wxi) in wx.iter().enumerate() {
-                    r += wxi * self.coef(ix - 1 + i as isize, iy - 1 + j as isize);
+        match (inner, self.degree) {
+            (true, Degree::Cubic) => {
+                let base = (iy - 1) as usize * self.width + (ix - 1) as usize;
+                for (j, wyj) in wy[1..5].iter().enumerate() {
+                    let row = &self.c[base + j * self.width..base + j * self.width + 4];
+                    acc +=
+                        wyj * (wx[1] * row[0] + wx[2] * row[1] + wx[3] * row[2] + wx[4] * row[3]);
                 }
-                acc += wyj * r;
+            }
+            (true, Degree::Quintic) => {
+                let base = (iy - 2) as usize * self.width + (ix - 2) as usize;
+                for (j, wyj) in wy.iter().enumerate() {
+                    let row = &self.c[base + j * self.width..base + j * self.width + TAPS];
+                    acc += wyj
+                        * (wx[0] * row[0]
+                            + wx[1] * row[1]
+                            + wx[2] * row[2]
+                            + wx[3] * row[3]
+                            + wx[4] * row[4]
+                            + wx[5] * row[5]);
+                }
+            }
+            (false, _) => {
+                for (j, wyj) in wy.iter().enumerate() {
+                    if *wyj == 0.0 {
+                        continue;
+                    }
+                    let mut r = 0.0;
+                    for (i, wxi) in wx.iter().enumerate() {
+                        if *wxi != 0.0 {
+                            r += wxi * self.coef(ix - 2 + i as isize, iy - 2 + j as isize);
+                        }
+                    }
+                    acc += wyj * r;
+                }
             }
         }
         acc
@@ -267,12 +443,13 @@ impl BSpline {
     /// The interpolated value and gradient (∂/∂x, ∂/∂y) at (x, y).
     pub fn value_gradient(&self, x: f64, y: f64) -> (f64, f64, f64) {
         let (ix, iy, tx, ty) = self.split(x, y);
-        let (wx, wy) = (weights(tx), weights(ty));
-        let (dx, dy) = (weights_derivative(tx), weights_derivative(ty));
+        let d = self.degree;
+        let (wx, wy) = (d.weights(tx), d.weights(ty));
+        let (dx, dy) = (d.weights_derivative(tx), d.weights_derivative(ty));
         let (mut v, mut gx, mut gy) = (0.0, 0.0, 0.0);
-        for j in 0..4 {
-            for i in 0..4 {
-                let c = self.coef(ix - 1 + i as isize, iy - 1 + j as isize);
+        for j in 0..TAPS {
+            for i in 0..TAPS {
+                let c = self.coef(ix - 2 + i as isize, iy - 2 + j as isize);
                 v += wx[i] * wy[j] * c;
                 gx += dx[i] * wy[j] * c;
                 gy += wx[i] * dy[j] * c;
@@ -327,19 +504,21 @@ mod tests {
         }
     }
 
-    #[test]
-    fn cubic_polynomials_are_reproduced() {
-        // A cubic spline reproduces polynomials of degree ≤ 3 away from the borders.
-        let (w, h) = (40, 30);
-        let f = |x: f64, y: f64| 0.01 * x * x * x - 0.2 * x * y + 0.5 * y * y + 3.0;
+    /// The spline of `degree` on a `w x h` sampling of `f` reproduces `f` at `points`.
+    fn assert_reproduces(
+        degree: Degree,
+        (w, h): (usize, usize),
+        f: impl Fn(f64, f64) -> f64,
+        points: &[(f64, f64)],
+    ) {
         let data = (0..w * h)
             .map(|k| f((k % w) as f64, (k / w) as f64))
             .collect();
-        let s = BSpline::new(&Image::new(w, h, data).unwrap());
-        for &(x, y) in &[(15.3, 12.7), (20.5, 14.25)] {
+        let s = BSpline::with_degree(&Image::new(w, h, data).unwrap(), degree);
+        for &(x, y) in points {
             assert!(
                 (s.value(x, y) - f(x, y)).abs() < 1e-6,
-                "{} vs {}",
+                "{degree:?}: {} vs {}",
                 s.value(x, y),
                 f(x, y)
             );
@@ -347,16 +526,79 @@ mod tests {
     }
 
     #[test]
+    fn cubic_polynomials_are_reproduced() {
+        // A cubic spline reproduces polynomials of degree ≤ 3 away from the borders.
+        let f = |x: f64, y: f64| 0.01 * x * x * x - 0.2 * x * y + 0.5 * y * y + 3.0;
+        assert_reproduces(Degree::Cubic, (40, 30), f, &[(15.3, 12.7), (20.5, 14.25)]);
+    }
+
+    #[test]
+    fn quintic_polynomials_are_reproduced() {
+        // A quintic spline reproduces polynomials of degree ≤ 5 away from the borders.
+        let f = |x: f64, y: f64| {
+            let (x, y) = (x / 10.0, y / 10.0);
+            x.powi(5) - 2.0 * x.powi(3) * y * y + y.powi(4) + 3.0 * x * y + 1.0
+        };
+        assert_reproduces(Degree::Quintic, (60, 50), f, &[(25.3, 22.7), (30.5, 24.25)]);
+    }
+
+    #[test]
+    fn kernel_weights_partition_unity_and_match_the_samples() {
+        for d in [Degree::Cubic, Degree::Quintic] {
+            for &t in &[0.0, 0.2, 0.5, 0.77, 0.999] {
+                let w = d.weights(t);
+                assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-14, "{d:?} {t}");
+                // The first moment is the position: Σ w_k (k − 2) = t.
+                let m: f64 = w
+                    .iter()
+                    .enumerate()
+                    .map(|(k, a)| a * (k as f64 - 2.0))
+                    .sum();
+                assert!((m - t).abs() < 1e-14, "{d:?} {t}: {m}");
+                let (h, dw) = (1e-6, d.weights_derivative(t.min(0.99)));
+                let (a, b) = (d.weights(t.min(0.99) + h), d.weights(t.min(0.99) - h));
+                for k in 0..TAPS {
+                    assert!(
+                        (dw[k] - (a[k] - b[k]) / (2.0 * h)).abs() < 1e-8,
+                        "{d:?} {t} {k}"
+                    );
+                }
+            }
+        }
+        let q = Degree::Quintic.weights(0.0);
+        let want = [1.0, 26.0, 66.0, 26.0, 1.0, 0.0].map(|v| v / 120.0);
+        for (a, b) in q.iter().zip(want) {
+            assert!((a - b).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn the_cubic_option_interpolates_too() {
+        let img = test_image();
+        let s = BSpline::with_degree(&img, Degree::Cubic);
+        let q = BSpline::new(&img);
+        for &(x, y) in &[(5.3f64, 7.7f64), (10.0, 3.0), (0.5, 14.9)] {
+            let (xi, yi) = (x as usize, y as usize);
+            if x.fract() == 0.0 && y.fract() == 0.0 {
+                assert!((s.value(x, y) - img.at(xi, yi)).abs() < 1e-9);
+            }
+            // The two interpolants agree to within the image's high-frequency content.
+            assert!((s.value(x, y) - q.value(x, y)).abs() < 5.0);
+        }
+    }
+
+    #[test]
     fn windows_address_whole_image_coordinates() {
-        let (w, h) = (60, 50);
+        let (w, h) = (100, 80);
         let data = (0..w * h)
             .map(|k| 100.0 + 40.0 * (0.7 * (k % w) as f64).sin() * (0.45 * (k / w) as f64).cos())
             .collect();
         let img = Image::new(w, h, data).unwrap();
         let whole = BSpline::new(&img);
-        let win = BSpline::window(&img, 10, 10, 40, 30);
-        // 14 px from the window's border the boundary's influence is |z|^14 ≈ 1e-8.
-        let (x, y) = (30.4, 25.6);
+        let win = BSpline::window(&img, 10, 10, 60, 50);
+        // 23 px from the window's border the boundary's influence is |z₁|^23 ≈ 4e-9
+        // (the quintic's larger pole, −0.43).
+        let (x, y) = (40.4, 35.6);
         assert!((whole.value(x, y) - win.value(x, y)).abs() < 1e-5);
     }
 
@@ -367,7 +609,8 @@ mod tests {
             .map(|k| 100.0 + 40.0 * (0.7 * (k % w) as f64).sin() * (0.45 * (k / w) as f64).cos())
             .collect();
         let s = BSpline::new(&Image::new(w, h, data).unwrap());
-        let (wx, wy) = (weights(0.3), weights(0.8));
+        let d = s.degree();
+        let (wx, wy) = (d.weights(0.3), d.weights(0.8));
         let (mut tmp, mut out) = (Vec::new(), Vec::new());
         // Inside (separable path) and touching the border (point-by-point path).
         for (fx, fy) in [(30.0, 25.0), (4.0, 3.0)] {

@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use crate::accept::{Acceptance, Dropped, Rejection, judge, measure};
 use crate::icgn::{IcgnOptions, PointResult, Shape};
 use crate::search;
-use crate::{DicError, Image, check_subset};
+use crate::{Degree, DicError, Image, check_subset};
 
 /// Options of a full-field run.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -46,6 +46,9 @@ pub struct FieldOptions {
     pub tile: usize,
     /// Sigma of an optional Gaussian prefilter of both images, pixels (0 = none).
     pub prefilter: f64,
+    /// Degree of the B-spline interpolant of both images (quintic by default here; cubic
+    /// for comparison: [`crate::bspline::Degree`]).
+    pub spline: Degree,
     /// Iteration control.
     pub icgn: IcgnOptions,
 }
@@ -61,6 +64,7 @@ impl Default for FieldOptions {
             acceptance: Acceptance::default(),
             tile: 32,
             prefilter: 0.0,
+            spline: Degree::Quintic,
             // Neighbours start close to their solution, and the iteration contracts
             // fast: stopping at a 5e-4 px update leaves the result unchanged to 1e-5 px
             // (measured against 1e-4) and saves a third of the iterations.
@@ -194,7 +198,13 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         pc,
         floor,
         step: q,
-    } = crate::Prepared::new(reference, current, opts.search_radius, opts.prefilter);
+    } = crate::Prepared::new(
+        reference,
+        current,
+        opts.search_radius,
+        opts.prefilter,
+        opts.spline,
+    );
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
         quantisation_step: opts.icgn.quantisation_step.max(q),
@@ -229,13 +239,20 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
             let (tw, th) = (gx1 - gx0, gy1 - gy0);
             let mut work = Tile::new(tw * th);
             let mut done = vec![false; tw * th];
-            // Seed: the tile centre, then spiralling candidates until one correlates.
+            // Seed: the tile centre, then spiralling candidates until one the rule
+            // accepts. A match rejected only for its σ hands its guess on to its
+            // neighbours, but as a seed it may be anywhere: on a featureless patch
+            // (sky) a wrong integer peak converges to a ZNCC of 0.999 with an infinite
+            // σ, and the whole tile follows it. Such a seed is used only when none of
+            // the candidates is accepted; the others are left for the propagation.
             let centre = (tw / 2, th / 2);
             let mut order: Vec<(usize, usize)> =
                 (0..th).flat_map(|j| (0..tw).map(move |i| (i, j))).collect();
             order.sort_by_key(|&(i, j)| {
                 (i as i64 - centre.0 as i64).abs() + (j as i64 - centre.1 as i64).abs()
             });
+            let mut fallback = None;
+            let mut seeded = false;
             for &(i, j) in order.iter().take(8) {
                 let (px, py) = grid(gx0 + i, gy0 + j);
                 let hit = search::search_pyramid(
@@ -248,14 +265,23 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                 );
                 let Some(hit) = hit else { continue };
                 let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
-                let res = refine(px, py, init);
                 let k = j * tw + i;
-                done[k] = true;
-                if let Some(p) = res
-                    && work.keep(k, p, &opts.acceptance)
-                {
-                    break;
+                match refine(px, py, init) {
+                    Some(p) if judge(&p, &opts.acceptance).is_ok() => {
+                        done[k] = true;
+                        work.keep(k, p, &opts.acceptance);
+                        seeded = true;
+                        break;
+                    }
+                    Some(p) if fallback.is_none() && propagates(judge(&p, &opts.acceptance)) => {
+                        fallback = Some((k, p));
+                    }
+                    _ => {}
                 }
+            }
+            if !seeded && let Some((k, p)) = fallback {
+                done[k] = true;
+                work.keep(k, p, &opts.acceptance);
             }
             while let Some(Candidate { index, .. }) = work.heap.pop() {
                 let Some(parent) = work.guess[index] else {

@@ -5,7 +5,7 @@
 //!
 //! Pipeline (the one of the best open tools): integer search by FFT-based ZNCC, coarse
 //! to fine ([`search`]); sub-pixel refinement by IC-GN with the ZNSSD criterion and a
-//! first-order or translation shape function ([`icgn`]); cubic B-spline interpolation
+//! first-order or translation shape function ([`icgn`]); quintic (or cubic) B-spline interpolation
 //! with the recursive prefilter ([`bspline`]). On top: points ([`correlate_points`]),
 //! full fields with reliability-guided propagation in parallel ([`field`]), tracking of a
 //! region through a sequence ([`track`]), and the image-to-stage calibration
@@ -30,7 +30,7 @@ pub mod track;
 use thiserror::Error;
 
 pub use accept::{Acceptance, Dropped, Rejection, judge};
-pub use bspline::BSpline;
+pub use bspline::{BSpline, Degree};
 pub use icgn::{IcgnOptions, PointResult, Reference, Shape, Subset};
 pub use image::Image;
 
@@ -125,6 +125,9 @@ pub struct PointOptions {
     pub search_radius: usize,
     /// Sigma of an optional Gaussian prefilter of both images, pixels (0 = none).
     pub prefilter: f64,
+    /// Degree of the B-spline interpolant of both images (quintic by default here; cubic
+    /// for comparison: [`bspline::Degree`]).
+    pub spline: Degree,
     /// Iteration control.
     pub icgn: IcgnOptions,
 }
@@ -138,6 +141,7 @@ impl Default for PointOptions {
             shape: Shape::Affine,
             search_radius: 64,
             prefilter: 0.0,
+            spline: Degree::Quintic,
             icgn: IcgnOptions::default(),
         }
     }
@@ -168,6 +172,7 @@ impl Prepared {
         current: &Image,
         search_radius: usize,
         prefilter: f64,
+        spline: Degree,
     ) -> Self {
         let step = if prefilter > 0.0 {
             0.0
@@ -189,8 +194,8 @@ impl Prepared {
         Prepared {
             pr: search::pyramid(&reference, levels),
             pc: search::pyramid(&current, levels),
-            s: BSpline::new(&current),
-            r: Reference::new(reference),
+            s: BSpline::with_degree(&current, spline),
+            r: Reference::with_degree(reference, spline),
             floor,
             step,
         }
@@ -241,7 +246,13 @@ pub fn correlate_points(
         pc,
         floor,
         step,
-    } = Prepared::new(reference, current, opts.search_radius, opts.prefilter);
+    } = Prepared::new(
+        reference,
+        current,
+        opts.search_radius,
+        opts.prefilter,
+        opts.spline,
+    );
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
         quantisation_step: opts.icgn.quantisation_step.max(step),
