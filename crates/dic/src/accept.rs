@@ -160,6 +160,7 @@ pub fn measure(
     let count = if adaptive { sizes.len() } else { 1 };
     let mut best: Option<PointResult> = None;
     let mut last = Subset::square(subset);
+    let (iw, ih) = (reference.image().width(), reference.image().height());
     for &size in &sizes[..count] {
         let start = match &best {
             None => initial,
@@ -168,7 +169,6 @@ pub fn measure(
                 [b.u, ux, uy, b.v, vx, vy]
             }
         };
-        let (iw, ih) = (reference.image().width(), reference.image().height());
         let sub = if best.is_some() {
             match grown_subset(size, x, y, iw, ih, (start[0], start[3]), last) {
                 Some(s) => s,
@@ -218,9 +218,18 @@ pub fn measure(
     best
 }
 
+/// Distance in pixels that [`grown_subset`] keeps between a displaced subset and the
+/// current image's edge.
+pub const ROOM_MARGIN: f64 = 3.0;
+
 /// The subset of about `size`² pixels centred at (x, y) in a `w x h` image: square
 /// where it fits; near a border, as tall (wide) as fits and wider (taller) to keep the
 /// area. `None` when that is no larger than `previous`.
+///
+/// "Fits" means in the reference and, displaced by the current guess `uv`, in the
+/// current image with [`ROOM_MARGIN`] pixels to spare: the IC-GN refuses a warped
+/// subset closer than 2 px to the current image's edge, and a pixel more leaves room
+/// for the iterations to move it.
 pub fn grown_subset(
     size: usize,
     x: usize,
@@ -232,9 +241,10 @@ pub fn grown_subset(
 ) -> Option<Subset> {
     let half = size / 2;
     let room = |c: usize, d: f64, n: usize| -> usize {
+        // The last pixel is n − 1.
         let (lo, hi) = (
-            (c as f64 + d - 3.0).floor(),
-            (n as f64 - 4.0 - c as f64 - d).floor(),
+            (c as f64 + d - ROOM_MARGIN).floor(),
+            (n as f64 - 1.0 - ROOM_MARGIN - c as f64 - d).floor(),
         );
         c.min(n.saturating_sub(1 + c))
             .min(lo.max(0.0) as usize)
@@ -503,5 +513,53 @@ mod tests {
                 "{d:?} {mean}"
             );
         }
+    }
+
+    /// Inside the image the grown subset is the square; at a border (away from the
+    /// corners) it is a rectangle of at least the square's area that fits, displaced,
+    /// with the margin; one no larger than the last is not offered.
+    #[test]
+    fn grown_subsets_fit_and_keep_the_area() {
+        let (w, h) = (256, 256);
+        let small = Subset::square(31);
+        assert_eq!(
+            grown_subset(41, 128, 128, w, h, (0.3, -0.8), small),
+            Some(Subset::square(41))
+        );
+        for (x, y, uv) in [
+            (101, 21, (0.05, -0.8)),
+            (61, 236, (0.05, -0.8)),
+            (21, 128, (-1.13, 2.5)),
+            (240, 128, (0.37, -0.62)),
+        ] {
+            for size in [41, 51, 61] {
+                let Some(s) = grown_subset(size, x, y, w, h, uv, small) else {
+                    continue;
+                };
+                assert!(
+                    (2 * s.half_w + 1) * (2 * s.half_h + 1) >= size * size,
+                    "{size} at ({x}, {y}): {s:?}"
+                );
+                let fits = |c: usize, half: usize, d: f64, n: usize| {
+                    c >= half
+                        && c + half < n
+                        && c as f64 + d - half as f64 >= ROOM_MARGIN
+                        && (c + half) as f64 + d <= n as f64 - 1.0 - ROOM_MARGIN
+                };
+                assert!(fits(x, s.half_w, uv.0, w), "{size} at ({x}, {y}): {s:?}");
+                assert!(fits(y, s.half_h, uv.1, h), "{size} at ({x}, {y}): {s:?}");
+            }
+        }
+        // Row 21 displaced by −0.8 px is at 20.2: with the 3 px margin, 17 rows above
+        // it; 35 rows by 49 columns (1715 px ≥ 41²).
+        assert_eq!(
+            grown_subset(41, 101, 21, w, h, (0.05, -0.8), small),
+            Some(Subset {
+                half_w: 24,
+                half_h: 17
+            })
+        );
+        // A corner leaves no room to grow: nothing larger than 31 x 31.
+        assert_eq!(grown_subset(41, 16, 16, w, h, (0.0, 0.0), small), None);
     }
 }
