@@ -817,46 +817,36 @@ fn first_order_change(prepared: &Prepared, ek: &[f64]) -> Option<(f64, f64)> {
     let rs = &prepared.rs;
     let n = rs.f.len();
     let mean = ek.iter().sum::<f64>() / n as f64;
+    let mut b = SVector::<f64, 6>::zeros();
+    for (k, e) in ek.iter().enumerate() {
+        let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
+        let r = e - mean;
+        b += match prepared.shape {
+            Shape::Affine => SVector::<f64, 6>::new(gx, gx * dx, gx * dy, gy, gy * dx, gy * dy),
+            Shape::Rigid => SVector::<f64, 6>::new(gx, 0.0, 0.0, gy, 0.0, 0.0),
+        } * r;
+    }
+    translation_step(prepared, &b)
+}
+
+/// The Gauss-Newton step (u, v) of the subset's normal equations for the right-hand
+/// side `b` over (u, ∂u/∂x, ∂u/∂y, v, ∂v/∂x, ∂v/∂y): `−H⁻¹ b` (the rigid shape uses
+/// the translation entries alone).
+fn translation_step(prepared: &Prepared, b: &SVector<f64, 6>) -> Option<(f64, f64)> {
     match prepared.shape {
         Shape::Affine => {
-            let mut b = SVector::<f64, 6>::zeros();
-            for (k, e) in ek.iter().enumerate() {
-                let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-                let r = e - mean;
-                b += SVector::<f64, 6>::new(gx, gx * dx, gx * dy, gy, gy * dx, gy * dy) * r;
-            }
             let d = -(prepared.h6_inv?) * b;
             Some((d[0], d[3]))
         }
         Shape::Rigid => {
-            let mut b = SVector::<f64, 2>::zeros();
-            for (k, e) in ek.iter().enumerate() {
-                b += SVector::<f64, 2>::new(rs.gx[k], rs.gy[k]) * (e - mean);
-            }
-            let d = -(prepared.h2_inv?) * b;
+            let d = -(prepared.h2_inv?) * SVector::<f64, 2>::new(b[0], b[3]);
             Some((d[0], d[1]))
         }
     }
 }
 
-/// The Gauss-Newton step (u, v) of the subset's normal equations for a right-hand
-/// side that is `bx` on the x translation and `by` on the y translation, zero on the
-/// shape's gradients: `−H⁻¹ b`.
-fn translation_step(prepared: &Prepared, bx: f64, by: f64) -> Option<(f64, f64)> {
-    match prepared.shape {
-        Shape::Affine => {
-            let b = SVector::<f64, 6>::new(bx, 0.0, 0.0, by, 0.0, 0.0);
-            let d = -(prepared.h6_inv?) * b;
-            Some((d[0], d[3]))
-        }
-        Shape::Rigid => {
-            let d = -(prepared.h2_inv?) * SVector::<f64, 2>::new(bx, by);
-            Some((d[0], d[1]))
-        }
-    }
-}
-
-/// Half-width of the windowed-sinc kernel [`interpolation_error`] resamples with, taps.
+/// Half-width of the windowed-sinc kernel [`interpolation_mismatch`] resamples with,
+/// taps.
 const SINC_HALF: isize = 16;
 
 /// Kaiser window's shape parameter for that kernel.
@@ -905,7 +895,7 @@ fn sinc_weights(t: f64) -> [f64; 2 * SINC_HALF as usize] {
 /// subset's pixel order ([`corrected`] takes it out of a match).
 ///
 /// A current image is simulated from the reference by band-limited resampling (a
-/// Kaiser-windowed sinc of 2·[`SINC_HALF`] taps, mirrored at the borders) at the
+/// Kaiser-windowed sinc of 2·`SINC_HALF` (32) taps, mirrored at the borders) at the
 /// solution's translation; its spline of the current image's degree, interpolated
 /// back at the translated subset, is compared with the reference's pixels. Unlike the
 /// per-axis spectral model ([`spline_response`] weighted by the subset's spectrum, in
@@ -1051,47 +1041,61 @@ fn noise_covariance(
     (cov, var)
 }
 
-/// The noise gain, along one axis, of the residual [`corrected`] computes, at
-/// fractional offset `t`: the mean of the spline interpolant's (the current image's
-/// noise, interpolated at `t`) and of the simulated mismatch's path (the reference's
-/// noise, resampled by the sinc and interpolated back: the mismatch carries the
-/// reference's noise through it, and adding the mismatch to the residual replaces the
-/// reference's noise by that), each `Σ h²` over its impulse response h. The residual's
-/// variance divided by the product over x and y is the 2σ² of white noise in both
-/// images.
-fn corrected_noise_gain(degree: Degree, t: f64) -> f64 {
-    let (delta, shifted) = impulses(t);
-    // The spline of an impulse at C, interpolated at k + t.
-    let p = line_spline(&delta, degree);
-    let gp: f64 = (8..N_LINE - 9)
-        .map(|k| p.value(k as f64 + t, 2.0).powi(2))
-        .sum();
-    // The impulse resampled at m − t by the sinc, then interpolated back at m + t.
-    let s = line_spline(&shifted, degree);
-    let gs: f64 = (8..N_LINE - 9)
-        .map(|k| s.value(k as f64 + t, 2.0).powi(2))
-        .sum();
-    0.5 * (gp + gs)
+/// What [`corrected`] needs of the noise along one axis at fractional offset `t`,
+/// from impulse responses on a line.
+struct LineResponses {
+    /// The noise gain of the corrected residual: the mean of the spline interpolant's
+    /// (the current image's noise, interpolated at `t`) and of the simulated
+    /// mismatch's path (the reference's noise, resampled by the sinc and interpolated
+    /// back: the mismatch carries the reference's noise through it, and adding the
+    /// mismatch to the residual replaces the reference's noise by that), each `Σ h²`
+    /// over its impulse response h. The residual's variance divided by the product
+    /// over x and y is the 2σ² of white noise in both images.
+    gain: f64,
+    /// What the reference's own white noise puts, on average, in the first-order
+    /// change: the mismatch carries the reference's noise `n` as `S n − n` (S:
+    /// resampled by the sinc at the shift, interpolated back by the current image's
+    /// spline) and the reference's gradients carry it as `D n` (D: the reference
+    /// spline's derivative at the pixels), so their product has the mean
+    /// `σ²·Σᵢ D(i)·S(i)` per pixel (D(0) = 0), an errors-in-variables term that is
+    /// not interpolation error. This is `Σᵢ D(i)·S(i)`.
+    mismatch_noise: f64,
+    /// `S(0)`: the other axis's factor of `mismatch_noise` (the derivative along x is
+    /// the identity along y).
+    centre: f64,
 }
 
-/// What the reference's own white noise puts, on average, in the first-order change
-/// [`corrected`] computes, along one axis at fractional offset `t`: the mismatch
-/// carries the reference's noise `n` as `S n − n` (S: resampled by the sinc at the
-/// shift, interpolated back by the current image's spline) and the reference's
-/// gradients carry it as `D n` (D: the reference spline's derivative at the pixels),
-/// so their product has the mean `σ²·Σᵢ D(i)·S(i)` per pixel (D(0) = 0), an
-/// errors-in-variables term that is not interpolation error. Returns `Σᵢ D(i)·S(i)`
-/// and `S(0)` (the other axis's factor: the derivative along x is the identity along
-/// y), from the impulse responses on a line.
-fn noise_in_mismatch(current: Degree, reference: Degree, t: f64) -> (f64, f64) {
-    let (delta, shifted) = impulses(t);
-    let d = line_spline(&delta, reference);
-    let s = line_spline(&shifted, current);
-    // Pixel k sees the impulse at C through D(k − C) and S(k − C).
-    let sum = (8..N_LINE - 9)
-        .map(|k| d.value_gradient(k as f64, 2.0).1 * s.value(k as f64 + t, 2.0))
-        .sum();
-    (sum, s.value(C_LINE as f64 + t, 2.0))
+impl LineResponses {
+    fn new(current: Degree, reference: Degree, t: f64) -> Self {
+        let (delta, shifted) = impulses(t);
+        let range = 8..N_LINE - 9;
+        // The spline of an impulse at C, interpolated at k + t.
+        let p = line_spline(&delta, current);
+        let gp: f64 = range
+            .clone()
+            .map(|k| p.value(k as f64 + t, 2.0).powi(2))
+            .sum();
+        // The impulse resampled at m − t by the sinc, then interpolated back at m + t.
+        let s = line_spline(&shifted, current);
+        let gs: f64 = range
+            .clone()
+            .map(|k| s.value(k as f64 + t, 2.0).powi(2))
+            .sum();
+        let d = if reference == current {
+            p
+        } else {
+            line_spline(&delta, reference)
+        };
+        // Pixel k sees the impulse at C through D(k − C) and S(k − C).
+        let mismatch_noise = range
+            .map(|k| d.value_gradient(k as f64, 2.0).1 * s.value(k as f64 + t, 2.0))
+            .sum();
+        LineResponses {
+            gain: 0.5 * (gp + gs),
+            mismatch_noise,
+            centre: s.value(C_LINE as f64 + t, 2.0),
+        }
+    }
 }
 
 /// A spline of one line of `N_LINE` samples (a 5-row image of the same row: the
@@ -1129,7 +1133,7 @@ fn impulses(t: f64) -> (Vec<f64>, Vec<f64>) {
 
 /// The match `res` of the prepared subset with the spline's interpolation error taken
 /// out ([`interpolation_mismatch`]): the translation corrected by its first-order
-/// effect (less the reference noise's mean share in it, [`noise_in_mismatch`]), and the residual, ZNCC and noise σ recomputed at the corrected solution
+/// effect (less the reference noise's mean share in it, `LineResponses::mismatch_noise`), and the residual, ZNCC and noise σ recomputed at the corrected solution
 /// from the current image's interpolated values less the mismatch, so that the
 /// interpolation's own error is not counted again as noise. `kappa` of the correction
 /// stays in σ (in quadrature) for what the band-limited model of the image misses.
@@ -1144,12 +1148,21 @@ pub fn corrected(
 ) -> Option<PointResult> {
     let e = interpolation_mismatch(reference, prepared, res, current.degree())?;
     let (bu, bv) = first_order_change(prepared, &e)?;
-    // The reference noise's mean share of it (`noise_in_mismatch`), taken back.
+    // The reference noise's mean share of it (`LineResponses::mismatch_noise`),
+    // taken back.
     let (tu, tv) = (res.u - res.u.floor(), res.v - res.v.floor());
-    let (cx, sx) = noise_in_mismatch(current.degree(), prepared.degree, tu);
-    let (cy, sy) = noise_in_mismatch(current.degree(), prepared.degree, tv);
+    let lx = LineResponses::new(current.degree(), prepared.degree, tu);
+    let ly = LineResponses::new(current.degree(), prepared.degree, tv);
     let load = prepared.rs.f.len() as f64 * res.sigma_noise * res.sigma_noise;
-    let (nu, nv) = translation_step(prepared, load * cx * sy, load * cy * sx)?;
+    let b = SVector::<f64, 6>::new(
+        load * lx.mismatch_noise * ly.centre,
+        0.0,
+        0.0,
+        load * ly.mismatch_noise * lx.centre,
+        0.0,
+        0.0,
+    );
+    let (nu, nv) = translation_step(prepared, &b)?;
     let (bu, bv) = (bu - nu, bv - nv);
     let (u, v) = (res.u - bu, res.v - bv);
     let [ux, uy, vx, vy] = res.gradients;
@@ -1174,8 +1187,7 @@ pub fn corrected(
     let ratio = rs.df / dg;
     let residuals: Vec<f64> = (0..n).map(|k| rs.f[k] - ratio * (g[k] - gm)).collect();
     let residual2: f64 = residuals.iter().map(|r| r * r).sum();
-    let gain =
-        corrected_noise_gain(current.degree(), tu) * corrected_noise_gain(current.degree(), tv);
+    let gain = lx.gain * ly.gain;
     let (cov, var) = noise_covariance(prepared, &residuals, residual2, opts, gain);
     Some(PointResult {
         u,
