@@ -672,10 +672,19 @@ fn a_run_killed_between_and_within_fields_resumes_without_touching_a_cell_twice(
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        // Poll the records (generously: a loaded machine is slow) until the moment
-        // comes; the run must not have ended by then.
+        // Look at the records until the moment comes, the run held still (SIGSTOP)
+        // while they are read: between two looks it runs for 20 ms at most, a few
+        // tenths of a second of device time, however long a look takes on a loaded
+        // machine (the second field's last cell is done in about 3 s of device time).
+        let pid = rustix::process::Pid::from_child(&child);
         let mut killed = false;
-        for _ in 0..6000 {
+        let mut ended = None;
+        for _ in 0..30_000 {
+            if let Some(status) = child.try_wait().unwrap() {
+                ended = Some(status);
+                break;
+            }
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::STOP);
             if let Some(v) = show(&d, &db)
                 && due(&v)
             {
@@ -683,13 +692,15 @@ fn a_run_killed_between_and_within_fields_resumes_without_touching_a_cell_twice(
                 killed = true;
                 break;
             }
-            if child.try_wait().unwrap().is_some() {
-                break;
-            }
-            std::thread::sleep(std::time::Duration::from_millis(50));
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::CONT);
+            std::thread::sleep(std::time::Duration::from_millis(20));
         }
         let _ = child.wait();
-        assert!(killed, "kill {k} ({when}): the run ended first");
+        assert!(
+            killed,
+            "kill {k} ({when}): the run ended first ({ended:?}); its records: {:?}",
+            show(&d, &db)
+        );
         let before = show(&d, &db).unwrap();
         let o = run(
             &d,
