@@ -498,11 +498,12 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         found as f64 / elapsed.max(1e-9)
     );
     outln!(
-        "{} dropped as unreliable ({} predicted σ above {max_sigma} px, {} ZNCC below {min_zncc}, {} not converged)",
+        "{} dropped as unreliable ({} predicted σ above {max_sigma} px, {} ZNCC below {min_zncc}, {} not converged, {} contradicted by their neighbours or alone)",
         dropped.total(),
         dropped.uncertain,
         dropped.low_zncc,
-        dropped.not_converged
+        dropped.not_converged,
+        dropped.inconsistent
     );
     outln!(
         "u from {:.4} to {:.4} px, v from {:.4} to {:.4} px",

@@ -313,7 +313,7 @@ pub fn field_report(
 /// |---|---|---|
 /// | `points`, `found` | | grid points, of which matched (measurements) |
 /// | `dropped` | | computed but rejected by the point mode's rule |
-/// | `dropped_by` | | the same by reason: `not_converged`, `low_zncc`, `uncertain` (predicted σ above `max_sigma`) |
+/// | `dropped_by` | | the same by reason: `not_converged`, `low_zncc`, `uncertain` (predicted σ above `max_sigma`), `inconsistent` (contradicted by its neighbours, or none to confirm it) |
 /// | `min_zncc`, `max_sigma` | 1, px | the rule's thresholds |
 /// | `nx`, `ny`, `step` | –, –, px | the grid |
 /// | `u_range`, `v_range` | px | smallest and largest displacement over the matched points |
@@ -352,6 +352,9 @@ pub struct DroppedBy {
     pub low_zncc: usize,
     /// Predicted σ above `max_sigma` (too little texture).
     pub uncertain: usize,
+    /// Accepted on its own, but contradicted by its grid neighbours or with none kept
+    /// to confirm it (the normalised median test of `cellinject_dic::field`).
+    pub inconsistent: usize,
 }
 
 impl FieldReport {
@@ -367,6 +370,7 @@ impl FieldReport {
                 not_converged: d.not_converged,
                 low_zncc: d.low_zncc,
                 uncertain: d.uncertain,
+                inconsistent: d.inconsistent,
             },
             min_zncc: self.acceptance.min_zncc,
             max_sigma: self.acceptance.max_sigma,

@@ -13,6 +13,13 @@
 //! converge or has a low ZNCC is not used as a starting guess either. (A neighbour's guess lets IC-GN converge where the point mode's
 //! own search would not, so without the rule the field reported points the point mode
 //! refused.)
+//!
+//! A tile is seeded near its centre, then over a lattice spread across it, so that a
+//! centre on a featureless patch does not leave the whole tile unmeasured. Once every
+//! tile is done, a kept point that its grid neighbours contradict, or that no kept
+//! neighbour confirms, is dropped too ([`Dropped::inconsistent`]): the normalised
+//! median test of PIV on the pairs of neighbours facing each other across it, with the
+//! noise level taken from the predicted σ.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -123,6 +130,114 @@ impl Ord for Candidate {
 /// own), or a band of weak texture would cut the rest of its tile off.
 fn propagates(verdict: Result<(), Rejection>) -> bool {
     matches!(verdict, Ok(()) | Err(Rejection::Uncertain))
+}
+
+/// Candidates nearest the centre tried as a tile's seed before [`seed_candidates`]
+/// spreads out over the tile.
+const SEEDS_AT_CENTRE: usize = 8;
+
+/// Side of the lattice of further seed candidates spread over a tile.
+const SEED_LATTICE: usize = 4;
+
+/// The grid points of a `tw` x `th` tile tried in turn as its seed: the
+/// [`SEEDS_AT_CENTRE`] nearest its centre, then a [`SEED_LATTICE`]² lattice spread over
+/// the tile, nearest the centre first. A tile whose centre falls on a featureless
+/// patch (a sky, a dark coat without noise to texture it) is seeded where it has
+/// texture; with the centre's neighbours alone the whole tile was left unmeasured
+/// (camera_sky_coat with both frames exposed at (−1.13, 2.5) px: 1095 of 2025 grid
+/// points, a 32 x 32-point tile, never reached).
+fn seed_candidates(tw: usize, th: usize) -> Vec<(usize, usize)> {
+    let centre = (tw / 2, th / 2);
+    let distance = |&(i, j): &(usize, usize)| i.abs_diff(centre.0) + j.abs_diff(centre.1);
+    let mut near: Vec<(usize, usize)> =
+        (0..th).flat_map(|j| (0..tw).map(move |i| (i, j))).collect();
+    near.sort_by_key(distance);
+    near.truncate(SEEDS_AT_CENTRE);
+    let lattice = |n: usize| -> Vec<usize> {
+        (0..SEED_LATTICE)
+            .map(|k| ((2 * k + 1) * n / (2 * SEED_LATTICE)).min(n - 1))
+            .collect()
+    };
+    let (xs, ys) = (lattice(tw), lattice(th));
+    let mut spread: Vec<(usize, usize)> = Vec::new();
+    for p in ys.iter().flat_map(|&j| xs.iter().map(move |&i| (i, j))) {
+        if !near.contains(&p) && !spread.contains(&p) {
+            spread.push(p);
+        }
+    }
+    spread.sort_by_key(distance);
+    near.extend(spread);
+    near
+}
+
+/// Threshold of the normalised median test ([`inconsistent`]), Westerweel & Scarano's.
+const MEDIAN_TEST_THRESHOLD: f64 = 2.0;
+
+/// The kept points of a field that their neighbours contradict: the normalised median
+/// test of PIV (Westerweel & Scarano, "Universal outlier detection for PIV data",
+/// Exp. Fluids 39, 2005) on the 8 grid neighbours, taken as the 4 pairs facing each
+/// other across the point (left and right, above and below, the two diagonals), each
+/// pair's mean the value it predicts at the point: exact in any linear field, also at
+/// the field's edges, where the median of one-sided neighbours is off by a step's
+/// strain. Neighbours are not carried to the point by their own gradients: on a smooth
+/// sky the affine shape's gradients are noise (0.03 over a 5 px step is 0.15 px) that
+/// hid an outlier 0.10 px off. The noise level ε is taken from the predicted σ of the
+/// point and of the pairs' points (`√(σ² + median σₙ²)`, per axis) rather than a fixed
+/// 0.1 px. A point is an outlier when `|u − median pᵢ| / (median |pᵢ − median pᵢ| +
+/// ε)` exceeds [`MEDIAN_TEST_THRESHOLD`] in u or v, pᵢ the pairs' predictions; or when
+/// no neighbour was kept to confirm it. A point with kept neighbours but no complete
+/// pair is kept (nothing to test it against). Neighbouring subsets overlap, so their
+/// errors are correlated and the test is lenient. The rule of each point ([`judge`])
+/// cannot see these: with both frames rounded and little or no noise, where a smooth
+/// sky meets an edge, a match can settle 0.1-0.26 px off with a σ of 0.02 px
+/// (camera_sky_coat, `tests/real_images.rs`): each was alone, or 3 of its ε from its
+/// pairs.
+fn inconsistent(points: &[Option<PointResult>], nx: usize, ny: usize) -> Vec<usize> {
+    use cellinject_numeric::median;
+    let at = |gx: usize, gy: usize, di: i64, dj: i64| -> Option<PointResult> {
+        let (i, j) = (gx as i64 + di, gy as i64 + dj);
+        if i < 0 || j < 0 || i >= nx as i64 || j >= ny as i64 {
+            return None;
+        }
+        points[j as usize * nx + i as usize]
+    };
+    const PAIRS: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
+    let mut out = Vec::new();
+    for (k, p) in points.iter().enumerate() {
+        let Some(p) = p else { continue };
+        let (gx, gy) = (k % nx, k / nx);
+        let alone = (-1..=1)
+            .flat_map(|dj| (-1..=1).map(move |di| (di, dj)))
+            .filter(|&d| d != (0, 0))
+            .all(|(di, dj)| at(gx, gy, di, dj).is_none());
+        if alone {
+            out.push(k);
+            continue;
+        }
+        let (mut us, mut vs, mut sus, mut svs) = (vec![], vec![], vec![], vec![]);
+        for (di, dj) in PAIRS {
+            if let (Some(a), Some(b)) = (at(gx, gy, di, dj), at(gx, gy, -di, -dj)) {
+                us.push(0.5 * (a.u + b.u));
+                vs.push(0.5 * (a.v + b.v));
+                sus.extend([a.sigma_u, b.sigma_u]);
+                svs.extend([a.sigma_v, b.sigma_v]);
+            }
+        }
+        if us.is_empty() {
+            continue;
+        }
+        let test = |own: f64, sigma: f64, values: &mut Vec<f64>, sigmas: &mut Vec<f64>| {
+            let m = median(values);
+            let mut spread: Vec<f64> = values.iter().map(|x| (x - m).abs()).collect();
+            let r = median(&mut spread);
+            let eps = sigma.hypot(median(sigmas));
+            (own - m).abs() > MEDIAN_TEST_THRESHOLD * (r + eps)
+        };
+        if test(p.u, p.sigma_u, &mut us, &mut sus) || test(p.v, p.sigma_v, &mut vs, &mut svs) {
+            out.push(k);
+        }
+    }
+    out
 }
 
 /// One tile's propagation: what is kept, the starting guesses, what was dropped and
@@ -245,15 +360,10 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
             // (sky) a wrong integer peak converges to a ZNCC of 0.999 with an infinite
             // σ, and the whole tile follows it. Such a seed is used only when none of
             // the candidates is accepted; the others are left for the propagation.
-            let centre = (tw / 2, th / 2);
-            let mut order: Vec<(usize, usize)> =
-                (0..th).flat_map(|j| (0..tw).map(move |i| (i, j))).collect();
-            order.sort_by_key(|&(i, j)| {
-                (i as i64 - centre.0 as i64).abs() + (j as i64 - centre.1 as i64).abs()
-            });
+            let order = seed_candidates(tw, th);
             let mut fallback = None;
             let mut seeded = false;
-            for &(i, j) in order.iter().take(8) {
+            for &(i, j) in &order {
                 let (px, py) = grid(gx0 + i, gy0 + j);
                 let hit = search::search_pyramid(
                     &pr,
@@ -338,6 +448,11 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         dropped.low_zncc += d.low_zncc;
         dropped.uncertain += d.uncertain;
     }
+    let outliers = inconsistent(&points, nx, ny);
+    dropped.inconsistent = outliers.len();
+    for k in outliers {
+        points[k] = None;
+    }
     Ok(Field {
         nx,
         ny,
@@ -347,4 +462,133 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         points,
         dropped,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seed_candidates_start_at_the_centre_then_spread_over_the_tile() {
+        for (tw, th) in [(32, 32), (13, 32), (4, 4), (1, 7), (5, 2)] {
+            let c = seed_candidates(tw, th);
+            let mut seen = std::collections::BTreeSet::new();
+            for &(i, j) in &c {
+                assert!(i < tw && j < th, "{tw}x{th}: ({i}, {j}) outside");
+                assert!(seen.insert((i, j)), "{tw}x{th}: ({i}, {j}) twice");
+            }
+            let d = |(i, j): (usize, usize)| i.abs_diff(tw / 2) + j.abs_diff(th / 2);
+            let near = SEEDS_AT_CENTRE.min(tw * th);
+            // The first ones are the nearest the centre: none left out is nearer.
+            let reach = c[..near].iter().map(|&p| d(p)).max().unwrap();
+            let all = (0..th).flat_map(|j| (0..tw).map(move |i| (i, j)));
+            assert!(
+                all.filter(|p| !c[..near].contains(p))
+                    .all(|p| d(p) >= reach),
+                "{tw}x{th}"
+            );
+        }
+        // A 32 x 32 tile: the lattice reaches every quadrant, far from the centre.
+        let c = seed_candidates(32, 32);
+        for (qx, qy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            assert!(
+                c.iter().any(|&(i, j)| i / 16 == qx
+                    && j / 16 == qy
+                    && i.abs_diff(16) + j.abs_diff(16) >= 16),
+                "quadrant ({qx}, {qy}): {c:?}"
+            );
+        }
+        assert_eq!(c.len(), SEEDS_AT_CENTRE + SEED_LATTICE * SEED_LATTICE);
+    }
+
+    fn point(u: f64, v: f64, sigma: f64) -> Option<PointResult> {
+        Some(PointResult {
+            x: 0.0,
+            y: 0.0,
+            u,
+            v,
+            gradients: [0.0; 4],
+            zncc: 0.99,
+            iterations: 3,
+            converged: true,
+            sigma_u: sigma,
+            sigma_v: sigma,
+            sigma_noise: 1.0,
+            subset: 31,
+        })
+    }
+
+    #[test]
+    fn the_median_test_drops_what_the_neighbours_contradict_and_keeps_a_smooth_field() {
+        let (nx, ny) = (40, 30);
+        let sigma = 0.01;
+        let linear = |k: usize| {
+            let (i, j) = ((k % nx) as f64, (k / nx) as f64);
+            // 1 % strain and 0.5 % shear over a 5 px step.
+            (1.2 + 0.05 * i + 0.025 * j, -0.7 + 0.05 * j)
+        };
+        let field = |noise: &dyn Fn(usize) -> (f64, f64)| -> Vec<Option<PointResult>> {
+            (0..nx * ny)
+                .map(|k| {
+                    let ((u, v), (a, b)) = (linear(k), noise(k));
+                    point(u + a, v + b, sigma)
+                })
+                .collect()
+        };
+        // A linear field, edges and corners included: nothing dropped.
+        let exact = field(&|_| (0.0, 0.0));
+        assert_eq!(inconsistent(&exact, nx, ny), Vec::<usize>::new());
+        // Errors of σ correlated over neighbours, as overlapping subsets make them (a
+        // 3 x 3 moving average of white noise, scaled back to σ): hardly any dropped.
+        let mut rng = cellinject_numeric::Rng::new(3, 1);
+        let white: Vec<(f64, f64)> = (0..nx * ny)
+            .map(|_| (rng.gaussian_exact(), rng.gaussian_exact()))
+            .collect();
+        let smooth = |k: usize| {
+            let (i, j) = ((k % nx) as i64, (k / nx) as i64);
+            let (mut a, mut b) = (0.0, 0.0);
+            for dj in -1..=1 {
+                for di in -1..=1 {
+                    let (x, y) = (
+                        (i + di).clamp(0, nx as i64 - 1),
+                        (j + dj).clamp(0, ny as i64 - 1),
+                    );
+                    let w = white[y as usize * nx + x as usize];
+                    a += w.0;
+                    b += w.1;
+                }
+            }
+            (sigma * a / 3.0, sigma * b / 3.0)
+        };
+        let correlated = field(&smooth);
+        let rate =
+            |f: &[Option<PointResult>]| inconsistent(f, nx, ny).len() as f64 / f.len() as f64;
+        let r = rate(&correlated);
+        println!("correlated errors: {:.2} % dropped", 100.0 * r);
+        assert!(r <= 0.005, "{r}");
+        // Independent errors of σ (subsets that do not overlap): a few dropped, at the
+        // rate the threshold of 2 gives for a noise level ε of the predicted σ.
+        let independent = field(&|k| (sigma * white[k].0, sigma * white[k].1));
+        let r = rate(&independent);
+        println!("independent errors: {:.2} % dropped", 100.0 * r);
+        assert!(r < 0.05, "{r}");
+        // One point 0.1 px off in v, ten of its σ: dropped, and only it.
+        let mut bad = exact.clone();
+        let k = 13 * nx + 17;
+        bad[k] = bad[k].map(|p| PointResult { v: p.v - 0.1, ..p });
+        assert_eq!(inconsistent(&bad, nx, ny), vec![k]);
+        // The same offset where σ says 0.05 px: within the noise, kept.
+        bad[k] = bad[k].map(|p| PointResult {
+            sigma_u: 0.05,
+            sigma_v: 0.05,
+            ..p
+        });
+        assert_eq!(inconsistent(&bad, nx, ny), Vec::<usize>::new());
+        // A point no kept neighbour confirms is dropped; two confirm each other.
+        let mut alone = vec![None; nx * ny];
+        alone[2 * nx + 2] = point(0.3, 0.3, sigma);
+        alone[5 * nx + 6] = point(0.3, 0.3, sigma);
+        alone[5 * nx + 7] = point(0.301, 0.3, sigma);
+        assert_eq!(inconsistent(&alone, nx, ny), vec![2 * nx + 2]);
+    }
 }

@@ -4,8 +4,8 @@
 //! everywhere: the seeded random generator ([`Rng`], bit-exact so that the twin's
 //! digests hold), the error function ([`erf`], [`erfc`], [`normal_cdf`]) and a damped
 //! Newton solve of two equations in two unknowns with a finite-difference Jacobian
-//! ([`newton2`]), and non-negative least squares ([`nnls_gram`], Lawson-Hanson) for
-//! identifying hysteresis weights.
+//! ([`newton2`]), non-negative least squares ([`nnls_gram`], Lawson-Hanson) for
+//! identifying hysteresis weights, and the [`median`].
 //!
 //! **Architecture invariant:** pure functions of their arguments; no IO, no global
 //! state but lazily built constant tables.
@@ -31,6 +31,21 @@ pub fn erfc(x: f64) -> f64 {
     libm::erfc(x)
 }
 
+/// The median of `v` (sorted in place): the middle value, the mean of the middle two
+/// for an even count; NaN for an empty slice.
+pub fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
 /// The standard normal cumulative distribution Φ(u) = erfc(−u/√2)/2.
 #[inline]
 pub fn normal_cdf(u: f64) -> f64 {
@@ -40,6 +55,14 @@ pub fn normal_cdf(u: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn median_is_the_middle_value_or_the_mean_of_the_middle_two() {
+        assert_eq!(median(&mut [0.1, -3.0, 0.2, 0.0, 0.15]), 0.1);
+        assert!((median(&mut [0.2, 0.1, -3.0, 0.3]) - 0.15).abs() < 1e-12);
+        assert_eq!(median(&mut [2.0]), 2.0);
+        assert!(median(&mut []).is_nan());
+    }
 
     #[test]
     fn erf_matches_reference_values_and_symmetry() {

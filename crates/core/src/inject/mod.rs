@@ -2521,16 +2521,7 @@ fn decompose(e: [f64; 2], u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
 
 /// The median of `v` (the mean of the middle two for an even count); NaN if empty.
 fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+    cellinject_numeric::median(&mut v)
 }
 
 fn unit(v: [f64; 2]) -> [f64; 2] {
