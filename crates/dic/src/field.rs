@@ -186,7 +186,7 @@ const MEDIAN_TEST_THRESHOLD: f64 = 2.0;
 /// 0.1 px. A point is an outlier when `|u − median pᵢ| / (median |pᵢ − median pᵢ| +
 /// ε)` exceeds [`MEDIAN_TEST_THRESHOLD`] in u or v, pᵢ the pairs' predictions; or when
 /// no neighbour was kept to confirm it. A point with kept neighbours but no complete
-/// pair is kept (nothing to test it against). Neighbouring subsets overlap, so their
+/// pair, or the one point of a 1 x 1 grid, is kept (nothing to test it against). Neighbouring subsets overlap, so their
 /// errors are correlated and the test is lenient. The rule of each point ([`judge`])
 /// cannot see these: with both frames rounded and little or no noise, where a smooth
 /// sky meets an edge, a match can settle 0.1-0.26 px off with a σ of 0.02 px
@@ -206,10 +206,17 @@ fn inconsistent(points: &[Option<PointResult>], nx: usize, ny: usize) -> Vec<usi
     for (k, p) in points.iter().enumerate() {
         let Some(p) = p else { continue };
         let (gx, gy) = (k % nx, k / nx);
-        let alone = (-1..=1)
+        // In the grid at all, and none of them kept (a grid of one point has no
+        // neighbour to ask).
+        let around: Vec<(i64, i64)> = (-1..=1)
             .flat_map(|dj| (-1..=1).map(move |di| (di, dj)))
-            .filter(|&d| d != (0, 0))
-            .all(|(di, dj)| at(gx, gy, di, dj).is_none());
+            .filter(|&(di, dj)| {
+                let (i, j) = (gx as i64 + di, gy as i64 + dj);
+                (di, dj) != (0, 0) && i >= 0 && j >= 0 && i < nx as i64 && j < ny as i64
+            })
+            .collect();
+        let alone =
+            !around.is_empty() && around.iter().all(|&(di, dj)| at(gx, gy, di, dj).is_none());
         if alone {
             out.push(k);
             continue;
@@ -590,5 +597,10 @@ mod tests {
         alone[5 * nx + 6] = point(0.3, 0.3, sigma);
         alone[5 * nx + 7] = point(0.301, 0.3, sigma);
         assert_eq!(inconsistent(&alone, nx, ny), vec![2 * nx + 2]);
+        // The one point of a 1 x 1 grid has no neighbour to ask: kept.
+        assert_eq!(
+            inconsistent(&[point(0.3, 0.3, sigma)], 1, 1),
+            Vec::<usize>::new()
+        );
     }
 }
