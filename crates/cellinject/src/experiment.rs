@@ -238,6 +238,23 @@ struct Made {
     seed: Option<u64>,
     /// The lens's magnification.
     zoom: f64,
+    /// FNV-1a digest of the description the calibration was made with (files made
+    /// before 0.1 of this field have none: their design's name alone is checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    description_digest: Option<String>,
+}
+
+/// A digest of description `d`, every value it holds (not its file's text: comments
+/// and the order of keys do not change it): FNV-1a, 64 bits, of its debug form, as 16
+/// hex digits. It tells a calibration made on another description (a stack's travel,
+/// a lever's length) from one made on this, whatever their names.
+pub(crate) fn description_digest(d: &Description) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in format!("{d:?}").bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
 }
 
 /// A calibration file.
@@ -249,10 +266,71 @@ struct CalibrationFile<T> {
     calibration: T,
 }
 
-/// A hysteresis calibration file for `run`: its kind and approach checked (a file made
-/// under the other approach is not used: `None`, with a note).
-pub(crate) fn read_hysteresis(path: &Path, approach: u8) -> Result<Option<HysteresisCalibration>> {
-    load(path, "hysteresis", approach)
+/// The bench a run loads a calibration for: what its file must have been made on.
+pub(crate) struct RunBench<'a> {
+    /// The description the run uses.
+    pub d: &'a Description,
+    /// `twin` or the controller's address (`--backend`).
+    pub backend: &'a str,
+    /// The twin's seed (None on hardware).
+    pub seed: Option<u64>,
+}
+
+/// A hysteresis calibration file for `run`, checked against the bench it is to be used
+/// on: its kind (exit 2 when it is not one), then what it was made on (the approach,
+/// the backend, the twin's seed, the description's name and digest). `Ok((None,
+/// Some(why)))` when it was made on another bench: the run identifies the stacks
+/// again and records why; never used silently.
+pub(crate) fn read_hysteresis_for_run(
+    path: &Path,
+    bench: &RunBench<'_>,
+) -> Result<(Option<HysteresisCalibration>, Option<String>)> {
+    let f = read_file::<HysteresisCalibration>(path, "hysteresis")?;
+    let why = made_elsewhere(&f.made, bench);
+    Ok(match why {
+        None => (Some(f.calibration), None),
+        Some(w) => (None, Some(format!("`{}` {w}", path.display()))),
+    })
+}
+
+/// What makes a calibration made on `m` unfit for `bench`, if anything.
+fn made_elsewhere(m: &Made, bench: &RunBench<'_>) -> Option<String> {
+    let approach = bench.d.rig.approach.number();
+    if m.approach != approach {
+        return Some(format!(
+            "was made under approach {}, the bench is assembled with approach {approach}",
+            m.approach
+        ));
+    }
+    if m.backend != bench.backend {
+        return Some(format!(
+            "was made on backend {}, the run is on {}",
+            m.backend, bench.backend
+        ));
+    }
+    if let (Some(made), Some(now)) = (m.seed, bench.seed)
+        && made != now
+    {
+        return Some(format!(
+            "was made on the twin of seed {made}, the run's twin has seed {now}"
+        ));
+    }
+    if m.design != bench.d.name {
+        return Some(format!(
+            "was made for the description `{}`, the run uses `{}`",
+            m.design, bench.d.name
+        ));
+    }
+    let digest = description_digest(bench.d);
+    if let Some(made) = &m.description_digest
+        && *made != digest
+    {
+        return Some(format!(
+            "was made with another description of `{}` (digest {made}, this one's {digest}: a value differs)",
+            m.design
+        ));
+    }
+    None
 }
 
 /// Now as `YYYY-MM-DDTHH:MM:SSZ`.
@@ -310,6 +388,7 @@ fn setup(d: &Description, args: &TwinArgs, backend: &BackendArgs) -> Result<Setu
             approach: o.approach.number(),
             seed,
             zoom,
+            description_digest: Some(description_digest(d)),
         },
         description,
     })
@@ -339,9 +418,9 @@ fn json_bytes<T: Serialize>(v: &T) -> Result<Vec<u8>> {
     Ok(s.into_bytes())
 }
 
-/// Reads a calibration file of `kind`; `Ok(None)` with a message on standard error if
-/// it was made for another bench (the caller redoes it).
-fn load<T: DeserializeOwned>(path: &Path, kind: &str, approach: u8) -> Result<Option<T>> {
+/// A calibration file of `kind` at `path`: exit 2 naming the file when it cannot be
+/// read, is not a calibration file or holds another kind.
+fn read_file<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<CalibrationFile<T>> {
     let text = std::fs::read_to_string(path).map_err(|e| {
         InputError(format!(
             "--calibration: cannot read `{}`: {e}",
@@ -362,6 +441,13 @@ fn load<T: DeserializeOwned>(path: &Path, kind: &str, approach: u8) -> Result<Op
         ))
         .into());
     }
+    Ok(f)
+}
+
+/// Reads a calibration file of `kind`; `Ok(None)` with a message on standard error if
+/// it was made for another bench (the caller redoes it).
+fn load<T: DeserializeOwned>(path: &Path, kind: &str, approach: u8) -> Result<Option<T>> {
+    let f = read_file::<T>(path, kind)?;
     if kind != "pixels" && f.made.approach != approach {
         eprintln!(
             "note: `{}` was made under approach {}, the bench is assembled with approach {approach}: calibrating again",
@@ -1284,4 +1370,54 @@ fn plan_json(out: &Path, input: Option<(&str, &Path)>) -> Result<PathBuf> {
     let p = plan.output("--out", out, &[crate::files::Kind::Json])?;
     plan.check()?;
     Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn made(d: &Description, seed: Option<u64>) -> Made {
+        Made {
+            created_utc: "2026-12-05T00:00:00Z".into(),
+            backend: "twin".into(),
+            design: d.name.clone(),
+            approach: d.rig.approach.number(),
+            seed,
+            zoom: 2.5,
+            description_digest: Some(description_digest(d)),
+        }
+    }
+
+    #[test]
+    fn a_calibration_from_another_bench_is_told_apart() {
+        let d = cellinject_config::prototype();
+        let bench = RunBench {
+            d: &d,
+            backend: "twin",
+            seed: Some(1),
+        };
+        assert_eq!(made_elsewhere(&made(&d, Some(1)), &bench), None);
+        let why = made_elsewhere(&made(&d, Some(2)), &bench).expect("another seed");
+        assert!(why.contains("seed 2") && why.contains("seed 1"), "{why}");
+        let gcs = RunBench {
+            backend: "gcs://127.0.0.1:50000",
+            seed: None,
+            ..bench
+        };
+        let why = made_elsewhere(&made(&d, Some(1)), &gcs).expect("another backend");
+        assert!(why.contains("backend twin"), "{why}");
+        // Same name, one value changed: the digest tells.
+        let mut other = d.clone();
+        other.sim.stage.settling_time *= 1.2;
+        let why = made_elsewhere(&made(&other, Some(1)), &bench).expect("another description");
+        assert!(why.contains("digest"), "{why}");
+        // A file from before the digest: the name alone is checked.
+        let mut old = made(&other, Some(1));
+        old.description_digest = None;
+        assert_eq!(made_elsewhere(&old, &bench), None);
+        let mut renamed = made(&d, Some(1));
+        renamed.design = "My bench".into();
+        let why = made_elsewhere(&renamed, &bench).expect("another name");
+        assert!(why.contains("My bench"), "{why}");
+    }
 }

@@ -217,10 +217,35 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         }
         gcs_run_checks(args.plate.is_some() || args.resume, args.seed.is_some())?;
     }
-    let hysteresis = match &args.calibration {
-        None => None,
-        Some(p) => crate::experiment::read_hysteresis(p, d.rig.approach.number())?,
+    // A calibration made on another bench (backend, seed, description) is not used:
+    // the stacks are identified again, and the run's record says why.
+    let (hysteresis, not_used) = match &args.calibration {
+        None => (None, None),
+        Some(p) => {
+            let seed = args
+                .backend
+                .is_twin()
+                .then(|| args.seed.unwrap_or(d.sim.seed));
+            crate::experiment::read_hysteresis_for_run(
+                p,
+                &crate::experiment::RunBench {
+                    d,
+                    backend: &args.backend.backend,
+                    seed,
+                },
+            )?
+        }
     };
+    if let Some(why) = &not_used {
+        eprintln!("note: {why}: the stacks are identified again");
+    }
+    let calibration_note = args.calibration.as_ref().map(|p| {
+        serde_json::json!({
+            "file": p.display().to_string(),
+            "used": not_used.is_none(),
+            "why_not": not_used,
+        })
+    });
     // The plate is read and checked before the database is touched.
     let given_plate = match &args.plate {
         None => None,
@@ -313,7 +338,11 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         )
     } else {
         let (_, text, seed, resolved) = fresh.expect("a new run's plate is read first");
-        let settings = serde_json::json!({ "options": options, "faults": args.fault });
+        let settings = serde_json::json!({
+            "options": options,
+            "faults": args.fault,
+            "calibration": calibration_note,
+        });
         let id = new_run(
             &mut db,
             &text,
