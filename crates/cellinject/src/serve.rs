@@ -81,6 +81,10 @@ struct BenchStation {
     options: Options,
     /// Bumped when the twin gets a fresh plate (the viewer renews its camera).
     generation: Arc<AtomicU64>,
+    /// m, the stacks' sensor readings the session's first run started from: every
+    /// later run refers its focus to them (the stacks still creep back from the run
+    /// before).
+    rest: Option<[f64; 2]>,
 }
 
 impl Station for BenchStation {
@@ -128,6 +132,7 @@ impl Station for BenchStation {
             d: &self.d,
             options: self.options,
             hysteresis,
+            rest: self.rest,
             twin: self.twin.clone(),
             plate: self.plate.clone(),
             run_id: id,
@@ -140,7 +145,10 @@ impl Station for BenchStation {
             .map_err(|e| crate::run::run_error(e).to_string())?;
         let r = db.run(Some(id)).map_err(|e| records_error(e).to_string())?;
         let (cells_per_min, calibration) = match result {
-            Ok((report, cal)) => (report.cells_per_min, Some(cal)),
+            Ok((report, cal)) => {
+                self.rest.get_or_insert(report.rest_m);
+                (report.cells_per_min, Some(cal))
+            }
             Err(_) => (0.0, None),
         };
         Ok(RunEnd {
@@ -374,6 +382,7 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
         backend: opened.name,
         options,
         generation,
+        rest: None,
     };
     let archive = Arc::new(DbArchive {
         path: a.db.clone(),

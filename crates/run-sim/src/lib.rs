@@ -393,6 +393,10 @@ pub struct Job<'a> {
     pub options: Options,
     /// A hysteresis calibration to use (else the stacks are identified).
     pub hysteresis: Option<HysteresisCalibration>,
+    /// m, the stacks' sensor readings the session's first run started from (its
+    /// [`cellinject_core::inject::RunReport::rest_m`]): a later run of the same
+    /// session refers its focus to them. `None`: the run's own start.
+    pub rest: Option<[f64; 2]>,
     /// The twin, when it is the backend (its truth goes into the records).
     pub twin: Option<SharedTwin>,
     /// The plate.
@@ -507,6 +511,7 @@ pub fn execute(
         d,
         options,
         hysteresis,
+        rest,
         twin,
         plate,
         run_id,
@@ -529,7 +534,8 @@ pub fn execute(
         extra,
     };
     let wf = Workflow::new(rig, &d.design, &d.rig, &plate, options)
-        .map_err(|e| RunError::Input(e.to_string()))?;
+        .map_err(|e| RunError::Input(e.to_string()))?
+        .with_rest(rest);
     let result = wf.run(hysteresis, &mut tee);
     let rec = tee.rec;
     let (status, stopped, sim, cell, found) = match &result {
@@ -537,7 +543,7 @@ pub fn execute(
             rec.db
                 .set_calibration(
                     run_id,
-                    &serde_json::json!({ "hysteresis": cal, "map": r.map }),
+                    &serde_json::json!({ "hysteresis": cal, "map": r.map, "rest_m": r.rest_m }),
                 )
                 .map_err(RunError::Records)?;
             (

@@ -523,6 +523,12 @@ impl ImageMap {
 pub struct RunReport {
     /// Cells the survey found.
     pub cells_found: usize,
+    /// m, A1's and A2's sensor readings the focus referred to (the session's rest:
+    /// pass them to the session's next run, [`Workflow::with_rest`]).
+    pub rest_m: [f64; 2],
+    /// m, the stage height that put the tip in focus with the stacks at their zero
+    /// (the option's focus less the tip's drop since the session's rest).
+    pub focus_m: f64,
     /// Fields of view the plate was served in.
     pub fields: usize,
     /// Attempts by outcome.
@@ -714,6 +720,10 @@ pub struct Workflow<'r, B: Backend> {
     /// since the run started (A1 and A2 held where the identification of their
     /// hysteresis left them, through the mechanism's Jacobian).
     focus: f64,
+    /// m, A1's and A2's sensor readings at which the option's focus puts the tip in
+    /// focus: the stacks as the session's first run found them (a later run of the
+    /// session is given them, [`Workflow::with_rest`]), else as this run finds them.
+    rest: Option<[f64; 2]>,
     /// m, the surveyed cells' mean diameter: the plate is focused on their equators,
     /// so a cell of diameter d has its centre (d - mean) / 2 above the focal plane.
     mean_diameter: f64,
@@ -871,6 +881,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             })?,
             travel_a12: [design.actuators[0].travel, design.actuators[1].travel],
             focus: options.focus,
+            rest: None,
             mean_diameter: 0.0,
             state: State::Start,
             log: Vec::new(),
@@ -900,6 +911,17 @@ impl<'r, B: Backend> Workflow<'r, B> {
             focused: Vec::new(),
             field_focus: None,
         })
+    }
+
+    /// The stacks' sensor readings (A1, A2, m) at which the option's focus puts the
+    /// tip in focus: a session's later runs pass what its first run reported
+    /// ([`RunReport::rest_m`]). Without it the run takes the stacks as it finds them,
+    /// which is right on a bench at rest since long, not after a run: the stacks then
+    /// still creep back from it, and a second run of the dashboard measured the tip's
+    /// drop from that creeping start and set its focus 1.4 um low.
+    pub fn with_rest(mut self, rest: Option<[f64; 2]>) -> Self {
+        self.rest = rest.filter(|r| r.iter().all(|v| v.is_finite()));
+        self
     }
 
     fn now(&self) -> f64 {
@@ -1080,6 +1102,8 @@ impl<'r, B: Backend> Workflow<'r, B> {
         Ok((
             RunReport {
                 cells_found: targets.len(),
+                rest_m: self.rest.unwrap_or([0.0; 2]),
+                focus_m: self.focus,
                 fields,
                 injected: count(Outcome::Injected),
                 failed: count(Outcome::Failed),
@@ -1555,14 +1579,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
             }
             *z = s / 20.0;
         }
-        // The stacks now rest where the identification left them (remanence): the tip
-        // stands that much higher or lower, and the stage makes up for it.
+        // The stacks now rest where the identification (or a previous run of the
+        // session) left them, creeping back: the tip stands that much higher or lower
+        // than where the option's focus puts it in focus, and the stage makes up for it.
+        let rest = *self.rest.get_or_insert(start);
         let j = self.jacobian;
-        let drop = j[1][0] * (zero[0] - start[0]) + j[1][1] * (zero[1] - start[1]);
+        let drop = j[1][0] * (zero[0] - rest[0]) + j[1][1] * (zero[1] - rest[1]);
         self.focus = self.options.focus - drop;
         if drop.abs() > 0.05e-6 {
             why.push(format!(
-                "the tip rests {:.2} um {} than at the start: focus height {:.2} um",
+                "the tip rests {:.2} um {} than at the session's start: focus height {:.2} um",
                 drop.abs() * 1e6,
                 if drop < 0.0 { "lower" } else { "higher" },
                 self.focus * 1e6
