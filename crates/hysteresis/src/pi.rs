@@ -204,8 +204,7 @@ impl PrandtlIshlinskii {
         for a in 1..k {
             g[(a, a)] += lambda * scale;
         }
-        let x = cellinject_numeric::nnls_gram(&g, &h, &[0])
-            .map_err(|e| HysteresisError::Solver(e.to_string()))?;
+        let x = crate::solve_pinned(&g, &h, crate::rest_of(&data, &range))?;
         let model =
             PrandtlIshlinskii::new(range, x[0], thresholds, x.as_slice()[2..].to_vec(), x[1])?;
         Fit::measure(model, &data)

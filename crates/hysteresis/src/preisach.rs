@@ -373,8 +373,7 @@ impl Preisach {
                 }
             }
         }
-        let x = cellinject_numeric::nnls_gram(&g, &h, &[0])
-            .map_err(|e| HysteresisError::Solver(e.to_string()))?;
+        let x = crate::solve_pinned(&g, &h, crate::rest_of(&data, &range))?;
         let model = Preisach::new(range, n, x[0], [x[1], x[2]], x.as_slice()[3..].to_vec())?;
         crate::Fit::measure(model, &data)
     }

@@ -74,7 +74,7 @@ impl PyModel {
             return Err(input("displacements must hold at least one target"));
         }
         let r = py
-            .detach(|| core::invert(&self.model, &t))
+            .detach(|| core::invert(&self.model, &t, false))
             .map_err(|e| hysteresis_error("displacements", e))?;
         let d = to_py(py, &r)?;
         let d = d.bind(py).cast::<PyDict>()?;

@@ -308,3 +308,112 @@ fn bad_recordings_are_refused_naming_the_file_line_and_column() {
     assert!(!d.join("m.json").exists());
     let _ = fs::remove_dir_all(&d);
 }
+
+/// A recording that starts at rest (issue 36, point 3): the Preisach and the
+/// asymmetric PI fits of a Bouc-Wen stack (dwells, minor loops) put their relaxed
+/// output at the recording's rest within the fit's RMS; a trajectory that starts at
+/// rest (0 m) and stays within the stack's reach inverts without `--clip`; one that
+/// asks for more than the stack reaches is refused in µm, naming the line and
+/// `--clip`, and with `--clip` is clipped and said so.
+#[test]
+fn a_recording_from_rest_fits_its_rest_and_inverts_from_it() {
+    let d = dir("rest");
+    let (rows, _) = recording(2);
+    fs::write(d.join("bench.csv"), documented_csv(&rows)).unwrap();
+    let rest = rows[0][2];
+    let stroke = BoucWen::new().apply(4095.0 * LSB);
+    for (model, out) in [("preisach", "preisach.json"), ("pi-asym", "pi.json")] {
+        let o = run(
+            &d,
+            &[
+                "hysteresis",
+                "fit",
+                "--data",
+                "bench.csv",
+                "--model",
+                model,
+                "--out",
+                out,
+                "--format",
+                "json",
+            ],
+        );
+        assert!(o.status.success(), "{}", err(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let rms = v["rms"].as_f64().unwrap();
+        let m: serde_json::Value =
+            serde_json::from_str(&fs::read_to_string(d.join(out)).unwrap()).unwrap();
+        // Every model's output relaxed at 0 V is its offset.
+        let relaxed = m["offset"].as_f64().unwrap();
+        assert!(
+            (relaxed - rest).abs() <= rms,
+            "{model}: relaxed output {:.3} um, the recording's rest {:.3} um, fit RMS {:.3} um",
+            relaxed * 1e6,
+            rest * 1e6,
+            rms * 1e6
+        );
+    }
+    // From rest (0 m, 0.1 s), up to 60 % of the stroke, down to 20 %.
+    let mut traj = String::from("time_s,displacement_m\n");
+    for k in 0..700 {
+        let t = k as f64 * 1e-3;
+        let y = if t < 0.1 {
+            0.0
+        } else if t < 0.4 {
+            0.6 * stroke * (t - 0.1) / 0.3
+        } else {
+            0.6 * stroke - 0.4 * stroke * ((t - 0.4) / 0.3).min(1.0)
+        };
+        let _ = writeln!(traj, "{t:.6},{y:.12e}");
+    }
+    fs::write(d.join("from_rest.csv"), traj).unwrap();
+    for model in ["preisach.json", "pi.json"] {
+        let o = run(
+            &d,
+            &[
+                "hysteresis",
+                "invert",
+                "--model",
+                model,
+                "--trajectory",
+                "from_rest.csv",
+                "--out",
+                "command.csv",
+            ],
+        );
+        assert!(o.status.success(), "{model}: {}", err(&o));
+        assert!(!err(&o).contains("clipped"), "{model}: {}", err(&o));
+    }
+    // Beyond the stroke: refused, then clipped.
+    let mut far = String::from("time_s,displacement_m\n");
+    for k in 0..300 {
+        let y = 1.2 * stroke * k as f64 / 299.0;
+        let _ = writeln!(far, "{:.6},{y:.12e}", k as f64 * 1e-3);
+    }
+    fs::write(d.join("far.csv"), far).unwrap();
+    let args = [
+        "hysteresis",
+        "invert",
+        "--model",
+        "preisach.json",
+        "--trajectory",
+        "far.csv",
+        "--out",
+        "far_command.csv",
+    ];
+    let o = run(&d, &args);
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    let e = err(&o);
+    assert!(
+        e.contains("far.csv") && e.contains("line ") && e.contains("µm") && e.contains("--clip"),
+        "{e}"
+    );
+    assert!(!d.join("far_command.csv").exists());
+    let mut clipped = args.to_vec();
+    clipped.push("--clip");
+    let o = run(&d, &clipped);
+    assert!(o.status.success(), "{}", err(&o));
+    let e = err(&o);
+    assert!(e.contains("clipped") && e.contains("µm"), "{e}");
+    assert_eq!(read_volts(&d.join("far_command.csv")).len(), 300);
+}
