@@ -259,10 +259,7 @@ pub fn invert(
     };
     let largest = clipped
         .iter()
-        .max_by(|a, b| {
-            let d = |c: &cellinject_hysteresis::Clipped| (c.target - c.reached).abs();
-            d(a).total_cmp(&d(b))
-        })
+        .max_by(|a, b| a.miss().total_cmp(&b.miss()))
         .copied();
     let mut replay = model.clone();
     replay.reset();
@@ -276,10 +273,7 @@ pub fn invert(
         volts,
         predicted,
         clipped: clipped.len(),
-        largest_clip: largest.map_or(0.0, |c| {
-            let d = (c.target - c.reached).abs();
-            if d.is_finite() { d } else { f64::INFINITY }
-        }),
+        largest_clip: largest.map_or(0.0, |c| c.miss()),
         largest_clip_sample: largest.map(|c| c.index),
     })
 }

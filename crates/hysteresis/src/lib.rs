@@ -316,6 +316,14 @@ pub struct Clipped {
     pub reached: f64,
 }
 
+impl Clipped {
+    /// How far what was reached lies from the target (infinite for a NaN target).
+    pub fn miss(&self) -> f64 {
+        let d = (self.target - self.reached).abs();
+        if d.is_nan() { f64::INFINITY } else { d }
+    }
+}
+
 /// As [`inverse`], but a target outside the model's reach from its state is taken
 /// as the nearer end of that reach instead of refused; each such sample is listed.
 /// Returns the largest residual over the samples that were reachable.

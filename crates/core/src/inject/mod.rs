@@ -717,8 +717,9 @@ pub struct Workflow<'r, B: Backend> {
     travel_a12: [f64; 2],
     /// m, the stage height that puts the tip in the focal plane with the stacks held
     /// at their zero: the option's focus, less the tip's drop along the optical axis
-    /// since the run started (A1 and A2 held where the identification of their
-    /// hysteresis left them, through the mechanism's Jacobian).
+    /// since the session's rest ([`Workflow::with_rest`]: A1 and A2 held where the
+    /// identification of their hysteresis or an earlier run left them, through the
+    /// mechanism's Jacobian).
     focus: f64,
     /// m, A1's and A2's sensor readings at which the option's focus puts the tip in
     /// focus: the stacks as the session's first run found them (a later run of the
@@ -1386,10 +1387,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 seen.push([free.x, free.y]);
                 continue;
             }
-            self.blurs.push(free.sigma);
-            if self.blurs.len() > BLUR_FRAMES {
-                self.blurs.remove(0);
-            }
+            self.add_blurs([free.sigma]);
             let Some(blur) = self.blur() else {
                 // Still measuring the blur.
                 continue;
@@ -1455,13 +1453,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 fits.push(t.sigma);
             }
         }
-        self.blurs.extend(fits);
-        if self.blurs.len() > BLUR_FRAMES {
-            let extra = self.blurs.len() - BLUR_FRAMES;
-            self.blurs.drain(..extra);
-        }
+        self.add_blurs(fits);
         self.stage_to([Some(here[0]), None, Some(here[1])])?.ok();
         Ok(())
+    }
+
+    /// Adds free fits' blurs, keeping the latest [`BLUR_FRAMES`].
+    fn add_blurs(&mut self, fits: impl IntoIterator<Item = f64>) {
+        self.blurs.extend(fits);
+        let extra = self.blurs.len().saturating_sub(BLUR_FRAMES);
+        self.blurs.drain(..extra);
     }
 
     /// Pixels, the blur of the tip's end in focus: the median of the latest
@@ -2604,7 +2605,6 @@ impl<'r, B: Backend> Workflow<'r, B> {
     }
 }
 
-/// Solves `e = α u + β v` for (α, β).
 /// The stage offset (m, x and z, at most [`BLUR_REACH`] along each) that puts the
 /// tip's end, now at full-frame pixel `tip`, over the plainest patch of `bg`: the
 /// window of 31 x 31 pixels around the end with the least relative contrast (standard
@@ -2651,6 +2651,7 @@ fn plainest(bg: &Background, tip: [f64; 2], pixel: f64) -> [f64; 2] {
     best.0
 }
 
+/// Solves `e = α u + β v` for (α, β).
 fn decompose(e: [f64; 2], u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
     let det = u[0] * v[1] - u[1] * v[0];
     [
