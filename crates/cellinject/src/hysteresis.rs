@@ -1,6 +1,7 @@
-//! `cellinject hysteresis identify | fit | invert`: identification data from the twin,
-//! models fitted to any (voltage, displacement) CSV, and the voltages that make an
-//! actuator follow a trajectory; each plots what it did.
+//! `cellinject hysteresis identify | fit | invert | validate`: identification data from
+//! the twin, models fitted to any (voltage, displacement) CSV, the voltages that make an
+//! actuator follow a trajectory, and a model's prediction of a second recording; each
+//! plots what it did.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -103,6 +104,42 @@ pub enum HysteresisCommand {
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
+    /// Check a fitted model on a second recording of the same actuator (one it was not
+    /// fitted on): the model, relaxed at 0 V, predicts the recording from its voltages,
+    /// and the RMS and worst error are printed in µm and in % of the recording's
+    /// stroke. The recording starts relaxed at 0 V, with the fit data's zero.
+    #[command(
+        after_help = "Examples:\n  cellinject hysteresis validate --model model.json --recording second.csv --out check.csv\n  cellinject hysteresis validate --model pi.json --recording second.csv --out check.csv --format json"
+    )]
+    Validate {
+        /// A model from `hysteresis fit`.
+        #[arg(long, value_name = "FILE.json")]
+        model: PathBuf,
+        /// The second recording: CSV with a header naming `voltage_v`, `displacement_m`
+        /// and optionally `time_s` (as `hysteresis fit` reads).
+        #[arg(long, value_name = "FILE.csv")]
+        recording: PathBuf,
+        /// Output: CSV `time_s,voltage_v,measured_m,predicted_m,error_m`, one row per
+        /// recording row; measured and predicted are plotted beside it (over time and
+        /// as loops over voltage).
+        #[arg(long, value_name = "FILE.csv")]
+        out: PathBuf,
+        /// Output format of the summary.
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+    },
+}
+
+/// Reads a model file of `hysteresis fit`.
+fn read_model(model: &Path) -> Result<AnyModel> {
+    let text = std::fs::read_to_string(model)
+        .map_err(|e| InputError(format!("--model `{}`: cannot read: {e}", model.display())))?;
+    Ok(serde_json::from_str(&text).map_err(|e| {
+        InputError(format!(
+            "--model `{}`: not a model from `hysteresis fit`: {e}",
+            model.display()
+        ))
+    })?)
 }
 
 /// Reads a numeric CSV by its header (`needed` columns in any order, `optional` ones if
@@ -350,15 +387,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             let files =
                 plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
             plan.check()?;
-            let text = std::fs::read_to_string(model).map_err(|e| {
-                InputError(format!("--model `{}`: cannot read: {e}", model.display()))
-            })?;
-            let m: AnyModel = serde_json::from_str(&text).map_err(|e| {
-                InputError(format!(
-                    "--model `{}`: not a model from `hysteresis fit`: {e}",
-                    model.display()
-                ))
-            })?;
+            let m = read_model(model)?;
             let tab = read_table(
                 trajectory,
                 "--trajectory",
@@ -446,5 +475,144 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             outln!("{}", wrote(&files));
             Ok(())
         }
+        HysteresisCommand::Validate {
+            model,
+            recording,
+            out,
+            format,
+        } => validate(model, recording, out, *format),
     }
+}
+
+/// `hysteresis validate`.
+fn validate(model: &Path, recording: &Path, out: &Path, format: Format) -> Result<()> {
+    let mut plan = Plan::new();
+    plan.input("--model", model).input("--recording", recording);
+    let files = plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
+    plan.check()?;
+    let m = read_model(model)?;
+    let t = read_table(
+        recording,
+        "--recording",
+        &["voltage_v", "displacement_m"],
+        &["time_s"],
+    )?;
+    let volts = column(&t, "voltage_v");
+    let disp = column(&t, "displacement_m");
+    let r = core::validate(&m, volts, disp).map_err(|e| {
+        let at = |index: usize, col: &str| {
+            format!(
+                "--recording `{}`, line {}, column `{col}`",
+                recording.display(),
+                t.line(index)
+            )
+        };
+        InputError(match &e {
+            core::ValidateError::Outside { index, .. } => {
+                format!(
+                    "{}: {e} (the model `{}`'s; fit one on this voltage range)",
+                    at(*index, "voltage_v"),
+                    model.display()
+                )
+            }
+            core::ValidateError::NotFinite { index, which } => format!(
+                "{}: {e}",
+                at(
+                    *index,
+                    if *which == "voltage" {
+                        "voltage_v"
+                    } else {
+                        "displacement_m"
+                    }
+                )
+            ),
+            _ => format!("--recording `{}`: {e}", recording.display()),
+        })
+    })?;
+    if !r.starts_relaxed {
+        eprintln!(
+            "warning: --recording `{}`: it starts at {:.3} V, not relaxed at {:.3} V; the model predicts it as if it had come there from rest",
+            recording.display(),
+            volts[0],
+            m.range().min
+        );
+    }
+    let time: Vec<f64> = match t.column("time_s") {
+        Some(c) => c.to_vec(),
+        None => (0..r.samples).map(|k| k as f64).collect(),
+    };
+    let mut csv = String::from("time_s,voltage_v,measured_m,predicted_m,error_m\n");
+    for k in 0..r.samples {
+        let _ = writeln!(
+            csv,
+            "{:.6},{:.6},{:.6e},{:.6e},{:.6e}",
+            time[k],
+            volts[k],
+            disp[k],
+            r.predicted[k],
+            r.predicted[k] - disp[k]
+        );
+    }
+    let um = |x: &[f64], y: &[f64]| -> Vec<(f64, f64)> {
+        x.iter().zip(y).map(|(a, b)| (*a, b * 1e6)).collect()
+    };
+    let x_time = if t.column("time_s").is_some() {
+        "time [s]"
+    } else {
+        "row"
+    };
+    let pair = |x: &[f64]| {
+        vec![
+            Series {
+                name: "measured".into(),
+                points: um(x, disp),
+                style: Style::Line,
+            },
+            Series {
+                name: "predicted".into(),
+                points: um(x, &r.predicted),
+                style: Style::Line,
+            },
+        ]
+    };
+    let charts = [
+        Chart {
+            title: format!(
+                "prediction: RMS {:.3} µm ({:.2} % of stroke), worst {:.3} µm",
+                r.rms * 1e6,
+                r.rms_percent,
+                r.max * 1e6
+            ),
+            x_label: x_time.into(),
+            y_label: "displacement [µm]".into(),
+            series: pair(&time),
+        },
+        Chart {
+            title: "loops".into(),
+            x_label: "voltage [V]".into(),
+            y_label: "displacement [µm]".into(),
+            series: pair(volts),
+        },
+    ];
+    write_with_plots(&files, csv.as_bytes(), &charts, 2)?;
+    if format == Format::Json {
+        return print_json(&r, &[&files[0], &files[1], &files[2]]);
+    }
+    outln!(
+        "{} samples over a {:.3} µm stroke: RMS error {:.3} µm ({:.2} % of stroke), worst {:.3} µm ({:.2} %, line {})",
+        r.samples,
+        r.stroke * 1e6,
+        r.rms * 1e6,
+        r.rms_percent,
+        r.max * 1e6,
+        r.max_percent,
+        t.line(r.worst_sample)
+    );
+    outln!(
+        "rest: measured {:.3} µm, predicted {:.3} µm",
+        r.rest_measured * 1e6,
+        r.rest_predicted * 1e6
+    );
+    outln!("{}", wrote(&files));
+    Ok(())
 }

@@ -314,7 +314,9 @@ fn bad_recordings_are_refused_naming_the_file_line_and_column() {
 /// output at the recording's rest within the fit's RMS; a trajectory that starts at
 /// rest (0 m) and stays within the stack's reach inverts without `--clip`; one that
 /// asks for more than the stack reaches is refused in µm, naming the line and
-/// `--clip`, and with `--clip` is clipped and said so.
+/// `--clip`, and with `--clip` is clipped and said so. `hysteresis validate` predicts a
+/// second recording of the same stack (another excitation) within 1.5 % of its stroke
+/// for the better model, and tells a stack with 20 % less gain apart (over 5 %).
 #[test]
 fn a_recording_from_rest_fits_its_rest_and_inverts_from_it() {
     let d = dir("rest");
@@ -353,6 +355,7 @@ fn a_recording_from_rest_fits_its_rest_and_inverts_from_it() {
             rms * 1e6
         );
     }
+    validate_on_a_second_recording(&d);
     // From rest (0 m, 0.1 s), up to 60 % of the stroke, down to 20 %.
     let mut traj = String::from("time_s,displacement_m\n");
     for k in 0..700 {
@@ -416,4 +419,54 @@ fn a_recording_from_rest_fits_its_rest_and_inverts_from_it() {
     let e = err(&o);
     assert!(e.contains("clipped") && e.contains("µm"), "{e}");
     assert_eq!(read_volts(&d.join("far_command.csv")).len(), 300);
+}
+
+/// `hysteresis validate` of `preisach.json` and `pi.json` (fitted on `recording(2)`) on
+/// `recording(3)`, and on the same recording of a stack with 20 % less gain.
+fn validate_on_a_second_recording(d: &Path) {
+    let (rows, _) = recording(3);
+    let span = |rows: &[[f64; 3]]| {
+        let y = rows.iter().map(|r| r[2]);
+        y.clone().fold(f64::NEG_INFINITY, f64::max) - y.fold(f64::INFINITY, f64::min)
+    };
+    fs::write(d.join("second.csv"), documented_csv(&rows)).unwrap();
+    let weak: Vec<[f64; 3]> = rows.iter().map(|r| [r[0], r[1], 0.8 * r[2]]).collect();
+    fs::write(d.join("weak.csv"), documented_csv(&weak)).unwrap();
+    let check = |model: &str, recording: &str| {
+        let o = run(
+            d,
+            &[
+                "hysteresis",
+                "validate",
+                "--model",
+                model,
+                "--recording",
+                recording,
+                "--out",
+                "check.csv",
+                "--format",
+                "json",
+            ],
+        );
+        assert!(o.status.success(), "{model} on {recording}: {}", err(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        // The CSV's rows: one per recording row, error = predicted - measured.
+        let csv = fs::read_to_string(d.join("check.csv")).unwrap();
+        assert_eq!(csv.lines().count(), rows.len() + 1);
+        assert!(d.join("check.svg").exists() && d.join("check.png").exists());
+        v
+    };
+    let mut best = f64::INFINITY;
+    for model in ["preisach.json", "pi.json"] {
+        let v = check(model, "second.csv");
+        let stroke = v["stroke"].as_f64().unwrap();
+        assert!((stroke - span(&rows)).abs() < 1e-12, "{stroke}");
+        let pct = v["rms_percent"].as_f64().unwrap();
+        eprintln!("validate {model} on a second recording: RMS {pct:.3} % of the stroke");
+        best = best.min(pct);
+        let weak = check(model, "weak.csv")["rms_percent"].as_f64().unwrap();
+        eprintln!("validate {model} on a stack with 20 % less gain: RMS {weak:.3} %");
+        assert!(weak > 5.0, "{model}: {weak} %");
+    }
+    assert!(best < 1.5, "the better model's RMS {best} % of the stroke");
 }
