@@ -117,6 +117,12 @@ pub struct Blob {
     pub kind: Kind,
     /// Whether it was split from a touching neighbour.
     pub split: bool,
+    /// m, the diameter's standard error from the four quarters around the centre
+    /// (the standard deviation of their membrane diameters over √(quarters)): how well
+    /// the size is known (under 0.1 µm for a round cell on its own, up to 0.6 µm for
+    /// a small cell cut by its partner); `None` for debris and where fewer than three
+    /// quarters show the membrane.
+    pub diameter_se: Option<f64>,
 }
 
 /// Finds the blobs of a `width × height` image (row-major `pixels`); `exclude` (same
@@ -529,6 +535,7 @@ fn blob(
         darkness,
         kind: Kind::Cell,
         split,
+        diameter_se: None,
     };
     if eq < o.min_cell || darkness > o.max_cell_darkness {
         b.kind = Kind::Debris;
@@ -548,60 +555,109 @@ fn blob(
     };
     b.x = cx;
     b.y = cy;
-    b.diameter = match ring_radius(part, dark, w, (cx, cy), r) {
-        Some(rho) => 2.0 * rho * o.pixel_size,
-        None => 2.0 * r * o.pixel_size,
-    };
+    match ring_radius(part, dark, w, (cx, cy), r) {
+        Some((rho, se)) => {
+            b.diameter = 2.0 * rho * o.pixel_size;
+            b.diameter_se = se.map(|s| 2.0 * s * o.pixel_size);
+        }
+        None => b.diameter = 2.0 * r * o.pixel_size,
+    }
     Some(b)
 }
 
-/// The membrane's radius, px: where the darkness of `part`'s pixels around `centre` is
-/// highest between half and all of the fitted radius `r`. The radial profile is a
-/// kernel mean (Gaussian in the radius, σ = 0.4 px, over eighth-pixel bins), so a small
-/// cell's few pixels per radius do not make its peak jump by their noise, and the peak
-/// is refined between bins by the parabola through its neighbours (a small cell of a
-/// doublet was measured up to 1.9 µm small of 10 µm by the darkest quarter-pixel bin
-/// of 5-9 pixels; the whole diameter moved in steps of half a pixel).
-fn ring_radius(part: &[usize], dark: &[f64], w: usize, centre: (f64, f64), r: f64) -> Option<f64> {
-    const PER_PX: f64 = 8.0;
-    const SIGMA: f64 = 0.4 * PER_PX;
-    let bins = (PER_PX * (r + 1.0)).ceil() as usize + 1;
-    let mut sum = vec![0.0; bins];
-    let mut cnt = vec![0.0; bins];
-    for &i in part {
-        let rho = ((i % w) as f64 - centre.0).hypot((i / w) as f64 - centre.1);
-        let k = (PER_PX * rho).round() as usize;
-        if k < bins {
-            sum[k] += dark[i];
-            cnt[k] += 1.0;
+/// Eighth-pixel bins of a radial profile.
+const PER_PX: f64 = 8.0;
+
+/// A radial darkness profile: sums and counts of pixels per eighth-pixel bin of their
+/// distance from a centre.
+struct Profile {
+    sum: Vec<f64>,
+    cnt: Vec<f64>,
+}
+
+impl Profile {
+    fn new(bins: usize) -> Self {
+        Profile {
+            sum: vec![0.0; bins],
+            cnt: vec![0.0; bins],
         }
     }
-    let reach = (3.0 * SIGMA).ceil() as usize;
-    let smooth = |k: usize| {
-        let (mut s, mut c) = (0.0, 0.0);
-        for j in k.saturating_sub(reach)..(k + reach + 1).min(bins) {
-            let g = (-((j as f64 - k as f64) / SIGMA).powi(2) / 2.0).exp();
-            s += g * sum[j];
-            c += g * cnt[j];
+
+    fn add(&mut self, rho: f64, d: f64) {
+        let k = (PER_PX * rho).round() as usize;
+        if k < self.sum.len() {
+            self.sum[k] += d;
+            self.cnt[k] += 1.0;
         }
-        // At least about three pixels' worth of weight.
-        (c >= 3.0).then(|| s / c)
-    };
-    let (lo, hi) = ((PER_PX * 0.5 * r) as usize, (PER_PX * r) as usize);
-    let profile: Vec<Option<f64>> = (lo..=hi + 1).map(smooth).collect();
-    let (at, top) = profile[..profile.len() - 1]
-        .iter()
-        .enumerate()
-        .filter_map(|(i, v)| v.map(|v| (i, v)))
-        .max_by(|a, b| a.1.total_cmp(&b.1))?;
-    // The parabola through the peak and its neighbours, where both are measured.
-    let shift = match (at.checked_sub(1).and_then(|i| profile[i]), profile[at + 1]) {
-        (Some(a), Some(c)) if a + c - 2.0 * top < 0.0 => {
-            (0.5 * (a - c) / (a + c - 2.0 * top)).clamp(-0.5, 0.5)
-        }
-        _ => 0.0,
-    };
-    Some(((lo + at) as f64 + shift) / PER_PX)
+    }
+
+    /// px: where the kernel mean (Gaussian in the radius, σ = 0.4 px) is highest
+    /// between half and all of `r`, refined between bins by the parabola through the
+    /// peak and its neighbours; `None` where fewer than about three pixels' weight
+    /// falls at every radius.
+    fn peak(&self, r: f64) -> Option<f64> {
+        const SIGMA: f64 = 0.4 * PER_PX;
+        let bins = self.sum.len();
+        let reach = (3.0 * SIGMA).ceil() as usize;
+        let smooth = |k: usize| {
+            let (mut s, mut c) = (0.0, 0.0);
+            for j in k.saturating_sub(reach)..(k + reach + 1).min(bins) {
+                let g = (-((j as f64 - k as f64) / SIGMA).powi(2) / 2.0).exp();
+                s += g * self.sum[j];
+                c += g * self.cnt[j];
+            }
+            (c >= 3.0).then(|| s / c)
+        };
+        let (lo, hi) = ((PER_PX * 0.5 * r) as usize, (PER_PX * r) as usize);
+        let profile: Vec<Option<f64>> = (lo..=hi + 1).map(smooth).collect();
+        let (at, top) = profile[..profile.len() - 1]
+            .iter()
+            .enumerate()
+            .filter_map(|(i, v)| v.map(|v| (i, v)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))?;
+        let shift = match (at.checked_sub(1).and_then(|i| profile[i]), profile[at + 1]) {
+            (Some(a), Some(c)) if a + c - 2.0 * top < 0.0 => {
+                (0.5 * (a - c) / (a + c - 2.0 * top)).clamp(-0.5, 0.5)
+            }
+            _ => 0.0,
+        };
+        Some(((lo + at) as f64 + shift) / PER_PX)
+    }
+}
+
+/// The membrane's radius, px, and its standard error from the four quarters around
+/// the centre (px, the standard deviation of the quarters' radii over √(quarters);
+/// `None` when fewer than three quarters show the ring): where the darkness of `part`'s pixels around
+/// `centre` is highest between half and all of the fitted radius `r`
+/// ([`Profile::peak`]: a kernel mean over eighth-pixel bins, so a small cell's few
+/// pixels per radius do not make its peak jump by their noise; a small cell of a
+/// doublet was measured up to 1.9 µm small of 10 µm by the darkest quarter-pixel bin
+/// of 5-9 pixels, and every diameter moved in steps of half a pixel). A cell cut by
+/// its partner, or not round, shows quarters that disagree.
+fn ring_radius(
+    part: &[usize],
+    dark: &[f64],
+    w: usize,
+    centre: (f64, f64),
+    r: f64,
+) -> Option<(f64, Option<f64>)> {
+    let bins = (PER_PX * (r + 1.0)).ceil() as usize + 1;
+    let mut whole = Profile::new(bins);
+    let mut quarters: [Profile; 4] = std::array::from_fn(|_| Profile::new(bins));
+    for &i in part {
+        let (dx, dy) = ((i % w) as f64 - centre.0, (i / w) as f64 - centre.1);
+        let rho = dx.hypot(dy);
+        whole.add(rho, dark[i]);
+        quarters[usize::from(dx >= 0.0) + 2 * usize::from(dy >= 0.0)].add(rho, dark[i]);
+    }
+    let radius = whole.peak(r)?;
+    let each: Vec<f64> = quarters.iter().filter_map(|q| q.peak(r)).collect();
+    let se = (each.len() >= 3).then(|| {
+        let n = each.len() as f64;
+        let mean = each.iter().sum::<f64>() / n;
+        (each.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt()
+    });
+    Some((radius, se))
 }
 
 #[cfg(test)]
@@ -731,6 +787,8 @@ mod tests {
         for d in [10e-6, 15e-6, 20e-6, 25e-6, 30e-6] {
             let c = cells(&find(&[(150.3e-6, 120.2e-6, d, 0.10, 0.32)]));
             assert!((c[0].diameter - d).abs() < 0.5e-6, "{d}: {c:?}");
+            // Its quarters agree: the size is known.
+            assert!(c[0].diameter_se.unwrap() < 0.1e-6, "{d}: {c:?}");
         }
     }
 }

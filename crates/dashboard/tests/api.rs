@@ -38,6 +38,7 @@ fn target(i: usize) -> Target {
         x_m: i as f64 * 150e-6,
         y_m: 0.0,
         diameter_m: 20e-6,
+        diameter_se_m: None,
         stage_m: [0.0; 2],
     }
 }

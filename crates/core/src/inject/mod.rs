@@ -324,6 +324,10 @@ pub struct Target {
     pub y_m: f64,
     /// m, as measured.
     pub diameter_m: f64,
+    /// m, the measured diameter's standard error (from the membrane's four quarters;
+    /// null where fewer than three show it): how well the size, and so the dose, is
+    /// known.
+    pub diameter_se_m: Option<f64>,
     /// m, stage (x, z) that puts the resting tip on its centre.
     #[serde(skip)]
     pub stage_m: [f64; 2],
@@ -450,6 +454,63 @@ pub trait Observer {
     /// twin): a planner that clears every neighbour keeps it still.
     fn grazed(&mut self) -> Option<u32> {
         None
+    }
+}
+
+/// A cell seen in a field: its plate point (m), diameter (m) and the diameter's
+/// standard error (m, where measured).
+type Seen = ([f64; 2], f64, Option<f64>);
+
+/// m: a diameter whose standard error exceeds this is uncertain ([`dose_diameter`]):
+/// more than twice a round cell's alone (under 0.1 um), reached by small cells cut by
+/// a touching partner.
+const SIZE_SE_UNCERTAIN: f64 = 0.25e-6;
+
+/// m, the standard error taken for a cell whose membrane fewer than three quarters
+/// show: the detector's worst error on a doublet's 10 um partner (0.5 um).
+const SIZE_SE_UNKNOWN: f64 = 0.5e-6;
+
+/// The diameter a cell's dose is computed from, and whether its size was uncertain.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Dosed {
+    /// m.
+    diameter: f64,
+    /// The measured diameter and its standard error (m) when the size was uncertain.
+    uncertain: Option<[f64; 2]>,
+}
+
+impl Dosed {
+    /// For the pulse's log line: empty when the size was known.
+    fn note(&self) -> String {
+        match self.uncertain {
+            Some([d, se]) => format!(
+                "; size uncertain ({:.1} +- {:.1} um): dosed for {:.1} um",
+                d * 1e6,
+                se * 1e6,
+                self.diameter * 1e6
+            ),
+            None => String::new(),
+        }
+    }
+}
+
+/// The diameter to dose a cell for: its measured diameter `d` when its standard error
+/// `se` is at most [`SIZE_SE_UNCERTAIN`]; else, conservatively, one standard error
+/// smaller ([`SIZE_SE_UNKNOWN`] where the detector could not tell), so that a cell
+/// whose size is uncertain gets less rather than more than its dose: too much lyses a
+/// cell, too little leaves it to be dosed again. One standard error of 0.6 um on a
+/// 10 um cell doses it 0.83 of the target if it was measured right.
+fn dose_diameter(d: f64, se: Option<f64>) -> Dosed {
+    let se = se.filter(|s| s.is_finite()).unwrap_or(SIZE_SE_UNKNOWN);
+    if se <= SIZE_SE_UNCERTAIN {
+        return Dosed {
+            diameter: d,
+            uncertain: None,
+        };
+    }
+    Dosed {
+        diameter: (d - se).max(0.5 * d),
+        uncertain: Some([d, se]),
     }
 }
 
@@ -2450,7 +2511,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// The cells in the current field's background frame (the pipette out of view):
     /// plate coordinates of their centres and their diameters, m. Only cells whole in
     /// the field.
-    fn detect_field(&self) -> Result<Vec<([f64; 2], f64)>, WorkflowError> {
+    fn detect_field(&self) -> Result<Vec<Seen>, WorkflowError> {
         let map = self.map.expect("map");
         let field = self.field.expect("field");
         let bg = self.background.as_ref().expect("background");
@@ -2468,7 +2529,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
             .filter_map(|b| {
                 let s = map.stage_of([b.x, b.y]);
                 let p = [s[0] - self.feeder_at[0], s[1] - self.feeder_at[1]];
-                field.holds(p, 0.5 * b.diameter).then_some((p, b.diameter))
+                field
+                    .holds(p, 0.5 * b.diameter)
+                    .then_some((p, b.diameter, b.diameter_se))
             })
             .collect())
     }
@@ -2485,8 +2548,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
     fn survey(&mut self, obs: &mut dyn Observer) -> Result<Vec<Target>, WorkflowError> {
         let plan = self.plan.clone().expect("plan");
         let n = plan.fields.len();
-        // (plate point, diameter, field) of every detection.
-        let mut seen: Vec<([f64; 2], f64, usize)> = Vec::new();
+        // (plate point, diameter, field, the diameter's standard error) of every
+        // detection.
+        let mut seen: Vec<([f64; 2], f64, usize, Option<f64>)> = Vec::new();
         for field in &plan.fields {
             if let Err(reason) = self.goto_field(*field)? {
                 return Err(WorkflowError::Calibration {
@@ -2515,15 +2579,15 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 found.len()
             );
             self.fire(Event::FieldReached, r, obs, None)?;
-            for (p, d) in found {
-                seen.push((p, d, field.index));
+            for (p, d, se) in found {
+                seen.push((p, d, field.index, se));
             }
         }
         // One cell, one entry: detections within a radius of a cell's first.
         let mut cells: Vec<Vec<usize>> = Vec::new();
-        for (k, (p, d, _)) in seen.iter().enumerate() {
+        for (k, (p, d, _, _)) in seen.iter().enumerate() {
             let same = cells.iter_mut().find(|c| {
-                let (q, e, _) = seen[c[0]];
+                let (q, e, _, _) = seen[c[0]];
                 (p[0] - q[0]).hypot(p[1] - q[1]) < 0.5 * d.min(e)
             });
             match same {
@@ -2542,7 +2606,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             ];
             let owner = plan.owner(mean).index;
             let &k = c.iter().find(|&&k| seen[k].2 == owner).unwrap_or(&c[0]);
-            let (p, d, field) = seen[k];
+            let (p, d, field, se) = seen[k];
             let rel = [p[0] - pl.origin[0], p[1] - pl.origin[1]];
             let (col, row) = ((rel[0] / pl.pitch).round(), (rel[1] / pl.pitch).round());
             if col < 0.0 || row < 0.0 || col >= pl.cols as f64 || row >= pl.rows as f64 {
@@ -2559,6 +2623,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                     x_m: rel[0],
                     y_m: rel[1],
                     diameter_m: d,
+                    diameter_se_m: se,
                     stage_m: [p[0] + self.feeder_at[0], p[1] + self.feeder_at[1]],
                 },
                 field,
@@ -3366,7 +3431,8 @@ impl<B: Backend> Workflow<'_, B> {
         self.fire(Event::Penetrated, why, obs, Some(&mut a.transitions))
             .map_err(Fail::Error)?;
         // Inject.
-        let volume = o.target_fraction * cell_volume(a.target.diameter_m);
+        let dosed = dose_diameter(a.target.diameter_m, a.target.diameter_se_m);
+        let volume = o.target_fraction * cell_volume(dosed.diameter);
         let mut pressure = o.pressure;
         let mut duration = volume / (self.conductance * pressure);
         if duration < 0.05 {
@@ -3383,10 +3449,11 @@ impl<B: Backend> Workflow<'_, B> {
             .map_err(dev("injector"))?;
         a.pulse = Some([pressure, duration]);
         let why = format!(
-            "{:.3} pL at {:.1} kPa for {:.3} s",
+            "{:.3} pL at {:.1} kPa for {:.3} s{}",
             volume * 1e15,
             pressure * 1e-3,
-            duration
+            duration,
+            dosed.note()
         );
         self.fire(Event::Pulsed, why, obs, Some(&mut a.transitions))
             .map_err(Fail::Error)?;
@@ -3514,6 +3581,26 @@ impl<B: Backend> Workflow<'_, B> {
 
 #[cfg(test)]
 mod tests {
+    /// A size known within its threshold doses for itself; an uncertain one, one
+    /// standard error smaller (the dose's volume ∝ d³), and the log says so.
+    #[test]
+    fn an_uncertain_size_is_dosed_for_less() {
+        let known = super::dose_diameter(10e-6, Some(0.08e-6));
+        assert_eq!((known.diameter, known.uncertain), (10e-6, None));
+        assert_eq!(known.note(), "");
+        let d = super::dose_diameter(10e-6, Some(0.6e-6));
+        assert!((d.diameter - 9.4e-6).abs() < 1e-15, "{}", d.diameter);
+        let ratio = (d.diameter / 10e-6).powi(3);
+        assert!(ratio > 0.8 && ratio < 1.0, "{ratio}");
+        assert!(
+            d.note().contains("size uncertain (10.0 +- 0.6 um)") && d.note().contains("9.4 um")
+        );
+        // Not measured: the detector's worst error taken.
+        let none = super::dose_diameter(10e-6, None);
+        assert!((none.diameter - 9.5e-6).abs() < 1e-15);
+        assert_eq!(super::dose_diameter(10e-6, Some(f64::NAN)).diameter, 9.5e-6);
+    }
+
     use super::*;
 
     /// A background of plain floor at 150 with the plate's walls (dark lines every
@@ -3556,6 +3643,7 @@ mod tests {
     fn attempt(outcome: Outcome, contact: bool, reason: &str) -> Attempt {
         Attempt {
             target: Target {
+                diameter_se_m: None,
                 index: 0,
                 well: [0, 0],
                 x_m: 0.0,
