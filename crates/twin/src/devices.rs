@@ -354,7 +354,7 @@ impl Twin {
             self.camera.set_cell_looks(&b.looks());
         }
         let thermal = self.world.params().sim.thermal;
-        let drift = thermal.magnification * thermal.delta_t(e.start);
+        let drift = thermal.magnification * self.world.delta_t(e.start);
         let plate = self.plate_offset();
         let cam = match view {
             View::Top => &mut self.camera,
@@ -407,7 +407,7 @@ impl Twin {
         self.peeks += 1;
         let seed = self.world.params().sim.seed;
         let thermal = self.world.params().sim.thermal;
-        cam.set_magnification_drift(thermal.magnification * thermal.delta_t(now));
+        cam.set_magnification_drift(thermal.magnification * self.world.delta_t(now));
         cam.set_plate_offset(self.plate_offset());
         cam.render(&pose, now, self.peeks, seed, frame);
         cam.grid()
@@ -486,7 +486,7 @@ impl PositionSensor for TwinSensor {
         let t = lock(&self.twin);
         let p = t.world.params().sim;
         let extension = t.world.extension(self.channel);
-        let drift = p.sensors.thermal_drift * p.thermal.delta_t(t.world.time());
+        let drift = p.sensors.thermal_drift * t.world.delta_t(t.world.time());
         Ok(extension + drift + p.sensors.noise * self.rng.gaussian_exact())
     }
     fn noise(&self) -> f64 {

@@ -158,6 +158,9 @@ pub struct World {
     joints: [Joint; 2],
     /// Stick-slip drive errors in use (see `step`).
     joint_cache: Vector2<f64>,
+    /// s that passed with the bench idle beyond the simulated steps (the ambient
+    /// temperature's clock runs on by them: [`World::let_time_pass`]).
+    idle: f64,
     joint_pose: Vector2<f64>,
     joint_dirty: bool,
     q_static: Vector2<f64>,
@@ -262,6 +265,7 @@ impl World {
                 stuck_at: k_inv * f0,
             }; 2],
             joint_cache: Vector2::zeros(),
+            idle: 0.0,
             joint_pose: k_inv * f0,
             joint_dirty: false,
             q_static: k_inv * f0,
@@ -326,8 +330,7 @@ impl World {
     /// temperature (without the joints' stick-slip).
     #[inline]
     fn imposed_by_drives(&self) -> Vector2<f64> {
-        let thermal =
-            self.params.sim.thermal.expansion * self.params.sim.thermal.delta_t(self.time());
+        let thermal = self.params.sim.thermal.expansion * self.delta_t(self.time());
         // A stack's extension pushes the drive: Δl2 = −e (the paper's eq. 44 sign).
         Vector2::new(
             self.l_base[0] - self.stacks[0].extension() - thermal,
@@ -425,6 +428,23 @@ impl World {
     /// Advances by `seconds`.
     pub fn advance(&mut self, seconds: f64) {
         self.advance_to(self.time() + seconds);
+    }
+
+    /// K, the ambient temperature's change since the start at simulated time `t`,
+    /// counting the time let pass idle ([`World::let_time_pass`]).
+    pub fn delta_t(&self, t: f64) -> f64 {
+        self.params.sim.thermal.delta_t(t + self.idle)
+    }
+
+    /// Lets `seconds` pass with the bench idle (hours between two runs of a
+    /// session): the ambient temperature runs on by all of it (the drives expand, the
+    /// magnification and the stacks' sensors drift as after `seconds` of the lab's
+    /// warming), and one minute of it is simulated (the clock, [`World::time`],
+    /// advances by that minute; the stacks' creep goes on for that minute only).
+    pub fn let_time_pass(&mut self, seconds: f64) {
+        let settle = seconds.min(60.0);
+        self.idle += seconds - settle;
+        self.advance(settle);
     }
 
     /// The free extension of stack `ch`, m (what [`World::snapshot`] lists, without

@@ -377,3 +377,38 @@ fn same_seed_same_trajectory_bit_for_bit() {
     assert_eq!(run(5), run(5));
     assert_ne!(run(5), run(6));
 }
+
+/// Hours let pass idle between two runs (`World::let_time_pass`): the lab's
+/// temperature runs on by all of them, so the drives stand as in a twin whose lab
+/// warmed by the same kelvins within the one minute simulated (the drive's expansion
+/// `expansion · ΔT` imposed on A1 and A2 alike, the mechanism settled; an equal
+/// expansion of both drives leaves the tilt as it was).
+#[test]
+fn hours_let_pass_warm_the_drives_as_the_same_kelvins_would() {
+    let p = quiet(Approach::DriveTranslation);
+    let mut idle = World::new(&prototype(), p).unwrap();
+    idle.let_time_pass(3.0 * 3600.0);
+    // The same 3 K reached within the minute that is simulated.
+    let mut fast = p;
+    fast.sim.thermal.drift_rate = p.sim.thermal.drift_rate * 3.0 * 3600.0 / 60.0;
+    let mut warm = World::new(&prototype(), fast).unwrap();
+    warm.advance(60.0);
+    let kelvins = idle.delta_t(idle.time());
+    assert!(
+        (kelvins - 3.0 * 3600.0 * p.sim.thermal.drift_rate).abs() < 1e-9,
+        "{kelvins}"
+    );
+    assert!((warm.delta_t(warm.time()) - kelvins).abs() < 1e-9);
+    assert!((idle.time() - 60.0).abs() < 1e-9, "one minute simulated");
+    let (a, b) = (idle.snapshot(), warm.snapshot());
+    // Both drives shortened by the expansion (the stacks at 0 V, no creep).
+    let cold = World::new(&prototype(), p).unwrap().snapshot();
+    for k in 0..2 {
+        let moved = a.imposed[k] - cold.imposed[k];
+        assert!(
+            (moved + p.sim.thermal.expansion * kelvins).abs() < 1e-12,
+            "drive {k}: {moved}"
+        );
+    }
+    assert!((a.x - b.x).norm() < 1e-9, "{} against {}", a.x, b.x);
+}
