@@ -444,6 +444,133 @@ impl HysteresisCalibration {
     }
 }
 
+/// The two levels of a stack's range, as fractions, at which a loaded hysteresis
+/// calibration is checked against the stack ([`check_response`]).
+pub const RESPONSE_LEVELS: [f64; 2] = [0.3, 0.6];
+
+/// Largest miss, as a fraction of a stack's modelled stroke, at which a loaded
+/// hysteresis calibration still holds ([`check_response`]): the fit's own RMS is
+/// 0.3 % of the span on the twin, its worst error about 1 %, and a 0.3 s ramp adds a
+/// little creep; a stack whose gain moved by 5 % misses by about 3 %.
+pub const RESPONSE_TOLERANCE: f64 = 0.02;
+
+/// A loaded hysteresis calibration checked against the stacks ([`check_response`]).
+///
+/// | field | unit | meaning |
+/// |---|---|---|
+/// | `volts` | V | per stack, the two levels ramped to from rest |
+/// | `measured`, `predicted` | m | per stack, the sensor's extension there from its reading at rest, and the model's |
+/// | `stroke` | m | per stack, the model's output at its top voltage over its output at rest |
+/// | `worst` | 1 | the largest \|measured − predicted\| over its stack's stroke |
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ResponseCheck {
+    /// V, per stack.
+    pub volts: [[f64; 2]; 2],
+    /// m, per stack.
+    pub measured: [[f64; 2]; 2],
+    /// m, per stack.
+    pub predicted: [[f64; 2]; 2],
+    /// m, per stack.
+    pub stroke: [f64; 2],
+    /// 1.
+    pub worst: f64,
+}
+
+impl ResponseCheck {
+    /// Whether the calibration still holds ([`RESPONSE_TOLERANCE`]).
+    pub fn holds(&self) -> bool {
+        self.worst.is_finite() && self.worst <= RESPONSE_TOLERANCE
+    }
+
+    /// One line for a log: each stack's miss in um and % of its stroke.
+    pub fn summary(&self) -> String {
+        let per = |k: usize| {
+            let miss = (0..2)
+                .map(|i| (self.measured[k][i] - self.predicted[k][i]).abs())
+                .fold(0.0, f64::max);
+            format!(
+                "{} {:.3} um ({:.2} %)",
+                ACTUATOR_NAMES[k],
+                miss * 1e6,
+                100.0 * miss / self.stroke[k].abs().max(1e-12)
+            )
+        };
+        format!(
+            "ramped to {:.0} % and {:.0} % of their range, the stacks miss the calibration by {}, {}",
+            100.0 * RESPONSE_LEVELS[0],
+            100.0 * RESPONSE_LEVELS[1],
+            per(0),
+            per(1)
+        )
+    }
+}
+
+/// Checks a loaded hysteresis calibration against the stacks, cheaply (0.3 s a
+/// stack): from rest (0 V, the sensor read 10 times), each tilt stack in turn is
+/// ramped in 1 ms steps of its range's 0.4 % to [`RESPONSE_LEVELS`] of its
+/// calibrated range and its sensor read there; its model, relaxed, driven through
+/// the same voltages, predicts the extensions. The stack is back at 0 V after.
+pub fn check_response<B: Backend>(
+    rig: &mut Rig<B>,
+    cal: &HysteresisCalibration,
+) -> Result<ResponseCheck, BenchError> {
+    let mut c = ResponseCheck {
+        volts: [[0.0; 2]; 2],
+        measured: [[0.0; 2]; 2],
+        predicted: [[0.0; 2]; 2],
+        stroke: [0.0; 2],
+        worst: 0.0,
+    };
+    for ch in 0..2 {
+        let top = cal.models[ch]
+            .range()
+            .max
+            .min(rig.max_safe_voltage(ch).unwrap_or(0.0));
+        if top <= 0.0 {
+            return Err(BenchError::Calibration {
+                what: "hysteresis check",
+                reason: format!("{} has no safe voltage above 0 V", ACTUATOR_NAMES[ch]),
+            });
+        }
+        rig.piezo[ch].set_voltage(0.0).map_err(dev("rest"))?;
+        rig.clock.sleep(0.05).map_err(dev("clock"))?;
+        let mut zero = 0.0;
+        for _ in 0..10 {
+            zero += rig.sensors[ch].read().map_err(dev("stack sensor"))? / 10.0;
+        }
+        let mut m = cal.models[ch].clone();
+        m.reset();
+        let rest = m.output();
+        c.stroke[ch] = m.peek(top) - rest;
+        let step = 0.004 * top;
+        let mut v = 0.0;
+        for (i, level) in RESPONSE_LEVELS.iter().enumerate() {
+            let to = level * top;
+            while v < to - 1e-12 {
+                v = (v + step).min(to);
+                rig.piezo[ch]
+                    .set_voltage(v)
+                    .map_err(dev("response check"))?;
+                rig.clock.sleep(1e-3).map_err(dev("clock"))?;
+                m.apply(v);
+            }
+            let mut read = 0.0;
+            for _ in 0..5 {
+                read += rig.sensors[ch].read().map_err(dev("stack sensor"))? / 5.0;
+            }
+            c.volts[ch][i] = to;
+            c.measured[ch][i] = read - zero;
+            c.predicted[ch][i] = m.output() - rest;
+            let miss =
+                (c.measured[ch][i] - c.predicted[ch][i]).abs() / c.stroke[ch].abs().max(1e-12);
+            c.worst = c.worst.max(miss);
+        }
+        rig.piezo[ch].set_voltage(0.0).map_err(dev("rest"))?;
+    }
+    rig.clock.sleep(0.1).map_err(dev("clock"))?;
+    Ok(c)
+}
+
 /// Identifies the tilt stacks' hysteresis (Preisach on `size` cells, `samples`
 /// excitation samples 1 ms apart, read by the stack sensors) and creep.
 pub fn hysteresis<B: Backend>(
@@ -543,4 +670,61 @@ pub fn hysteresis<B: Backend>(
         });
     }
     Ok(cal)
+}
+
+#[cfg(test)]
+mod response_tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use cellinject_hysteresis::PrandtlIshlinskii;
+    use cellinject_model::prototype;
+    use cellinject_rig::{RigParams, fake};
+
+    /// A calibration of two linear stacks of `um_per_volt`, on 0-100 V.
+    fn linear(um_per_volt: f64) -> HysteresisCalibration {
+        let range = Range {
+            min: 0.0,
+            max: 100.0,
+        };
+        let m = AnyModel::Pi(
+            PrandtlIshlinskii::new(range, 0.0, vec![0.0], vec![um_per_volt * 1e-6 * 100.0], 0.0)
+                .unwrap(),
+        );
+        HysteresisCalibration {
+            models: [m.clone(), m],
+            creep: [LogCreep::new(0.01, 0.1).unwrap(); 2],
+            fit_rms: [1e-9; 2],
+            fit_rms_relative: [1e-4; 2],
+            v_max: [100.0; 2],
+            samples: 2000,
+        }
+    }
+
+    /// The fake's stacks answer 0.3 um/V. A calibration that says so holds; one that
+    /// says 0.33 um/V misses at 60 % of the safe range (about 68 V for A1 with
+    /// approach 1) by 0.03 um/V x 0.6 x top over a stroke of 0.33 um/V x top:
+    /// 5.45 %, and does not hold.
+    #[test]
+    fn a_calibration_is_checked_against_the_stacks_at_two_levels() {
+        let p = RigParams {
+            approach: cellinject_model::Approach::DriveTranslation,
+            ..RigParams::default()
+        };
+        let (devices, _) = fake::devices(&p);
+        let mut rig = Rig::new(devices, &prototype(), &p).unwrap();
+        let right = check_response(&mut rig, &linear(0.3)).unwrap();
+        assert!(right.worst < 1e-9 && right.holds(), "{right:?}");
+        let top = rig.max_safe_voltage(0).unwrap().min(100.0);
+        assert!((right.volts[0][1] - 0.6 * top).abs() < 1e-9);
+        assert!((right.measured[0][1] - 0.3e-6 * 0.6 * top).abs() < 1e-15);
+        let off = check_response(&mut rig, &linear(0.33)).unwrap();
+        assert!(
+            (off.worst - 0.03 * 0.6 / 0.33).abs() < 1e-9,
+            "{}",
+            off.worst
+        );
+        assert!(!off.holds());
+        assert!(off.summary().contains("A1") && off.summary().contains("%"));
+    }
 }

@@ -543,7 +543,12 @@ pub fn execute(
             rec.db
                 .set_calibration(
                     run_id,
-                    &serde_json::json!({ "hysteresis": cal, "map": r.map, "rest_m": r.rest_m }),
+                    &serde_json::json!({
+                        "hysteresis": cal,
+                        "map": r.map,
+                        "rest_m": r.rest_m,
+                        "hysteresis_check": r.hysteresis_check,
+                    }),
                 )
                 .map_err(RunError::Records)?;
             (

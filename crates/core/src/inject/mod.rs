@@ -651,6 +651,9 @@ pub struct RunReport {
     /// m, A1's and A2's sensor readings the focus referred to (the session's rest:
     /// pass them to the session's next run, [`Workflow::with_rest`]).
     pub rest_m: [f64; 2],
+    /// A loaded hysteresis calibration checked against the stacks (null when none was
+    /// loaded, or it failed its own check): [`crate::calibrate::ResponseCheck`].
+    pub hysteresis_check: Option<crate::calibrate::ResponseCheck>,
     /// m, the stage height that put the tip in focus with the stacks at their zero
     /// (the option's focus less the tip's drop since the session's rest).
     pub focus_m: f64,
@@ -867,6 +870,9 @@ pub struct Workflow<'r, B: Backend> {
     /// Pixels, the blur of the resting tip's end in each of the latest [`BLUR_FRAMES`]
     /// full frames of it (fitted with its position).
     blurs: Vec<f64>,
+    /// The check of a loaded hysteresis calibration against the stacks, if one was
+    /// loaded and passed its own check.
+    response_check: Option<crate::calibrate::ResponseCheck>,
     /// s, device time at which the image map was last made or checked.
     last_check: f64,
     /// Why a re-check is due before the next cell (a fault), if one is.
@@ -1024,6 +1030,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             survey_cells: Vec::new(),
             background: None,
             blurs: Vec::new(),
+            response_check: None,
             last_check: 0.0,
             check_due: None,
             travel: {
@@ -1233,6 +1240,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
             RunReport {
                 cells_found: targets.len(),
                 rest_m: self.rest.unwrap_or([0.0; 2]),
+                hysteresis_check: self.response_check.clone(),
                 focus_m: self.focus,
                 fields,
                 injected: count(Outcome::Injected),
@@ -1672,26 +1680,48 @@ impl<'r, B: Backend> Workflow<'r, B> {
         // The fields over the plate for the view the set-up gives: a plate the feeder
         // cannot present is refused here, before anything else moves.
         let boot = self.bootstrap_plan()?;
-        let cal = match hysteresis {
+        // The identification (and the check of a loaded calibration) sweeps the
+        // stacks over their travel, A3 down the pipette's axis: the pipette goes that
+        // much higher first, so that the tip stays clear of the cells and the floor.
+        let j = self.jacobian;
+        let drop = self.gain_a3 * self.rig.piezo[2].voltage_range().1 * self.pipette.angle.sin()
+            + j[1][0].abs() * self.travel_a12[0]
+            + j[1][1].abs() * self.travel_a12[1];
+        let loaded = match hysteresis {
             Some(c) if c.problem().is_none() => {
-                why.push("hysteresis calibration loaded and checked".to_string());
-                c
+                self.raise_to(lift + drop)?;
+                let check = crate::calibrate::check_response(self.rig, &c).map_err(|e| {
+                    WorkflowError::Calibration {
+                        what: "hysteresis check",
+                        reason: e.to_string(),
+                    }
+                })?;
+                self.raise_to(lift)?;
+                let holds = check.holds();
+                why.push(format!(
+                    "hysteresis calibration loaded: {}{}",
+                    check.summary(),
+                    if holds {
+                        ""
+                    } else {
+                        ": it no longer holds, identified again"
+                    }
+                ));
+                self.response_check = Some(check);
+                holds.then_some(c)
             }
-            other => {
-                if let Some(c) = other {
-                    why.push(format!(
-                        "hysteresis calibration failed its check ({}): identified again",
-                        c.problem().unwrap_or_default()
-                    ));
-                }
-                // The identification sweeps A3 over its whole travel, down the
-                // pipette's axis: the pipette goes that much higher first, so that the
-                // tip stays clear of the cells and the floor.
-                let j = self.jacobian;
-                let drop =
-                    self.gain_a3 * self.rig.piezo[2].voltage_range().1 * self.pipette.angle.sin()
-                        + j[1][0].abs() * self.travel_a12[0]
-                        + j[1][1].abs() * self.travel_a12[1];
+            Some(c) => {
+                why.push(format!(
+                    "hysteresis calibration failed its check ({}): identified again",
+                    c.problem().unwrap_or_default()
+                ));
+                None
+            }
+            None => None,
+        };
+        let cal = match loaded {
+            Some(c) => c,
+            None => {
                 self.raise_to(lift + drop)?;
                 let c = crate::calibrate::hysteresis(self.rig, self.options.hysteresis_samples, 20)
                     .map_err(|e| match e {
