@@ -508,15 +508,18 @@ fn validate(model: &Path, recording: &Path, out: &Path, format: Format) -> Resul
             )
         };
         InputError(match &e {
-            core::ValidateError::Outside { index, .. } => {
-                format!(
-                    "{}: {e} (the model `{}`'s; fit one on this voltage range)",
-                    at(*index, "voltage_v"),
-                    model.display()
-                )
-            }
+            core::ValidateError::Outside {
+                index,
+                value,
+                min,
+                max,
+            } => format!(
+                "{}: {value} V lies outside the range [{min}, {max}] V of the model `{}` (fit one on this voltage range)",
+                at(*index, "voltage_v"),
+                model.display()
+            ),
             core::ValidateError::NotFinite { index, which } => format!(
-                "{}: {e}",
+                "{}: not a finite number",
                 at(
                     *index,
                     if *which == "voltage" {
