@@ -1454,10 +1454,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
     }
 
     /// The stage positions (lifted to `lift`) that take the pipette out of the
-    /// camera's view for a background, the first tried first: the two shortest ways
-    /// sideways out of the frame once the image map knows the pipette's axis
-    /// ([`ImageMap::out_of_view`]), then (and before the map) a whole view to the left
-    /// of the field's left edge.
+    /// camera's view for a background, the first tried first: for a field served again
+    /// once the survey is done (its focus known), the two shortest ways sideways out of
+    /// the frame that the image map gives ([`ImageMap::out_of_view`]); then, and in the
+    /// survey, a whole view to the left of the field's left edge (with the shorter way
+    /// in the survey, field 2 of a strip plate could not be focused: its sweep swung
+    /// between two heights that each saw the peak at an end).
     fn ways_out(&mut self, lift: f64, pixel: f64) -> Result<Vec<[Option<f64>; 3]>, WorkflowError> {
         let full = self.settings_full.expect("full settings");
         let fov = full.roi.width as f64 * pixel;
@@ -1858,9 +1860,10 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// (the tip is found against it, and the survey reads it): one field width to the
     /// field's left in the survey, the shortest way sideways out of the frame for a
     /// field served again ([`Workflow::ways_out`]; 1.4-1.7 s for a field change on a
-    /// 3 x 40 strip, against 3.4 s and 1.4 s more to come back). Taken again at every re-check: a bench that drifts moves the plate's image
-    /// (a change of magnification of 1e-4 moves the walls at the edge of the field by
-    /// 0.1 px), and the stale edges would pull the tip detector.
+    /// 3 x 40 strip, against 3.4 s and 1.4 s more to come back). Taken again at every
+    /// re-check: a bench that drifts moves the plate's image (a change of
+    /// magnification of 1e-4 moves the walls at the edge of the field by 0.1 px), and
+    /// the stale edges would pull the tip detector.
     fn take_background(&mut self) -> Result<Result<(), String>, WorkflowError> {
         let lift = self.home[1];
         // m per pixel of the full frames: the last background's (taken with them), or on
