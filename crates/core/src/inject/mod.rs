@@ -2388,7 +2388,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
         // (for the background) while the feeder moves; the background waits for it
         // there, or tries the other ways if the stage refused this one.
         if known.is_some() && !self.survey_cells.is_empty() {
-            let pixel = self.map.map_or(0.0, |m| m.pixel_size);
+            // The background's pixel, as the background takes its ways with (a
+            // fallback way computed with none would stop inside the view).
+            let pixel = self
+                .background
+                .as_ref()
+                .map_or_else(|| self.map.map_or(0.0, |m| m.pixel_size), |b| b.pixel_size);
             if let Some(&way) = self.ways_out(self.home[1], pixel)?.first() {
                 // Refused (the stage's travel): the background tries the other ways.
                 if self.stage_start(way)?.is_ok() {
