@@ -206,7 +206,7 @@ fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize, z: f64) {
 }
 
 /// All the poles of `degree` along one line, with the overall gain.
-fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
+pub(crate) fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
     if n < 2 {
         return;
     }
@@ -231,7 +231,7 @@ fn fast_floor(x: f64) -> f64 {
 }
 
 #[inline]
-fn mirror(i: isize, n: usize) -> usize {
+pub(crate) fn mirror(i: isize, n: usize) -> usize {
     let n = n as isize;
     if n == 1 {
         return 0;
@@ -394,6 +394,128 @@ impl BSpline {
         }
     }
 
+    /// The values at the affinely warped rectangle of `2·hw + 1` by `2·hh + 1` pixels:
+    /// subset pixel (dx, dy), dx in `−hw..=hw` (inner), dy in `−hh..=hh` (outer), at
+    /// `(xc + dx + p₀ + p₁·dx + p₂·dy, yc + dy + p₃ + p₄·dx + p₅·dy)`, image
+    /// coordinates, written into `out` (resized). `false`, `out` unspecified, when a
+    /// corner of the warped rectangle lies closer than `margin` pixels to the edge
+    /// ([`BSpline::contains`]). An affine warp's extremes are its corners, so the
+    /// corners alone decide whether every tap lies inside: then the values are read
+    /// without the mirror, in a loop compiled for the machine's vector units (AVX2
+    /// and FMA where present, chosen at run time); otherwise pixel by pixel.
+    #[allow(clippy::too_many_arguments)]
+    pub fn warped_block(
+        &self,
+        xc: f64,
+        yc: f64,
+        hw: usize,
+        hh: usize,
+        p: &[f64; 6],
+        margin: f64,
+        out: &mut Vec<f64>,
+    ) -> bool {
+        let (nw, nh) = (2 * hw + 1, 2 * hh + 1);
+        let (hwf, hhf) = (hw as f64, hh as f64);
+        let corners = [(-hwf, -hhf), (hwf, -hhf), (-hwf, hhf), (hwf, hhf)].map(|(dx, dy)| {
+            (
+                xc + dx + p[0] + p[1] * dx + p[2] * dy,
+                yc + dy + p[3] + p[4] * dx + p[5] * dy,
+            )
+        });
+        if !corners.iter().all(|&(x, y)| self.contains(x, y, margin)) {
+            return false;
+        }
+        out.clear();
+        out.resize(nw * nh, 0.0);
+        // Taps from the floor − 2 to the floor + 3 along both axes, for both degrees
+        // (the cubic's outer weights are zero).
+        let (w, h) = (self.width as f64, self.height as f64);
+        let inner = corners.iter().all(|&(x, y)| {
+            let (x, y) = (x - self.origin.0, y - self.origin.1);
+            x >= 2.0 && y >= 2.0 && x < w - 4.0 && y < h - 4.0
+        });
+        if !inner {
+            for (k, o) in out.iter_mut().enumerate() {
+                let (dx, dy) = ((k % nw) as f64 - hwf, (k / nw) as f64 - hhf);
+                *o = self.value(
+                    xc + dx + p[0] + p[1] * dx + p[2] * dy,
+                    yc + dy + p[3] + p[4] * dx + p[5] * dy,
+                );
+            }
+            return true;
+        }
+        let x0 = xc - self.origin.0 + p[0] - hwf * (1.0 + p[1]);
+        let y0 = yc - self.origin.1 + p[3] - hwf * p[4];
+        let kernel = WarpedRows {
+            c: &self.c,
+            width: self.width,
+            degree: self.degree,
+            origin: (x0, y0),
+            step_x: (1.0 + p[1], p[4]),
+            step_y: (p[2], 1.0 + p[5]),
+            first_row: -hhf,
+            nw,
+            out,
+        };
+        pulp::Arch::new().dispatch(kernel);
+        true
+    }
+
+    /// The spline's values at every pixel moved by (t, t), `t` in (−1, 1): pixel
+    /// (x, y) holds the value at (x + t, y + t), the mirror beyond the edges.
+    pub fn translated_image(&self, t: f64) -> Vec<f64> {
+        let shift = t.floor();
+        let wt = self.degree.weights(t - shift);
+        self.separable(shift as isize, &wt, &wt)
+    }
+
+    /// The spline's value and gradient (∂/∂x, ∂/∂y) at every pixel, row-major.
+    pub fn node_values_gradients(&self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let (w, d) = (
+            self.degree.weights(0.0),
+            self.degree.weights_derivative(0.0),
+        );
+        (
+            self.separable(0, &w, &w),
+            self.separable(0, &d, &w),
+            self.separable(0, &w, &d),
+        )
+    }
+
+    /// `Σ_j wy_j Σ_i wx_i c[y + shift − 2 + j][x + shift − 2 + i]` at every pixel
+    /// (x, y), the mirror beyond the edges: six taps along the rows, then six along
+    /// the columns.
+    fn separable(&self, shift: isize, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> Vec<f64> {
+        let (w, h) = (self.width, self.height);
+        // Source index of tap i for output index m along an axis of n samples.
+        let taps = |n: usize| -> Vec<[usize; TAPS]> {
+            (0..n as isize)
+                .map(|m| std::array::from_fn(|i| mirror(m + shift - 2 + i as isize, n)))
+                .collect()
+        };
+        let (tx, ty) = (taps(w), taps(h));
+        let mut rows = vec![0.0; w * h];
+        for (src, dst) in self.c.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+            for (d, ix) in dst.iter_mut().zip(&tx) {
+                let mut acc = 0.0;
+                for (wi, i) in wx.iter().zip(ix) {
+                    acc += wi * src[*i];
+                }
+                *d = acc;
+            }
+        }
+        let mut out = vec![0.0; w * h];
+        for (dst, iy) in out.chunks_exact_mut(w).zip(&ty) {
+            for (wj, r) in wy.iter().zip(iy) {
+                let src = &rows[r * w..(r + 1) * w];
+                for (d, s) in dst.iter_mut().zip(src) {
+                    *d += wj * s;
+                }
+            }
+        }
+        out
+    }
+
     #[inline(always)]
     fn combine(&self, ix: isize, iy: isize, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> f64 {
         let (lo, hi) = self.degree.reach();
@@ -458,6 +580,113 @@ impl BSpline {
         (v, gx, gy)
     }
 }
+
+/// The rows of [`BSpline::warped_block`], the part that runs on the vector units.
+struct WarpedRows<'a> {
+    c: &'a [f64],
+    width: usize,
+    degree: Degree,
+    /// Position of the first pixel of the row dy = 0, in the coefficients' frame.
+    origin: (f64, f64),
+    /// Change of the position per pixel along a row (x, y).
+    step_x: (f64, f64),
+    /// Change per row.
+    step_y: (f64, f64),
+    first_row: f64,
+    nw: usize,
+    out: &'a mut [f64],
+}
+
+impl pulp::WithSimd for WarpedRows<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        match self.degree {
+            Degree::Quintic => self.rows(|t| Degree::Quintic.weights(t)),
+            Degree::Cubic => self.rows(|t| Degree::Cubic.weights(t)),
+        }
+    }
+}
+
+impl WarpedRows<'_> {
+    /// Each row cut into runs where the floor of the position moves by one pixel per
+    /// pixel (x) and not at all (y): over a run the taps of consecutive pixels are
+    /// consecutive coefficients, read as contiguous vectors, and only the weights
+    /// differ from lane to lane. A small deformation leaves a run or two per row.
+    #[inline(always)]
+    fn rows(self, weights: impl Fn(f64) -> [f64; TAPS]) {
+        let w = self.width;
+        let nw = self.nw;
+        for (j, row) in self.out.chunks_exact_mut(nw).enumerate() {
+            let dy = self.first_row + j as f64;
+            // Position of pixel i: (x0 + i + sx·i, y0 + sy·i).
+            let x0 = self.origin.0 + self.step_y.0 * dy;
+            let y0 = self.origin.1 + self.step_y.1 * dy;
+            let (sx, sy) = (self.step_x.0 - 1.0, self.step_x.1);
+            let mut i0 = 0;
+            while i0 < nw {
+                // Inside (x, y ≥ 2): truncation is the floor.
+                let ox = (x0 + sx * i0 as f64) as usize;
+                let oy = (y0 + sy * i0 as f64) as usize;
+                // Fractional offsets at the run's first pixel; the run lasts while
+                // both stay in [0, 1).
+                let (tx0, ty0) = (
+                    x0 + sx * i0 as f64 - ox as f64,
+                    y0 + sy * i0 as f64 - oy as f64,
+                );
+                let len = run_length(tx0, sx)
+                    .min(run_length(ty0, sy))
+                    .min(nw - i0)
+                    .min(IOTA.len());
+                let i1 = i0 + len;
+                let base = (oy - 2) * w + ox + i0 - 2;
+                let taps: [&[f64]; TAPS] =
+                    std::array::from_fn(|k| &self.c[base + k * w..base + k * w + len + TAPS - 1]);
+                let out = &mut row[i0..i1];
+                for (i, (o, n)) in out.iter_mut().zip(&IOTA[..len]).enumerate() {
+                    let (wx, wy) = (weights(sx.mul_add(*n, tx0)), weights(sy.mul_add(*n, ty0)));
+                    let mut acc = 0.0;
+                    for (wyk, t) in wy.iter().zip(&taps) {
+                        let r = &t[i..i + TAPS];
+                        let mut d = wx[0] * r[0];
+                        for q in 1..TAPS {
+                            d = wx[q].mul_add(r[q], d);
+                        }
+                        acc = wyk.mul_add(d, acc);
+                    }
+                    *o = acc;
+                }
+                i0 = i1;
+            }
+        }
+    }
+}
+
+/// How many pixels k = 0, 1, ... keep `t0 + s·k` in [0, 1) (at least one: `t0` is).
+#[inline(always)]
+fn run_length(t0: f64, s: f64) -> usize {
+    let n = if s > 0.0 {
+        ((1.0 - t0) / s).ceil()
+    } else if s < 0.0 {
+        (t0 / -s).floor() + 1.0
+    } else {
+        f64::INFINITY
+    };
+    // Saturating: a very long run is cut by the row's end.
+    (n as usize).max(1)
+}
+
+/// 0, 1, 2, ... as floating point, the pixel counter of a run (a vector load).
+static IOTA: [f64; 1024] = {
+    let mut a = [0.0; 1024];
+    let mut i = 0;
+    while i < 1024 {
+        a[i] = i as f64;
+        i += 1;
+    }
+    a
+};
 
 #[cfg(test)]
 mod tests {

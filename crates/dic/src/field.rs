@@ -27,7 +27,8 @@ use std::collections::BinaryHeap;
 use rayon::prelude::*;
 
 use crate::accept::{Acceptance, Dropped, Rejection, judge, measure};
-use crate::icgn::{IcgnOptions, PointResult, Shape};
+use crate::correction::Corrections;
+use crate::icgn::{IcgnOptions, PointResult, Scratch, Shape};
 use crate::search;
 use crate::{Degree, DicError, Image, check_subset};
 
@@ -332,7 +333,8 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         quantisation_step: opts.icgn.quantisation_step.max(q),
         ..opts.icgn
     };
-    let refine = |px: usize, py: usize, init: [f64; 6]| {
+    let corrections = Corrections::new(&r, opts.spline, icgn_opts.quantisation_step);
+    let refine = |px: usize, py: usize, init: [f64; 6], scratch: &mut Scratch| {
         measure(
             &r,
             &s,
@@ -344,6 +346,8 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
             init,
             &icgn_opts,
             &opts.acceptance,
+            &corrections,
+            scratch,
         )
     };
     let tile = opts.tile.max(4);
@@ -360,6 +364,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
             let (gx1, gy1) = ((gx0 + tile).min(nx), (gy0 + tile).min(ny));
             let (tw, th) = (gx1 - gx0, gy1 - gy0);
             let mut work = Tile::new(tw * th);
+            let mut scratch = Scratch::default();
             let mut done = vec![false; tw * th];
             // Seed: the tile centre, then spiralling candidates until one the rule
             // accepts. A match rejected only for its σ hands its guess on to its
@@ -383,7 +388,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                 let Some(hit) = hit else { continue };
                 let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
                 let k = j * tw + i;
-                match refine(px, py, init) {
+                match refine(px, py, init, &mut scratch) {
                     Some(p) if judge(&p, &opts.acceptance).is_ok() => {
                         done[k] = true;
                         work.keep(k, p, &opts.acceptance);
@@ -431,7 +436,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                         vx,
                         vy,
                     ];
-                    if let Some(p) = refine(px, py, init) {
+                    if let Some(p) = refine(px, py, init, &mut scratch) {
                         work.keep(k, p, &opts.acceptance);
                     }
                 }

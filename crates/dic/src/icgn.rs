@@ -10,6 +10,8 @@
 //! `W(p) ← W(p) ∘ W(Δp)⁻¹`. ZNSSD makes the result insensitive to a change of
 //! brightness and contrast between the images.
 
+use std::sync::OnceLock;
+
 use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::bspline::{BSpline, Degree};
@@ -129,22 +131,18 @@ impl Reference {
     /// Precomputes the gradients of the spline of the given degree at the pixel centres.
     pub fn with_degree(image: Image, degree: Degree) -> Self {
         let s = BSpline::with_degree(&image, degree);
-        let (w, h) = (image.width(), image.height());
-        let mut gx = vec![0.0; w * h];
-        let mut gy = vec![0.0; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (_, a, b) = s.value_gradient(x as f64, y as f64);
-                gx[y * w + x] = a;
-                gy[y * w + x] = b;
-            }
-        }
+        let (_, gx, gy) = s.node_values_gradients();
         Reference {
             image,
             spline: s,
             gx,
             gy,
         }
+    }
+
+    /// The image's spline.
+    pub fn spline(&self) -> &BSpline {
+        &self.spline
     }
 
     /// The image.
@@ -409,7 +407,9 @@ pub struct Prepared {
     /// The information matrix of the shape parameters with offset and gain (see
     /// [`Information`]).
     info: Information,
-    spectrum: Spectrum,
+    /// The gradients' spectrum, for the spectral bias of [`refine_prepared`] (the
+    /// tracker's σ): made when first asked for.
+    spectrum: OnceLock<Spectrum>,
     /// Degree of the reference's spline (its gradients' gain and noise gain).
     degree: Degree,
 }
@@ -451,27 +451,28 @@ enum Information {
 /// Infinite where `A_s` is singular or not positive (no texture above the noise, a
 /// uniform or linear ramp of grey levels that offset and gain explain, a straight
 /// edge).
-fn sandwich_covariance<const N: usize>(
+fn projections<const N: usize>(
     a: &SMatrix<f64, N, N>,
     noise: &SMatrix<f64, N, N>,
-    b: &SMatrix<f64, N, N>,
     iv: usize,
-) -> (f64, f64) {
+) -> Option<([f64; N], [f64; N])> {
     let a_s = a - noise;
     // Scaled to unit diagonal first, so the test for singularity is relative.
     let d = SVector::<f64, N>::from_fn(|i, _| a_s[(i, i)].max(0.0).sqrt());
     if d.iter().any(|v| *v == 0.0 || !v.is_finite()) {
-        return (f64::INFINITY, f64::INFINITY);
+        return None;
     }
     let scaled = SMatrix::<f64, N, N>::from_fn(|i, j| a_s[(i, j)] / (d[i] * d[j]));
     match scaled.cholesky() {
         Some(c) if c.l().diagonal().iter().all(|v| *v > 1e-6) => {
             let inv = c.inverse();
-            let bs = SMatrix::<f64, N, N>::from_fn(|i, j| b[(i, j)] / (d[i] * d[j]));
-            let cov = inv * bs * inv;
-            (cov[(0, 0)] / (d[0] * d[0]), cov[(iv, iv)] / (d[iv] * d[iv]))
+            // Columns u and v of A_s⁻¹ = D⁻¹ S⁻¹ D⁻¹.
+            Some((
+                std::array::from_fn(|i| inv[(i, 0)] / (d[i] * d[0])),
+                std::array::from_fn(|i| inv[(i, iv)] / (d[i] * d[iv])),
+            ))
         }
-        _ => (f64::INFINITY, f64::INFINITY),
+        _ => None,
     }
 }
 
@@ -487,58 +488,72 @@ pub const RESIDUAL_CORRELATION_PX: usize = 2;
 /// `row(k)` of J̃ and the residuals, on a subset `nw` pixels wide) and the Bartlett
 /// kernel `K = (1 − |Δx|/(L + 1))(1 − |Δy|/(L + 1))` for |Δx|, |Δy| ≤ L =
 /// [`RESIDUAL_CORRELATION_PX`] (Newey & West, Econometrica 55, 1987; positive
-/// semi-definite), which is `Σ J̃J̃ᵀ r²` for L = 0. Scaled so that the residuals' mean
+/// semi-definite), which is `Σ J̃J̃ᵀ r²` for L = 0, scaled so that the residuals' mean
 /// square is `var` (the variance the noise model uses, which the rounding floor may
-/// raise above the residual's). Without residual, the white-noise `var·A`.
-fn meat<const N: usize>(
+/// raise above the residual's); without residual, the white-noise `var·A`. Returned
+/// projected on `z` (a column of `A_s⁻¹`), `zᵀBz`, the only entry the covariance
+/// needs: the scalar scores `s_k = (z·J̃_k) r_k` smoothed by the separable kernel,
+/// `Σ_k s_k (K s)_k`, which costs a few operations per pixel where the whole matrix
+/// costs N².
+#[allow(clippy::too_many_arguments)]
+fn projected_meat<const N: usize>(
+    z: &[f64; N],
     a: &SMatrix<f64, N, N>,
     var: f64,
     residual2: f64,
     residuals: &[f64],
     nw: usize,
     row: impl Fn(usize) -> [f64; N],
-) -> SMatrix<f64, N, N> {
+    scores: &mut Vec<f64>,
+    smoothed: &mut Vec<f64>,
+) -> f64 {
     if residual2 <= 0.0 {
-        return var * a;
+        let zv = SVector::<f64, N>::from(*z);
+        return var * (zv.transpose() * a * zv)[(0, 0)];
     }
     let n = residuals.len();
     let nh = n / nw;
-    let lag = RESIDUAL_CORRELATION_PX;
-    let q: Vec<[f64; N]> = (0..n)
-        .map(|k| {
-            let j = row(k);
-            std::array::from_fn(|i| j[i] * residuals[k])
-        })
-        .collect();
-    // The kernel is separable: weighted sums along the rows, then along the columns.
-    let weight = |d: usize| 1.0 - d as f64 / (lag as f64 + 1.0);
-    let smooth = |src: &[[f64; N]], along_x: bool| -> Vec<[f64; N]> {
-        (0..n)
-            .map(|k| {
-                let (x, y) = (k % nw, k / nw);
-                let (c, len) = if along_x { (x, nw) } else { (y, nh) };
-                let mut acc = [0.0; N];
-                for o in c.saturating_sub(lag)..(c + lag + 1).min(len) {
-                    let w = weight(c.abs_diff(o));
-                    let src_k = if along_x { y * nw + o } else { o * nw + x };
-                    for (a, s) in acc.iter_mut().zip(&src[src_k]) {
-                        *a += w * s;
-                    }
-                }
-                acc
-            })
-            .collect()
-    };
-    let smoothed = smooth(&smooth(&q, true), false);
-    let mut b = SMatrix::<f64, N, N>::zeros();
-    for (qk, sk) in q.iter().zip(&smoothed) {
+    scores.clear();
+    scores.extend((0..n).map(|k| {
+        let j = row(k);
+        let mut acc = 0.0;
         for i in 0..N {
-            for l in 0..N {
-                b[(i, l)] += qk[i] * sk[l];
+            acc += z[i] * j[i];
+        }
+        acc * residuals[k]
+    }));
+    // The kernel is separable: weighted sums along the rows, then along the columns.
+    let lag = RESIDUAL_CORRELATION_PX;
+    let weight = |d: usize| 1.0 - d as f64 / (lag as f64 + 1.0);
+    smoothed.clear();
+    smoothed.resize(n, 0.0);
+    for y in 0..nh {
+        let src = &scores[y * nw..(y + 1) * nw];
+        let dst = &mut smoothed[y * nw..(y + 1) * nw];
+        for (x, d) in dst.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (o, s) in src
+                .iter()
+                .enumerate()
+                .take((x + lag + 1).min(nw))
+                .skip(x.saturating_sub(lag))
+            {
+                acc += weight(x.abs_diff(o)) * s;
             }
+            *d = acc;
         }
     }
-    (b + b.transpose()) * (0.5 * n as f64 * var / residual2)
+    let mut total = 0.0;
+    for y in 0..nh {
+        for x in 0..nw {
+            let mut acc = 0.0;
+            for o in y.saturating_sub(lag)..(y + lag + 1).min(nh) {
+                acc += weight(y.abs_diff(o)) * smoothed[o * nw + x];
+            }
+            total += scores[y * nw + x] * acc;
+        }
+    }
+    total * (n as f64 * var / residual2)
 }
 
 /// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
@@ -643,7 +658,6 @@ pub fn prepare(
             ff,
         )),
     };
-    let spectrum = Spectrum::new(&rs, subset);
     Some(Prepared {
         rs,
         x,
@@ -653,9 +667,24 @@ pub fn prepare(
         h6_inv: h6.cholesky().map(|c| c.inverse()),
         h2_inv: h2.try_inverse(),
         info,
-        spectrum,
+        spectrum: OnceLock::new(),
         degree: reference.spline.degree(),
     })
+}
+
+impl Prepared {
+    /// The RMS of the reference's gradient over the subset along its weaker axis,
+    /// grey levels per pixel.
+    pub fn weakest_gradient(&self) -> f64 {
+        let n = self.rs.f.len() as f64;
+        (self.rs.sum_gx2.min(self.rs.sum_gy2) / n).sqrt()
+    }
+
+    /// The subset's gradient spectrum (computed once).
+    fn spectrum(&self) -> &Spectrum {
+        self.spectrum
+            .get_or_init(|| Spectrum::new(&self.rs, self.subset))
+    }
 }
 
 /// Refines the displacement of the subset centred at integer (x, y) of the reference,
@@ -678,7 +707,9 @@ pub fn refine(
 
 /// Sub-pixel phases at which [`rounding_error`] simulates the rounding: the
 /// solution's translation moved by each of them in x and in y, a quarter of a pixel
-/// apart.
+/// apart. The image's tables ([`crate::correction::Corrections`]) take them as
+/// absolute phases instead, the same for every subset: phase 0 is then the reference
+/// itself, whose rounding is already done (no error).
 pub const ROUNDING_PHASES: [f64; 4] = [0.0, 0.25, 0.5, 0.75];
 
 /// The size of the error the current image's rounding to `opts.quantisation_step`
@@ -817,16 +848,22 @@ fn first_order_change(prepared: &Prepared, ek: &[f64]) -> Option<(f64, f64)> {
     let rs = &prepared.rs;
     let n = rs.f.len();
     let mean = ek.iter().sum::<f64>() / n as f64;
-    let mut b = SVector::<f64, 6>::zeros();
-    for (k, e) in ek.iter().enumerate() {
+    let mut b = [0.0; 6];
+    for k in 0..n {
         let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-        let r = e - mean;
-        b += match prepared.shape {
-            Shape::Affine => SVector::<f64, 6>::new(gx, gx * dx, gx * dy, gy, gy * dx, gy * dy),
-            Shape::Rigid => SVector::<f64, 6>::new(gx, 0.0, 0.0, gy, 0.0, 0.0),
-        } * r;
+        let r = ek[k] - mean;
+        let (ex, ey) = (gx * r, gy * r);
+        b[0] += ex;
+        b[1] += ex * dx;
+        b[2] += ex * dy;
+        b[3] += ey;
+        b[4] += ey * dx;
+        b[5] += ey * dy;
     }
-    translation_step(prepared, &b)
+    if prepared.shape == Shape::Rigid {
+        b = [b[0], 0.0, 0.0, b[3], 0.0, 0.0];
+    }
+    translation_step(prepared, &SVector::from(b))
 }
 
 /// The Gauss-Newton step (u, v) of the subset's normal equations for the right-hand
@@ -847,7 +884,7 @@ fn translation_step(prepared: &Prepared, b: &SVector<f64, 6>) -> Option<(f64, f6
 
 /// Half-width of the windowed-sinc kernel [`interpolation_mismatch`] resamples with,
 /// taps.
-const SINC_HALF: isize = 16;
+pub(crate) const SINC_HALF: isize = 16;
 
 /// Kaiser window's shape parameter for that kernel.
 const SINC_BETA: f64 = 10.0;
@@ -869,7 +906,7 @@ fn bessel_i0(x: f64) -> f64 {
 /// Weights of the Kaiser-windowed sinc that resamples node m's lattice at m − t, t ∈
 /// [0, 1): weight i belongs to the node m − d, d = i − SINC_HALF + 1 (from −SINC_HALF + 1
 /// to SINC_HALF), which lies t − d from the point; normalised to unit sum.
-fn sinc_weights(t: f64) -> [f64; 2 * SINC_HALF as usize] {
+pub(crate) fn sinc_weights(t: f64) -> [f64; 2 * SINC_HALF as usize] {
     let norm = bessel_i0(SINC_BETA);
     let mut w: [f64; 2 * SINC_HALF as usize] = std::array::from_fn(|i| {
         let d = t - (i as isize - SINC_HALF + 1) as f64;
@@ -994,6 +1031,8 @@ fn noise_covariance(
     residual2: f64,
     opts: &IcgnOptions,
     gain: f64,
+    scores: &mut Vec<f64>,
+    smoothed: &mut Vec<f64>,
 ) -> ((f64, f64), f64) {
     let Prepared {
         rs,
@@ -1014,28 +1053,40 @@ fn noise_covariance(
     let var = (residual2 / dof / gain).max(opts.residual_floor);
     // The reference's noise (half the residual's variance) in its gradients.
     let nu = 0.5 * var * degree.derivative_noise_gain();
+    let nw = 2 * subset.half_w + 1;
+    let infinite = (f64::INFINITY, f64::INFINITY);
     let cov = match info {
         Information::Affine(a) => {
-            let b = meat(a, var, residual2, residuals, 2 * subset.half_w + 1, |k| {
-                let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-                [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy, 1.0, rs.f[k]]
-            });
             // Σ wwᵀ over a centred subset, w = (1, dx, dy): diagonal.
             let mut noise = SMatrix::<f64, 8, 8>::zeros();
             for (i, m) in rs.moments.iter().enumerate() {
                 noise[(i, i)] = nu * m;
                 noise[(3 + i, 3 + i)] = nu * m;
             }
-            sandwich_covariance(a, &noise, &b, 3)
+            let row = |k: usize| {
+                let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
+                [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy, 1.0, rs.f[k]]
+            };
+            match projections(a, &noise, 3) {
+                Some((zu, zv)) => (
+                    projected_meat(&zu, a, var, residual2, residuals, nw, row, scores, smoothed),
+                    projected_meat(&zv, a, var, residual2, residuals, nw, row, scores, smoothed),
+                ),
+                None => infinite,
+            }
         }
         Information::Rigid(a) => {
-            let b = meat(a, var, residual2, residuals, 2 * subset.half_w + 1, |k| {
-                [rs.gx[k], rs.gy[k], 1.0, rs.f[k]]
-            });
             let mut noise = SMatrix::<f64, 4, 4>::zeros();
             noise[(0, 0)] = nu * rs.moments[0];
             noise[(1, 1)] = nu * rs.moments[0];
-            sandwich_covariance(a, &noise, &b, 1)
+            let row = |k: usize| [rs.gx[k], rs.gy[k], 1.0, rs.f[k]];
+            match projections(a, &noise, 1) {
+                Some((zu, zv)) => (
+                    projected_meat(&zu, a, var, residual2, residuals, nw, row, scores, smoothed),
+                    projected_meat(&zv, a, var, residual2, residuals, nw, row, scores, smoothed),
+                ),
+                None => infinite,
+            }
         }
     };
     (cov, var)
@@ -1131,6 +1182,26 @@ fn impulses(t: f64) -> (Vec<f64>, Vec<f64>) {
     (delta, shifted)
 }
 
+/// The reference noise's mean share in the first-order change of the mismatch,
+/// (u, v): `load` (pixels times the reference's noise variance) times
+/// [`LineResponses::mismatch_noise`] along each axis.
+fn noise_share(
+    prepared: &Prepared,
+    lx: &LineResponses,
+    ly: &LineResponses,
+    load: f64,
+) -> Option<(f64, f64)> {
+    let b = SVector::<f64, 6>::new(
+        load * lx.mismatch_noise * ly.centre,
+        0.0,
+        0.0,
+        load * ly.mismatch_noise * lx.centre,
+        0.0,
+        0.0,
+    );
+    translation_step(prepared, &b)
+}
+
 /// The match `res` of the prepared subset with the spline's interpolation error taken
 /// out ([`interpolation_mismatch`]): the translation corrected by its first-order
 /// effect (less the reference noise's mean share in it, `LineResponses::mismatch_noise`), and the residual, ZNCC and noise σ recomputed at the corrected solution
@@ -1154,15 +1225,7 @@ pub fn corrected(
     let lx = LineResponses::new(current.degree(), prepared.degree, tu);
     let ly = LineResponses::new(current.degree(), prepared.degree, tv);
     let load = prepared.rs.f.len() as f64 * res.sigma_noise * res.sigma_noise;
-    let b = SVector::<f64, 6>::new(
-        load * lx.mismatch_noise * ly.centre,
-        0.0,
-        0.0,
-        load * ly.mismatch_noise * lx.centre,
-        0.0,
-        0.0,
-    );
-    let (nu, nv) = translation_step(prepared, &b)?;
+    let (nu, nv) = noise_share(prepared, &lx, &ly, load)?;
     let (bu, bv) = (bu - nu, bv - nv);
     let (u, v) = (res.u - bu, res.v - bv);
     let [ux, uy, vx, vy] = res.gradients;
@@ -1188,7 +1251,16 @@ pub fn corrected(
     let residuals: Vec<f64> = (0..n).map(|k| rs.f[k] - ratio * (g[k] - gm)).collect();
     let residual2: f64 = residuals.iter().map(|r| r * r).sum();
     let gain = lx.gain * ly.gain;
-    let (cov, var) = noise_covariance(prepared, &residuals, residual2, opts, gain);
+    let (mut scores, mut smoothed) = (Vec::new(), Vec::new());
+    let (cov, var) = noise_covariance(
+        prepared,
+        &residuals,
+        residual2,
+        opts,
+        gain,
+        &mut scores,
+        &mut smoothed,
+    );
     Some(PointResult {
         u,
         v,
@@ -1200,6 +1272,202 @@ pub fn corrected(
     })
 }
 
+/// Buffers of one thread's refinements, reused from point to point and iteration to
+/// iteration (no allocation inside the correlation).
+#[derive(Debug, Default, Clone)]
+pub struct Scratch {
+    /// The current image at the warped subset.
+    g: Vec<f64>,
+    /// Separable interpolation's intermediate rows.
+    tmp: Vec<f64>,
+    /// Residuals at the solution.
+    residuals: Vec<f64>,
+    /// The interpolation mismatch at the subset's pixels.
+    pub(crate) mismatch: Vec<f64>,
+    /// The sandwich's projected scores and their smoothed copy.
+    scores: Vec<f64>,
+    smoothed: Vec<f64>,
+}
+
+/// The outcome of the iteration alone (no σ): the residuals stay in the scratch.
+#[derive(Debug, Clone, Copy)]
+#[doc(hidden)]
+pub struct Iterated {
+    pub(crate) p: [f64; 6],
+    pub(crate) iterations: usize,
+    pub(crate) converged: bool,
+    pub(crate) zncc: f64,
+    /// Σ r² of the residuals.
+    pub(crate) residual2: f64,
+}
+
+/// Phases per pixel of the table of [`LineResponses`].
+const LINE_PHASES: usize = 64;
+
+/// [`LineResponses`] at phase `t`, interpolated linearly in a table over the phase
+/// made once per process and pair of degrees (the responses are smooth in `t`).
+fn line_responses(current: Degree, reference: Degree, t: f64) -> LineResponses {
+    static TABLES: [OnceLock<Vec<LineResponses>>; 4] = [
+        const { OnceLock::new() },
+        const { OnceLock::new() },
+        const { OnceLock::new() },
+        const { OnceLock::new() },
+    ];
+    let k = 2 * usize::from(current == Degree::Quintic) + usize::from(reference == Degree::Quintic);
+    let table = TABLES[k].get_or_init(|| {
+        (0..=LINE_PHASES)
+            .map(|p| LineResponses::new(current, reference, p as f64 / LINE_PHASES as f64))
+            .collect()
+    });
+    let scaled = (t - t.floor()) * LINE_PHASES as f64;
+    let p = (scaled as usize).min(LINE_PHASES - 1);
+    let a = scaled - p as f64;
+    let (l0, l1) = (&table[p], &table[p + 1]);
+    let mix = |x: f64, y: f64| (1.0 - a) * x + a * y;
+    LineResponses {
+        gain: mix(l0.gain, l1.gain),
+        mismatch_noise: mix(l0.mismatch_noise, l1.mismatch_noise),
+        centre: mix(l0.centre, l1.centre),
+    }
+}
+
+/// [`corrected`] for a match fresh from [`iterate`], with the interpolation error at
+/// the subset's pixels already in `scratch` (from the image's tables,
+/// [`crate::correction::Corrections::mismatch`]): the field and point modes' way.
+pub(crate) fn correct(
+    prepared: &Prepared,
+    it: &Iterated,
+    current_spline: &BSpline,
+    scratch: &mut Scratch,
+    opts: &IcgnOptions,
+    kappa: f64,
+) -> Option<PointResult> {
+    let res = it.result(prepared);
+    let current = current_spline.degree();
+    let e = &scratch.mismatch;
+    let (bu, bv) = first_order_change(prepared, e)?;
+    // The reference noise's mean share of it (`LineResponses::mismatch_noise`), taken
+    // back; the noise level is the iteration's.
+    let n = prepared.rs.f.len();
+    let params = match prepared.shape {
+        Shape::Affine => 8.0,
+        Shape::Rigid => 4.0,
+    };
+    let noise2 = 0.5 * (it.residual2 / (n as f64 - params).max(1.0)).max(opts.residual_floor);
+    let lx = line_responses(current, prepared.degree, res.u);
+    let ly = line_responses(current, prepared.degree, res.v);
+    let load = n as f64 * noise2;
+    let (nu, nv) = noise_share(prepared, &lx, &ly, load)?;
+    let (bu, bv) = (bu - nu, bv - nv);
+    // The residuals at the corrected solution, the current image's values less the
+    // mismatch.
+    let rs = &prepared.rs;
+    let mut p = it.p;
+    p[0] -= bu;
+    p[3] -= bv;
+    let (s, hw, hh) = (
+        prepared.subset,
+        prepared.subset.half_w,
+        prepared.subset.half_h,
+    );
+    let warped = match prepared.shape {
+        Shape::Affine => current_spline.warped_block(
+            prepared.x as f64,
+            prepared.y as f64,
+            hw,
+            hh,
+            &p,
+            2.0,
+            &mut scratch.g,
+        ),
+        Shape::Rigid => {
+            let (cx, cy) = (prepared.x as f64 + p[0], prepared.y as f64 + p[3]);
+            let (fx, fy) = (cx.floor(), cy.floor());
+            let d = current_spline.degree();
+            let inside = current_spline.contains(cx - hw as f64, cy - hh as f64, 2.0)
+                && current_spline.contains(cx + hw as f64, cy + hh as f64, 2.0);
+            if inside {
+                current_spline.translated_block(
+                    fx,
+                    fy,
+                    s.half_w,
+                    s.half_h,
+                    &d.weights(cx - fx),
+                    &d.weights(cy - fy),
+                    &mut scratch.tmp,
+                    &mut scratch.g,
+                );
+            }
+            inside
+        }
+    };
+    if !warped {
+        return None;
+    }
+    let g = &mut scratch.g;
+    for (gk, ek) in g.iter_mut().zip(e) {
+        *gk -= ek;
+    }
+    let gm = g.iter().sum::<f64>() / n as f64;
+    let dg = g.iter().map(|x| (x - gm) * (x - gm)).sum::<f64>().sqrt();
+    if dg == 0.0 {
+        return None;
+    }
+    let ratio = rs.df / dg;
+    let mut residual2 = 0.0;
+    for ((r, f), gk) in scratch.residuals.iter_mut().zip(&rs.f).zip(g.iter()) {
+        *r = f - ratio * (gk - gm);
+        residual2 += *r * *r;
+    }
+    let gain = lx.gain * ly.gain;
+    let (cov, var) = noise_covariance(
+        prepared,
+        &scratch.residuals,
+        residual2,
+        opts,
+        gain,
+        &mut scratch.scores,
+        &mut scratch.smoothed,
+    );
+    Some(PointResult {
+        u: res.u - bu,
+        v: res.v - bv,
+        zncc: 1.0 - 0.5 * residual2 / (rs.df * rs.df),
+        sigma_u: (cov.0 + (kappa * bu).powi(2)).sqrt(),
+        sigma_v: (cov.1 + (kappa * bv).powi(2)).sqrt(),
+        sigma_noise: (0.5 * var).sqrt(),
+        ..res
+    })
+}
+
+/// [`rounding_error`] from the image's rounding tables (phases
+/// `ROUNDING_PHASES[1..]`, row-major over a reference `width` pixels wide; phase 0
+/// has no residual): the RMS over the four phases of the first-order change each
+/// residual makes in the match.
+pub(crate) fn rounding_from_tables(
+    prepared: &Prepared,
+    tables: &[Vec<f32>],
+    width: usize,
+    scratch: &mut Scratch,
+) -> Option<(f64, f64)> {
+    let s = prepared.subset;
+    let nw = 2 * s.half_w + 1;
+    let (mut su, mut sv) = (0.0, 0.0);
+    for table in tables {
+        let e = &mut scratch.mismatch;
+        e.clear();
+        for j in 0..2 * s.half_h + 1 {
+            let start = (prepared.y - s.half_h + j) * width + prepared.x - s.half_w;
+            e.extend(table[start..start + nw].iter().map(|v| f64::from(*v)));
+        }
+        let (du, dv) = first_order_change(prepared, e)?;
+        su += du * du;
+        sv += dv * dv;
+    }
+    let phases = ROUNDING_PHASES.len() as f64;
+    Some(((su / phases).sqrt(), (sv / phases).sqrt()))
+}
+
 /// [`refine`] with a prepared reference subset.
 pub fn refine_prepared(
     prepared: &Prepared,
@@ -1207,6 +1475,74 @@ pub fn refine_prepared(
     initial: [f64; 6],
     opts: &IcgnOptions,
 ) -> Option<PointResult> {
+    let mut scratch = Scratch::default();
+    let it = iterate(prepared, current, initial, opts, &mut scratch)?;
+    let (cov, var) = noise_covariance(
+        prepared,
+        &scratch.residuals,
+        it.residual2,
+        opts,
+        1.0,
+        &mut scratch.scores,
+        &mut scratch.smoothed,
+    );
+    let sigma_noise = (0.5 * var).sqrt();
+    let spectrum = prepared.spectrum();
+    let p = it.p;
+    // The reference's noise variance is half the residual's.
+    let bias_u = interpolation_bias_1d(
+        current.degree(),
+        prepared.degree,
+        p[0],
+        &spectrum.x,
+        0.5 * var * spectrum.white_x,
+    );
+    let bias_v = interpolation_bias_1d(
+        current.degree(),
+        prepared.degree,
+        p[3],
+        &spectrum.y,
+        0.5 * var * spectrum.white_y,
+    );
+    Some(PointResult {
+        sigma_u: (cov.0 + bias_u * bias_u).sqrt(),
+        sigma_v: (cov.1 + bias_v * bias_v).sqrt(),
+        sigma_noise,
+        ..it.result(prepared)
+    })
+}
+
+impl Iterated {
+    /// The result without σ (infinite) and with the noise unknown (0).
+    pub(crate) fn result(&self, prepared: &Prepared) -> PointResult {
+        let p = self.p;
+        PointResult {
+            x: prepared.x as f64,
+            y: prepared.y as f64,
+            u: p[0],
+            v: p[3],
+            gradients: [p[1], p[2], p[4], p[5]],
+            zncc: self.zncc,
+            iterations: self.iterations,
+            converged: self.converged,
+            sigma_u: f64::INFINITY,
+            sigma_v: f64::INFINITY,
+            sigma_noise: 0.0,
+            subset: 2 * prepared.subset.half_w.max(prepared.subset.half_h) + 1,
+        }
+    }
+}
+
+/// The IC-GN iteration of [`refine_prepared`]: the residuals at the solution are left
+/// in `scratch.residuals`.
+#[doc(hidden)]
+pub fn iterate(
+    prepared: &Prepared,
+    current: &BSpline,
+    initial: [f64; 6],
+    opts: &IcgnOptions,
+    scratch: &mut Scratch,
+) -> Option<Iterated> {
     let Prepared {
         rs,
         x,
@@ -1215,14 +1551,15 @@ pub fn refine_prepared(
         shape,
         h6_inv,
         h2_inv,
-        info: _,
-        spectrum,
-        degree,
+        ..
     } = prepared;
     let (x, y, subset, shape, h6_inv, h2_inv) = (*x, *y, *subset, *shape, *h6_inv, *h2_inv);
     let n = rs.f.len();
-    let mut g = Vec::with_capacity(n);
-    let mut tmp = Vec::new();
+    let Scratch {
+        g, tmp, residuals, ..
+    } = scratch;
+    residuals.clear();
+    residuals.resize(n, 0.0);
     let (xc, yc) = (x as f64, y as f64);
     let corner = subset.half_w.max(subset.half_h) as f64;
     let mut p = match shape {
@@ -1233,12 +1570,10 @@ pub fn refine_prepared(
     let mut iterations = 0;
     let mut converged = false;
     let mut residual2 = 0.0;
-    let mut residuals = vec![0.0; n];
     let mut zncc = 0.0;
     while iterations < opts.max_iterations {
         iterations += 1;
         // Interpolate the current image at the warped subset.
-        let (mut sum, mut sum2) = (0.0, 0.0);
         match shape {
             Shape::Rigid => {
                 let (cx, cy) = (xc + p[0], yc + p[3]);
@@ -1256,36 +1591,18 @@ pub fn refine_prepared(
                 let (fx, fy) = (cx.floor(), cy.floor()); // once per iteration
                 let d = current.degree();
                 let (wx, wy) = (d.weights(cx - fx), d.weights(cy - fy));
-                current.translated_block(
-                    fx,
-                    fy,
-                    subset.half_w,
-                    subset.half_h,
-                    &wx,
-                    &wy,
-                    &mut tmp,
-                    &mut g,
-                );
-                for v in &g {
-                    sum += v;
-                    sum2 += v * v;
-                }
+                current.translated_block(fx, fy, subset.half_w, subset.half_h, &wx, &wy, tmp, g);
             }
             Shape::Affine => {
-                g.clear();
-                for k in 0..n {
-                    let (dx, dy) = (rs.dx[k], rs.dy[k]);
-                    let wx = xc + dx + p[0] + p[1] * dx + p[2] * dy;
-                    let wy = yc + dy + p[3] + p[4] * dx + p[5] * dy;
-                    if !current.contains(wx, wy, margin) {
-                        return None;
-                    }
-                    let v = current.value(wx, wy);
-                    g.push(v);
-                    sum += v;
-                    sum2 += v * v;
+                if !current.warped_block(xc, yc, subset.half_w, subset.half_h, &p, margin, g) {
+                    return None;
                 }
             }
+        }
+        let (mut sum, mut sum2) = (0.0, 0.0);
+        for v in g.iter() {
+            sum += v;
+            sum2 += v * v;
         }
         let gm = sum / n as f64;
         let dg = (sum2 - sum * gm).max(0.0).sqrt();
@@ -1294,38 +1611,28 @@ pub fn refine_prepared(
         }
         let ratio = rs.df / dg;
         // Residual and gradient of the criterion.
-        let mut b6 = SVector::<f64, 6>::zeros();
-        let mut b2 = SVector::<f64, 2>::zeros();
+        let mut b6 = [0.0; 6];
         residual2 = 0.0;
         for k in 0..n {
             let r = rs.f[k] - ratio * (g[k] - gm);
             residuals[k] = r;
             residual2 += r * r;
-            let (gx, gy) = (rs.gx[k], rs.gy[k]);
-            match shape {
-                Shape::Affine => {
-                    let (dx, dy) = (rs.dx[k], rs.dy[k]);
-                    b6[0] += gx * r;
-                    b6[1] += gx * dx * r;
-                    b6[2] += gx * dy * r;
-                    b6[3] += gy * r;
-                    b6[4] += gy * dx * r;
-                    b6[5] += gy * dy * r;
-                }
-                Shape::Rigid => {
-                    b2[0] += gx * r;
-                    b2[1] += gy * r;
-                }
-            }
+            let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
+            b6[0] += gx * r;
+            b6[1] += gx * dx * r;
+            b6[2] += gx * dy * r;
+            b6[3] += gy * r;
+            b6[4] += gy * dx * r;
+            b6[5] += gy * dy * r;
         }
         zncc = 1.0 - 0.5 * residual2 / (rs.df * rs.df);
         let dp: [f64; 6] = match shape {
             Shape::Affine => {
-                let d = -(h6_inv?) * b6;
+                let d = -(h6_inv?) * SVector::<f64, 6>::from(b6);
                 [d[0], d[1], d[2], d[3], d[4], d[5]]
             }
             Shape::Rigid => {
-                let d = -(h2_inv?) * b2;
+                let d = -(h2_inv?) * SVector::<f64, 2>::new(b6[0], b6[3]);
                 [d[0], 0.0, 0.0, d[1], 0.0, 0.0]
             }
         };
@@ -1344,36 +1651,12 @@ pub fn refine_prepared(
             break;
         }
     }
-    let (cov, var) = noise_covariance(prepared, &residuals, residual2, opts, 1.0);
-    let sigma_noise = (0.5 * var).sqrt();
-    // The reference's noise variance is half the residual's.
-    let bias_u = interpolation_bias_1d(
-        current.degree(),
-        *degree,
-        p[0],
-        &spectrum.x,
-        0.5 * var * spectrum.white_x,
-    );
-    let bias_v = interpolation_bias_1d(
-        current.degree(),
-        *degree,
-        p[3],
-        &spectrum.y,
-        0.5 * var * spectrum.white_y,
-    );
-    Some(PointResult {
-        x: xc,
-        y: yc,
-        u: p[0],
-        v: p[3],
-        gradients: [p[1], p[2], p[4], p[5]],
-        zncc,
+    Some(Iterated {
+        p,
         iterations,
         converged,
-        sigma_u: (cov.0 + bias_u * bias_u).sqrt(),
-        sigma_v: (cov.1 + bias_v * bias_v).sqrt(),
-        sigma_noise,
-        subset: 2 * subset.half_w.max(subset.half_h) + 1,
+        zncc,
+        residual2,
     })
 }
 

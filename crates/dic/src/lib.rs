@@ -20,6 +20,7 @@
 pub mod accept;
 pub mod bspline;
 pub mod calib;
+pub mod correction;
 pub mod field;
 pub mod icgn;
 pub mod image;
@@ -27,6 +28,7 @@ pub mod search;
 pub mod synth;
 pub mod track;
 
+use rayon::prelude::*;
 use thiserror::Error;
 
 pub use accept::{Acceptance, Dropped, Rejection, judge};
@@ -258,9 +260,10 @@ pub fn correlate_points(
         quantisation_step: opts.icgn.quantisation_step.max(step),
         ..opts.icgn
     };
+    let corrections = correction::Corrections::new(&r, opts.spline, icgn_opts.quantisation_step);
     Ok(points
-        .iter()
-        .map(|&(x, y)| {
+        .par_iter()
+        .map_init(icgn::Scratch::default, |scratch, &(x, y)| {
             let (xi, yi) = (x.round() as i64, y.round() as i64);
             let m = (opts.subset / 2) as i64;
             let hit = search::search_pyramid(&pr, &pc, xi, yi, m, opts.search_radius as i64)?;
@@ -276,6 +279,8 @@ pub fn correlate_points(
                 init,
                 &icgn_opts,
                 &opts.acceptance,
+                &corrections,
+                scratch,
             )?;
             let (dx, dy) = (x - xi as f64, y - yi as f64);
             let [ux, uy, vx, vy] = res.gradients;
