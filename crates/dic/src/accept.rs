@@ -172,68 +172,125 @@ pub fn measure(
     corrections: &Corrections,
     scratch: &mut Scratch,
 ) -> Option<PointResult> {
-    let sizes = subset_sizes(subset);
-    let count = if adaptive { sizes.len() } else { 1 };
-    let mut best: Option<PointResult> = None;
-    let mut last = Subset::square(subset);
-    let (iw, ih) = (reference.image().width(), reference.image().height());
-    for &size in &sizes[..count] {
-        let start = match &best {
-            None => initial,
-            Some(b) => {
-                let [ux, uy, vx, vy] = b.gradients;
-                [b.u, ux, uy, b.v, vx, vy]
-            }
-        };
-        let sub = if best.is_some() {
-            match grown_subset(size, x, y, iw, ih, (start[0], start[3]), last) {
-                Some(s) => s,
-                None => break,
-            }
-        } else {
-            Subset::square(size)
-        };
-        last = sub;
-        let Some(prepared) = icgn::prepare(reference, x, y, sub, shape) else {
-            break;
-        };
-        let Some(it) = icgn::iterate(&prepared, current, start, opts, scratch) else {
-            break;
-        };
-        let grown = best.is_some();
-        // The spline's interpolation error, simulated and taken out: no shift can
-        // move it, and on the photographs it is the largest error of strong texture.
-        // A point whose correction cannot be computed has no bound: not a
-        // measurement (its σ is infinite, so a larger subset is still tried).
-        corrections.mismatch(x, y, sub, it.p[0], it.p[3], &mut scratch.mismatch);
-        let mut p = icgn::correct(&prepared, &it, current, scratch, opts, BIAS_KEPT)
-            .unwrap_or(it.result(&prepared));
-        // The current image's rounding (see above). It only raises σ: computed only
-        // when the rest would pass.
-        if opts.quantisation_step > 0.0 && judge(&p, acceptance).is_ok() {
-            // One that cannot be computed leaves the point without a bound: not a
-            // measurement.
-            let tables = corrections.rounding();
-            let coherent = prepared.weakest_gradient() < COHERENT_ROUNDING * opts.quantisation_step;
-            let bound = if tables.is_empty() || coherent {
-                icgn::rounding_error(reference, &prepared, &p, opts)
-            } else {
-                icgn::rounding_from_tables(&prepared, tables, iw, scratch)
+    pulp::Arch::new().dispatch(Measure {
+        reference,
+        current,
+        x,
+        y,
+        subset,
+        adaptive,
+        shape,
+        initial,
+        opts,
+        acceptance,
+        corrections,
+        scratch,
+    })
+}
+
+/// [`measure`]'s arguments, for compiling it for the machine's vector units (the
+/// whole per-point pipeline is inlined into each of pulp's targets).
+struct Measure<'a, 'b> {
+    reference: &'a Reference,
+    current: &'a BSpline,
+    x: usize,
+    y: usize,
+    subset: usize,
+    adaptive: bool,
+    shape: Shape,
+    initial: [f64; 6],
+    opts: &'a IcgnOptions,
+    acceptance: &'a Acceptance,
+    corrections: &'a Corrections<'b>,
+    scratch: &'a mut Scratch,
+}
+
+impl pulp::WithSimd for Measure<'_, '_> {
+    type Output = Option<PointResult>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let Measure {
+            reference,
+            current,
+            x,
+            y,
+            subset,
+            adaptive,
+            shape,
+            initial,
+            opts,
+            acceptance,
+            corrections,
+            scratch,
+        } = self;
+        let sizes = subset_sizes(subset);
+        let count = if adaptive { sizes.len() } else { 1 };
+        let mut best: Option<PointResult> = None;
+        let mut last = Subset::square(subset);
+        let (iw, ih) = (reference.image().width(), reference.image().height());
+        for &size in &sizes[..count] {
+            let start = match &best {
+                None => initial,
+                Some(b) => {
+                    let [ux, uy, vx, vy] = b.gradients;
+                    [b.u, ux, uy, b.v, vx, vy]
+                }
             };
-            let (du, dv) = bound.unwrap_or((f64::INFINITY, f64::INFINITY));
-            p.sigma_u = p.sigma_u.max(du);
-            p.sigma_v = p.sigma_v.max(dv);
+            let sub = if best.is_some() {
+                match grown_subset(size, x, y, iw, ih, (start[0], start[3]), last) {
+                    Some(s) => s,
+                    None => break,
+                }
+            } else {
+                Subset::square(size)
+            };
+            last = sub;
+            let Some(prepared) = icgn::prepare(reference, x, y, sub, shape) else {
+                break;
+            };
+            let Some(it) = icgn::iterate(&prepared, current, start, opts, scratch) else {
+                break;
+            };
+            if icgn::influence(&prepared, scratch).is_none() {
+                break;
+            }
+            let grown = best.is_some();
+            // The spline's interpolation error, simulated and taken out: no shift can
+            // move it, and on the photographs it is the largest error of strong texture.
+            // A point whose correction cannot be computed has no bound: not a
+            // measurement (its σ is infinite, so a larger subset is still tried).
+            corrections.mismatch(x, y, sub, it.p[0], it.p[3], &mut scratch.mismatch);
+            let mut p = icgn::correct(&prepared, &it, current, scratch, opts, BIAS_KEPT)
+                .unwrap_or(it.result(&prepared));
+            // The current image's rounding (see above). It only raises σ: computed only
+            // when the rest would pass.
+            if opts.quantisation_step > 0.0 && judge(&p, acceptance).is_ok() {
+                // One that cannot be computed leaves the point without a bound: not a
+                // measurement.
+                let tables = corrections.rounding();
+                let coherent =
+                    prepared.weakest_gradient() < COHERENT_ROUNDING * opts.quantisation_step;
+                let bound = if tables.is_empty() || coherent {
+                    icgn::rounding_error(reference, &prepared, &p, opts)
+                } else {
+                    Some(icgn::rounding_from_tables(&prepared, tables, iw, scratch))
+                };
+                let (du, dv) = bound.unwrap_or((f64::INFINITY, f64::INFINITY));
+                p.sigma_u = p.sigma_u.max(du);
+                p.sigma_v = p.sigma_v.max(dv);
+            }
+            // A larger subset that does not converge leaves the last result.
+            if grown && !p.converged {
+                break;
+            }
+            best = Some(p);
+            if judge(&p, acceptance) != Err(Rejection::Uncertain) {
+                break;
+            }
         }
-        // A larger subset that does not converge leaves the last result.
-        if grown && !p.converged {
-            break;
-        }
-        best = Some(p);
-        if judge(&p, acceptance) != Err(Rejection::Uncertain) {
-            break;
-        }
+        best
     }
-    best
 }
 
 /// Distance in pixels that [`grown_subset`] keeps between a displaced subset and the

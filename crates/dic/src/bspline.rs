@@ -404,6 +404,7 @@ impl BSpline {
     /// without the mirror, in a loop compiled for the machine's vector units (AVX2
     /// and FMA where present, chosen at run time); otherwise pixel by pixel.
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     pub fn warped_block(
         &self,
         xc: f64,

@@ -17,6 +17,38 @@ use nalgebra::{Matrix3, SMatrix, SVector};
 use crate::bspline::{BSpline, Degree};
 use crate::image::Image;
 
+/// Lanes of [`sums`]: as many as the widest vector unit holds (AVX-512, f64).
+const LANES: usize = 8;
+
+/// `Σ_k f(k)` over `k < n`, each of the `M` sums kept in [`LANES`] interleaved
+/// partial sums. A floating-point sum taken in order cannot be vectorised (the
+/// compiler may not reassociate it); interleaved partial sums can, and are as
+/// accurate. Used by every reduction over a subset's pixels.
+#[inline(always)]
+pub(crate) fn sums<const M: usize>(n: usize, f: impl Fn(usize) -> [f64; M]) -> [f64; M] {
+    let mut acc = [[0.0; LANES]; M];
+    let full = n / LANES * LANES;
+    for base in (0..full).step_by(LANES) {
+        for l in 0..LANES {
+            let v = f(base + l);
+            for m in 0..M {
+                acc[m][l] += v[m];
+            }
+        }
+    }
+    let mut out = [0.0; M];
+    for m in 0..M {
+        out[m] = acc[m].iter().sum();
+    }
+    for k in full..n {
+        let v = f(k);
+        for m in 0..M {
+            out[m] += v[m];
+        }
+    }
+    out
+}
+
 /// The subset shape function.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Shape {
@@ -329,8 +361,10 @@ fn interpolation_bias_1d(
 }
 
 impl RefSubset {
+    #[inline(always)]
     fn new(r: &Reference, x: usize, y: usize, s: Subset) -> Self {
-        let n = (2 * s.half_w + 1) * (2 * s.half_h + 1);
+        let (nw, nh) = (2 * s.half_w + 1, 2 * s.half_h + 1);
+        let n = nw * nh;
         let mut out = RefSubset {
             dx: Vec::with_capacity(n),
             dy: Vec::with_capacity(n),
@@ -342,28 +376,34 @@ impl RefSubset {
             sum_gy2: 0.0,
             moments: [0.0; 3],
         };
-        for j in 0..=2 * s.half_h {
-            for i in 0..=2 * s.half_w {
-                let (px, py) = (x + i - s.half_w, y + j - s.half_h);
-                let (a, b) = r.gradient(px, py);
-                out.dx.push(i as f64 - s.half_w as f64);
-                out.dy.push(j as f64 - s.half_h as f64);
-                out.f.push(r.image.at(px, py));
-                out.gx.push(a);
-                out.gy.push(b);
-                out.sum_gx2 += a * a;
-                out.sum_gy2 += b * b;
-                let (dx, dy) = (i as f64 - s.half_w as f64, j as f64 - s.half_h as f64);
-                out.moments[0] += 1.0;
-                out.moments[1] += dx * dx;
-                out.moments[2] += dy * dy;
-            }
+        let w = r.image.width();
+        let data = r.image.data();
+        for j in 0..nh {
+            let start = (y + j - s.half_h) * w + x - s.half_w;
+            out.f.extend_from_slice(&data[start..start + nw]);
+            out.gx.extend_from_slice(&r.gx[start..start + nw]);
+            out.gy.extend_from_slice(&r.gy[start..start + nw]);
+            let dy = j as f64 - s.half_h as f64;
+            out.dy.extend(std::iter::repeat_n(dy, nw));
+            out.dx.extend((0..nw).map(|i| i as f64 - s.half_w as f64));
         }
-        let mean = out.f.iter().sum::<f64>() / n as f64;
+        let (f, gx, gy) = (&out.f[..n], &out.gx[..n], &out.gy[..n]);
+        let [sf, sx2, sy2] = sums(n, |k| [f[k], gx[k] * gx[k], gy[k] * gy[k]]);
+        out.sum_gx2 = sx2;
+        out.sum_gy2 = sy2;
+        // Σ1, Σdx², Σdy² of a centred rectangle.
+        let square_sum = |h: usize| (1..=h).map(|d| 2.0 * (d * d) as f64).sum::<f64>();
+        out.moments = [
+            n as f64,
+            nh as f64 * square_sum(s.half_w),
+            nw as f64 * square_sum(s.half_h),
+        ];
+        let mean = sf / n as f64;
         for v in &mut out.f {
             *v -= mean;
         }
-        out.df = out.f.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let f = &out.f[..n];
+        out.df = sums(n, |k| [f[k] * f[k]])[0].sqrt();
         out
     }
 }
@@ -451,6 +491,7 @@ enum Information {
 /// Infinite where `A_s` is singular or not positive (no texture above the noise, a
 /// uniform or linear ramp of grey levels that offset and gain explain, a straight
 /// edge).
+#[inline(always)]
 fn projections<const N: usize>(
     a: &SMatrix<f64, N, N>,
     noise: &SMatrix<f64, N, N>,
@@ -485,79 +526,63 @@ fn projections<const N: usize>(
 pub const RESIDUAL_CORRELATION_PX: usize = 2;
 
 /// The sandwich's meat `B = Σ_k Σ_l K(k, l) q_k q_lᵀ` with `q_k = J̃_k r_k` (the rows
-/// `row(k)` of J̃ and the residuals, on a subset `nw` pixels wide) and the Bartlett
-/// kernel `K = (1 − |Δx|/(L + 1))(1 − |Δy|/(L + 1))` for |Δx|, |Δy| ≤ L =
+/// of J̃ and the residuals r, on a subset `nw` pixels wide) and the Bartlett kernel
+/// `K = (1 − |Δx|/(L + 1))(1 − |Δy|/(L + 1))` for |Δx|, |Δy| ≤ L =
 /// [`RESIDUAL_CORRELATION_PX`] (Newey & West, Econometrica 55, 1987; positive
-/// semi-definite), which is `Σ J̃J̃ᵀ r²` for L = 0, scaled so that the residuals' mean
-/// square is `var` (the variance the noise model uses, which the rounding floor may
-/// raise above the residual's); without residual, the white-noise `var·A`. Returned
-/// projected on `z` (a column of `A_s⁻¹`), `zᵀBz`, the only entry the covariance
-/// needs: the scalar scores `s_k = (z·J̃_k) r_k` smoothed by the separable kernel,
-/// `Σ_k s_k (K s)_k`, which costs a few operations per pixel where the whole matrix
-/// costs N².
-#[allow(clippy::too_many_arguments)]
-fn projected_meat<const N: usize>(
-    z: &[f64; N],
-    a: &SMatrix<f64, N, N>,
-    var: f64,
-    residual2: f64,
-    residuals: &[f64],
+/// semi-definite), which is `Σ J̃J̃ᵀ r²` for L = 0, projected on `z` (a column of
+/// `A_s⁻¹`): `zᵀBz`, the only entry the covariance needs. With the scores
+/// `s_k = (z·J̃_k) r_k` it is `Σ_k s_k (K s)_k`, the scores smoothed by the separable
+/// kernel: a few operations per pixel where the whole matrix costs N². The caller
+/// scales it so that the residuals' mean square is the variance the noise model uses.
+#[inline(always)]
+fn smoothed_square(
+    scores: &[f64],
     nw: usize,
-    row: impl Fn(usize) -> [f64; N],
-    scores: &mut Vec<f64>,
     smoothed: &mut Vec<f64>,
+    column: &mut Vec<f64>,
 ) -> f64 {
-    if residual2 <= 0.0 {
-        let zv = SVector::<f64, N>::from(*z);
-        return var * (zv.transpose() * a * zv)[(0, 0)];
-    }
-    let n = residuals.len();
+    let n = scores.len();
     let nh = n / nw;
-    scores.clear();
-    scores.extend((0..n).map(|k| {
-        let j = row(k);
-        let mut acc = 0.0;
-        for i in 0..N {
-            acc += z[i] * j[i];
-        }
-        acc * residuals[k]
-    }));
-    // The kernel is separable: weighted sums along the rows, then along the columns.
     let lag = RESIDUAL_CORRELATION_PX;
     let weight = |d: usize| 1.0 - d as f64 / (lag as f64 + 1.0);
+    // Along the rows.
     smoothed.clear();
-    smoothed.resize(n, 0.0);
-    for y in 0..nh {
-        let src = &scores[y * nw..(y + 1) * nw];
-        let dst = &mut smoothed[y * nw..(y + 1) * nw];
-        for (x, d) in dst.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for (o, s) in src
-                .iter()
-                .enumerate()
-                .take((x + lag + 1).min(nw))
-                .skip(x.saturating_sub(lag))
-            {
-                acc += weight(x.abs_diff(o)) * s;
+    smoothed.extend_from_slice(scores);
+    for (src, dst) in scores.chunks_exact(nw).zip(smoothed.chunks_exact_mut(nw)) {
+        for d in 1..=lag.min(nw.saturating_sub(1)) {
+            let w = weight(d);
+            for (o, s) in dst[d..].iter_mut().zip(&src[..nw - d]) {
+                *o += w * s;
             }
-            *d = acc;
+            for (o, s) in dst[..nw - d].iter_mut().zip(&src[d..]) {
+                *o += w * s;
+            }
         }
     }
+    // Along the columns, and the sum of the scores times their smoothed values.
     let mut total = 0.0;
+    column.clear();
+    column.resize(nw, 0.0);
     for y in 0..nh {
-        for x in 0..nw {
-            let mut acc = 0.0;
-            for o in y.saturating_sub(lag)..(y + lag + 1).min(nh) {
-                acc += weight(y.abs_diff(o)) * smoothed[o * nw + x];
+        column.copy_from_slice(&smoothed[y * nw..(y + 1) * nw]);
+        for o in y.saturating_sub(lag)..(y + lag + 1).min(nh) {
+            if o == y {
+                continue;
             }
-            total += scores[y * nw + x] * acc;
+            let w = weight(y.abs_diff(o));
+            for (c, s) in column.iter_mut().zip(&smoothed[o * nw..(o + 1) * nw]) {
+                *c += w * s;
+            }
         }
+        let row = &scores[y * nw..(y + 1) * nw];
+        total += sums(nw, |x| [column[x] * row[x]])[0];
     }
-    total * (n as f64 * var / residual2)
+    total
 }
 
 /// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
 /// not fit in the reference or has no texture.
+#[inline(always)]
 pub fn prepare(
     reference: &Reference,
     x: usize,
@@ -580,28 +605,35 @@ pub fn prepare(
     let mut h6 = SMatrix::<f64, 6, 6>::zeros();
     let mut h2 = SMatrix::<f64, 2, 2>::zeros();
     // m[a][b] for (a, b) in {xx, xy, yy} x {1, dx, dy, dx², dx·dy, dy²}
+    let (gx, gy, dx, dy, f) = (
+        &rs.gx[..n],
+        &rs.gy[..n],
+        &rs.dx[..n],
+        &rs.dy[..n],
+        &rs.f[..n],
+    );
     let mut mom = [[0.0f64; 6]; 3];
-    for k in 0..n {
-        let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-        let w = [1.0, dx, dy, dx * dx, dx * dy, dy * dy];
-        let g = [gx * gx, gx * gy, gy * gy];
-        for (a, ga) in g.iter().enumerate() {
-            for (b, wb) in w.iter().enumerate() {
-                mom[a][b] += ga * wb;
-            }
-        }
+    for (a, m) in mom.iter_mut().enumerate() {
+        let g = |k: usize| match a {
+            0 => gx[k] * gx[k],
+            1 => gx[k] * gy[k],
+            _ => gy[k] * gy[k],
+        };
+        *m = sums(n, |k| {
+            let (g, dx, dy) = (g(k), dx[k], dy[k]);
+            [g, g * dx, g * dy, g * dx * dx, g * dx * dy, g * dy * dy]
+        });
     }
     // Sums of the steepest-descent images and of their products with f − f̄, for the
     // covariance with offset and gain eliminated.
-    let (mut s1, mut sf) = ([0.0f64; 6], [0.0f64; 6]);
-    for k in 0..n {
-        let (gx, gy, dx, dy, f) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k], rs.f[k]);
-        let j = [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy];
-        for i in 0..6 {
-            s1[i] += j[i];
-            sf[i] += j[i] * f;
-        }
-    }
+    let s1 = sums(n, |k| {
+        let (gx, gy, dx, dy) = (gx[k], gy[k], dx[k], dy[k]);
+        [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy]
+    });
+    let sf = sums(n, |k| {
+        let (gx, gy, dx, dy) = (gx[k] * f[k], gy[k] * f[k], dx[k], dy[k]);
+        [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy]
+    });
     let ff = rs.df * rs.df;
     match shape {
         Shape::Affine => {
@@ -869,6 +901,7 @@ fn first_order_change(prepared: &Prepared, ek: &[f64]) -> Option<(f64, f64)> {
 /// The Gauss-Newton step (u, v) of the subset's normal equations for the right-hand
 /// side `b` over (u, ∂u/∂x, ∂u/∂y, v, ∂v/∂x, ∂v/∂y): `−H⁻¹ b` (the rigid shape uses
 /// the translation entries alone).
+#[inline(always)]
 fn translation_step(prepared: &Prepared, b: &SVector<f64, 6>) -> Option<(f64, f64)> {
     match prepared.shape {
         Shape::Affine => {
@@ -1025,14 +1058,14 @@ pub fn interpolation_mismatch(
 
 /// The noise part of a match's covariance (u, v), from the residuals at the solution,
 /// and the residual variance used (at least the floor). See [`PointResult::sigma_u`].
+#[inline(always)]
 fn noise_covariance(
     prepared: &Prepared,
     residuals: &[f64],
     residual2: f64,
     opts: &IcgnOptions,
     gain: f64,
-    scores: &mut Vec<f64>,
-    smoothed: &mut Vec<f64>,
+    scratch: &mut Sandwich,
 ) -> ((f64, f64), f64) {
     let Prepared {
         rs,
@@ -1054,8 +1087,22 @@ fn noise_covariance(
     // The reference's noise (half the residual's variance) in its gradients.
     let nu = 0.5 * var * degree.derivative_noise_gain();
     let nw = 2 * subset.half_w + 1;
-    let infinite = (f64::INFINITY, f64::INFINITY);
-    let cov = match info {
+    let Sandwich {
+        scores_u,
+        scores_v,
+        smoothed,
+        column,
+    } = scratch;
+    // The sandwich `A_s⁻¹ B A_s⁻¹` at u and v: the scores of its projections, then
+    // the meat (see `smoothed_square`), scaled so that the residuals' mean square is
+    // `var`; without residual, the white-noise `var·A`.
+    let scale = n as f64 * var / residual2;
+    let (gx, gy, dx, dy, f) = (&rs.gx[..n], &rs.gy[..n], &rs.dx[..n], &rs.dy[..n], &rs.f[..n]);
+    let residuals = &residuals[..n];
+    scores_u.resize(n, 0.0);
+    scores_v.resize(n, 0.0);
+    let (su, sv) = (&mut scores_u[..n], &mut scores_v[..n]);
+    let white = match info {
         Information::Affine(a) => {
             // Σ wwᵀ over a centred subset, w = (1, dx, dy): diagonal.
             let mut noise = SMatrix::<f64, 8, 8>::zeros();
@@ -1063,31 +1110,54 @@ fn noise_covariance(
                 noise[(i, i)] = nu * m;
                 noise[(3 + i, 3 + i)] = nu * m;
             }
-            let row = |k: usize| {
-                let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-                [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy, 1.0, rs.f[k]]
+            let Some((zu, zv)) = projections(a, &noise, 3) else {
+                return ((f64::INFINITY, f64::INFINITY), var);
             };
-            match projections(a, &noise, 3) {
-                Some((zu, zv)) => (
-                    projected_meat(&zu, a, var, residual2, residuals, nw, row, scores, smoothed),
-                    projected_meat(&zv, a, var, residual2, residuals, nw, row, scores, smoothed),
-                ),
-                None => infinite,
+            for k in 0..n {
+                let (gx, gy, dx, dy, f, r) = (gx[k], gy[k], dx[k], dy[k], f[k], residuals[k]);
+                su[k] = r
+                    * (gx * (zu[0] + zu[1] * dx + zu[2] * dy)
+                        + gy * (zu[3] + zu[4] * dx + zu[5] * dy)
+                        + zu[6]
+                        + zu[7] * f);
+                sv[k] = r
+                    * (gx * (zv[0] + zv[1] * dx + zv[2] * dy)
+                        + gy * (zv[3] + zv[4] * dx + zv[5] * dy)
+                        + zv[6]
+                        + zv[7] * f);
             }
+            let white = |z: &[f64; 8]| {
+                let z = SVector::<f64, 8>::from(*z);
+                var * (z.transpose() * a * z)[(0, 0)]
+            };
+            (white(&zu), white(&zv))
         }
         Information::Rigid(a) => {
             let mut noise = SMatrix::<f64, 4, 4>::zeros();
             noise[(0, 0)] = nu * rs.moments[0];
             noise[(1, 1)] = nu * rs.moments[0];
-            let row = |k: usize| [rs.gx[k], rs.gy[k], 1.0, rs.f[k]];
-            match projections(a, &noise, 1) {
-                Some((zu, zv)) => (
-                    projected_meat(&zu, a, var, residual2, residuals, nw, row, scores, smoothed),
-                    projected_meat(&zv, a, var, residual2, residuals, nw, row, scores, smoothed),
-                ),
-                None => infinite,
+            let Some((zu, zv)) = projections(a, &noise, 1) else {
+                return ((f64::INFINITY, f64::INFINITY), var);
+            };
+            for k in 0..n {
+                let (gx, gy, f, r) = (gx[k], gy[k], f[k], residuals[k]);
+                su[k] = r * (gx * zu[0] + gy * zu[1] + zu[2] + zu[3] * f);
+                sv[k] = r * (gx * zv[0] + gy * zv[1] + zv[2] + zv[3] * f);
             }
+            let white = |z: &[f64; 4]| {
+                let z = SVector::<f64, 4>::from(*z);
+                var * (z.transpose() * a * z)[(0, 0)]
+            };
+            (white(&zu), white(&zv))
         }
+    };
+    let cov = if residual2 <= 0.0 {
+        white
+    } else {
+        (
+            scale * smoothed_square(su, nw, smoothed, column),
+            scale * smoothed_square(sv, nw, smoothed, column),
+        )
     };
     (cov, var)
 }
@@ -1185,6 +1255,7 @@ fn impulses(t: f64) -> (Vec<f64>, Vec<f64>) {
 /// The reference noise's mean share in the first-order change of the mismatch,
 /// (u, v): `load` (pixels times the reference's noise variance) times
 /// [`LineResponses::mismatch_noise`] along each axis.
+#[inline(always)]
 fn noise_share(
     prepared: &Prepared,
     lx: &LineResponses,
@@ -1251,16 +1322,8 @@ pub fn corrected(
     let residuals: Vec<f64> = (0..n).map(|k| rs.f[k] - ratio * (g[k] - gm)).collect();
     let residual2: f64 = residuals.iter().map(|r| r * r).sum();
     let gain = lx.gain * ly.gain;
-    let (mut scores, mut smoothed) = (Vec::new(), Vec::new());
-    let (cov, var) = noise_covariance(
-        prepared,
-        &residuals,
-        residual2,
-        opts,
-        gain,
-        &mut scores,
-        &mut smoothed,
-    );
+    let mut sandwich = Sandwich::default();
+    let (cov, var) = noise_covariance(prepared, &residuals, residual2, opts, gain, &mut sandwich);
     Some(PointResult {
         u,
         v,
@@ -1284,9 +1347,73 @@ pub struct Scratch {
     residuals: Vec<f64>,
     /// The interpolation mismatch at the subset's pixels.
     pub(crate) mismatch: Vec<f64>,
-    /// The sandwich's projected scores and their smoothed copy.
-    scores: Vec<f64>,
+    /// The sandwich's buffers.
+    sandwich: Sandwich,
+    /// What a unit change of the current image at each pixel of the subset does to
+    /// the match to first order, u and v, means removed ([`influence`]).
+    influence_u: Vec<f64>,
+    influence_v: Vec<f64>,
+}
+
+/// Prepares `scratch` for [`Scratch::first_order`] on the subset: the rows of the
+/// Gauss-Newton step `−H⁻¹ Σ J (e − ē)` for u and v, as weights on each pixel's `e`.
+/// `None` when the subset's Hessian is singular.
+#[inline(always)]
+pub(crate) fn influence(prepared: &Prepared, scratch: &mut Scratch) -> Option<()> {
+    let rs = &prepared.rs;
+    let (iu, iv) = (&mut scratch.influence_u, &mut scratch.influence_v);
+    iu.clear();
+    iv.clear();
+    match prepared.shape {
+        Shape::Affine => {
+            let h = prepared.h6_inv?;
+            let row = |i: usize| -> [f64; 6] { std::array::from_fn(|j| h[(i, j)]) };
+            let (ru, rv) = (row(0), row(3));
+            for k in 0..rs.f.len() {
+                let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
+                let at = |r: &[f64; 6]| {
+                    -(gx * (r[0] + r[1] * dx + r[2] * dy) + gy * (r[3] + r[4] * dx + r[5] * dy))
+                };
+                iu.push(at(&ru));
+                iv.push(at(&rv));
+            }
+        }
+        Shape::Rigid => {
+            let h = prepared.h2_inv?;
+            for (gx, gy) in rs.gx.iter().zip(&rs.gy) {
+                iu.push(-(h[(0, 0)] * gx + h[(0, 1)] * gy));
+                iv.push(-(h[(1, 0)] * gx + h[(1, 1)] * gy));
+            }
+        }
+    }
+    for a in [iu, iv] {
+        let mean = a.iter().sum::<f64>() / a.len() as f64;
+        for v in a.iter_mut() {
+            *v -= mean;
+        }
+    }
+    Some(())
+}
+
+impl Scratch {
+    /// [`first_order_change`] of `e` on the subset of the last [`influence`].
+    #[inline(always)]
+    fn first_order(&self, e: &[f64]) -> (f64, f64) {
+        let n = e.len();
+        let (a, b) = (&self.influence_u[..n], &self.influence_v[..n]);
+        let [u, v] = sums(n, |k| [a[k] * e[k], b[k] * e[k]]);
+        (u, v)
+    }
+}
+
+/// Buffers of the sandwich covariance: the scores of its projections on u and v, and
+/// the smoothing's.
+#[derive(Debug, Default, Clone)]
+struct Sandwich {
+    scores_u: Vec<f64>,
+    scores_v: Vec<f64>,
     smoothed: Vec<f64>,
+    column: Vec<f64>,
 }
 
 /// The outcome of the iteration alone (no σ): the residuals stay in the scratch.
@@ -1306,6 +1433,7 @@ const LINE_PHASES: usize = 64;
 
 /// [`LineResponses`] at phase `t`, interpolated linearly in a table over the phase
 /// made once per process and pair of degrees (the responses are smooth in `t`).
+#[inline(always)]
 fn line_responses(current: Degree, reference: Degree, t: f64) -> LineResponses {
     static TABLES: [OnceLock<Vec<LineResponses>>; 4] = [
         const { OnceLock::new() },
@@ -1331,9 +1459,10 @@ fn line_responses(current: Degree, reference: Degree, t: f64) -> LineResponses {
     }
 }
 
-/// [`corrected`] for a match fresh from [`iterate`], with the interpolation error at
-/// the subset's pixels already in `scratch` (from the image's tables,
+/// [`corrected`] for a match fresh from [`iterate`], with the subset's [`influence`]
+/// and the interpolation error at its pixels already in `scratch` (from the image's tables,
 /// [`crate::correction::Corrections::mismatch`]): the field and point modes' way.
+#[inline(always)]
 pub(crate) fn correct(
     prepared: &Prepared,
     it: &Iterated,
@@ -1345,7 +1474,7 @@ pub(crate) fn correct(
     let res = it.result(prepared);
     let current = current_spline.degree();
     let e = &scratch.mismatch;
-    let (bu, bv) = first_order_change(prepared, e)?;
+    let (bu, bv) = scratch.first_order(e);
     // The reference noise's mean share of it (`LineResponses::mismatch_noise`), taken
     // back; the noise level is the iteration's.
     let n = prepared.rs.f.len();
@@ -1426,8 +1555,7 @@ pub(crate) fn correct(
         residual2,
         opts,
         gain,
-        &mut scratch.scores,
-        &mut scratch.smoothed,
+        &mut scratch.sandwich,
     );
     Some(PointResult {
         u: res.u - bu,
@@ -1443,29 +1571,31 @@ pub(crate) fn correct(
 /// [`rounding_error`] from the image's rounding tables (phases
 /// `ROUNDING_PHASES[1..]`, row-major over a reference `width` pixels wide; phase 0
 /// has no residual): the RMS over the four phases of the first-order change each
-/// residual makes in the match.
+/// residual makes in the match. `scratch` holds the subset's [`influence`].
+#[inline(always)]
 pub(crate) fn rounding_from_tables(
     prepared: &Prepared,
     tables: &[Vec<f32>],
     width: usize,
     scratch: &mut Scratch,
-) -> Option<(f64, f64)> {
+) -> (f64, f64) {
     let s = prepared.subset;
     let nw = 2 * s.half_w + 1;
     let (mut su, mut sv) = (0.0, 0.0);
     for table in tables {
-        let e = &mut scratch.mismatch;
+        let mut e = std::mem::take(&mut scratch.mismatch);
         e.clear();
         for j in 0..2 * s.half_h + 1 {
             let start = (prepared.y - s.half_h + j) * width + prepared.x - s.half_w;
             e.extend(table[start..start + nw].iter().map(|v| f64::from(*v)));
         }
-        let (du, dv) = first_order_change(prepared, e)?;
+        let (du, dv) = scratch.first_order(&e);
+        scratch.mismatch = e;
         su += du * du;
         sv += dv * dv;
     }
     let phases = ROUNDING_PHASES.len() as f64;
-    Some(((su / phases).sqrt(), (sv / phases).sqrt()))
+    ((su / phases).sqrt(), (sv / phases).sqrt())
 }
 
 /// [`refine`] with a prepared reference subset.
@@ -1483,8 +1613,7 @@ pub fn refine_prepared(
         it.residual2,
         opts,
         1.0,
-        &mut scratch.scores,
-        &mut scratch.smoothed,
+        &mut scratch.sandwich,
     );
     let sigma_noise = (0.5 * var).sqrt();
     let spectrum = prepared.spectrum();
@@ -1536,6 +1665,7 @@ impl Iterated {
 /// The IC-GN iteration of [`refine_prepared`]: the residuals at the solution are left
 /// in `scratch.residuals`.
 #[doc(hidden)]
+#[inline(always)]
 pub fn iterate(
     prepared: &Prepared,
     current: &BSpline,
@@ -1599,11 +1729,8 @@ pub fn iterate(
                 }
             }
         }
-        let (mut sum, mut sum2) = (0.0, 0.0);
-        for v in g.iter() {
-            sum += v;
-            sum2 += v * v;
-        }
+        let gs = &g[..n];
+        let [sum, sum2] = sums(n, |k| [gs[k], gs[k] * gs[k]]);
         let gm = sum / n as f64;
         let dg = (sum2 - sum * gm).max(0.0).sqrt();
         if dg == 0.0 {
@@ -1611,20 +1738,19 @@ pub fn iterate(
         }
         let ratio = rs.df / dg;
         // Residual and gradient of the criterion.
-        let mut b6 = [0.0; 6];
-        residual2 = 0.0;
+        let (f, gx, gy, dx, dy) = (&rs.f[..n], &rs.gx[..n], &rs.gy[..n], &rs.dx[..n], &rs.dy[..n]);
+        let res = &mut residuals[..n];
         for k in 0..n {
-            let r = rs.f[k] - ratio * (g[k] - gm);
-            residuals[k] = r;
-            residual2 += r * r;
-            let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-            b6[0] += gx * r;
-            b6[1] += gx * dx * r;
-            b6[2] += gx * dy * r;
-            b6[3] += gy * r;
-            b6[4] += gy * dx * r;
-            b6[5] += gy * dy * r;
+            res[k] = f[k] - ratio * (gs[k] - gm);
         }
+        let res = &residuals[..n];
+        let [b0, b1, b2, b3, b4, b5, r2] = sums(n, |k| {
+            let r = res[k];
+            let (ex, ey) = (gx[k] * r, gy[k] * r);
+            [ex, ex * dx[k], ex * dy[k], ey, ey * dx[k], ey * dy[k], r * r]
+        });
+        let b6 = [b0, b1, b2, b3, b4, b5];
+        residual2 = r2;
         zncc = 1.0 - 0.5 * residual2 / (rs.df * rs.df);
         let dp: [f64; 6] = match shape {
             Shape::Affine => {
