@@ -205,6 +205,97 @@ fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize, z: f64) {
     }
 }
 
+/// Pixels from which [`BSpline::with_degree`] prefilters the rows in parallel.
+const PARALLEL_PIXELS: usize = 1 << 16;
+
+/// [`prefilter`] along every column of a `w x h` row-major array at once: the same
+/// recursions, each step applied to a whole row, so that the columns sit side by
+/// side in the vector registers instead of a stride apart in memory.
+struct Columns<'a> {
+    c: &'a mut [f64],
+    w: usize,
+    h: usize,
+    degree: Degree,
+}
+
+impl pulp::WithSimd for Columns<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let Columns { c, w, h, degree } = self;
+        if h < 2 {
+            return;
+        }
+        let gain: f64 = degree
+            .poles()
+            .iter()
+            .map(|z| (1.0 - z) * (1.0 - 1.0 / z))
+            .product();
+        for v in c.iter_mut() {
+            *v *= gain;
+        }
+        let mut first = vec![0.0; w];
+        for &z in degree.poles() {
+            // Causal initialisation (as `prefilter_line`).
+            let horizon = (f64::EPSILON.ln() / z.abs().ln()).ceil() as usize;
+            if horizon < h {
+                first.copy_from_slice(&c[..w]);
+                let mut zn = z;
+                for k in 1..horizon {
+                    for (f, v) in first.iter_mut().zip(&c[k * w..(k + 1) * w]) {
+                        *f += zn * v;
+                    }
+                    zn *= z;
+                }
+            } else {
+                let iz = 1.0 / z;
+                let mut zn = z;
+                let mut z2n = z.powi(h as i32 - 1);
+                for ((f, a), b) in first.iter_mut().zip(&c[..w]).zip(&c[(h - 1) * w..h * w]) {
+                    *f = a + z2n * b;
+                }
+                z2n = z2n * z2n * iz;
+                for k in 1..h - 1 {
+                    for (f, v) in first.iter_mut().zip(&c[k * w..(k + 1) * w]) {
+                        *f += (zn + z2n) * v;
+                    }
+                    zn *= z;
+                    z2n *= iz;
+                }
+                let norm = 1.0 - zn * zn;
+                for f in first.iter_mut() {
+                    *f /= norm;
+                }
+            }
+            c[..w].copy_from_slice(&first);
+            for k in 1..h {
+                let (done, rest) = c.split_at_mut(k * w);
+                let prev = &done[(k - 1) * w..];
+                for (v, p) in rest[..w].iter_mut().zip(prev) {
+                    *v += z * p;
+                }
+            }
+            // Anticausal initialisation.
+            let a = z / (z * z - 1.0);
+            {
+                let (head, last) = c.split_at_mut((h - 1) * w);
+                let before = &head[(h - 2) * w..];
+                for (l, b) in last.iter_mut().zip(before) {
+                    *l = a * (z * b + *l);
+                }
+            }
+            for k in (0..h - 1).rev() {
+                let (head, tail) = c.split_at_mut((k + 1) * w);
+                let next = &tail[..w];
+                for (v, n) in head[k * w..].iter_mut().zip(next) {
+                    *v = z * (n - *v);
+                }
+            }
+        }
+    }
+}
+
 /// All the poles of `degree` along one line, with the overall gain.
 pub(crate) fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
     if n < 2 {
@@ -254,12 +345,23 @@ impl BSpline {
     pub fn with_degree(img: &Image, degree: Degree) -> Self {
         let (w, h) = (img.width(), img.height());
         let mut c = img.data().to_vec();
-        for y in 0..h {
-            prefilter(&mut c, y * w, w, 1, degree);
+        // Rows in parallel on large images (a small one, such as the line splines
+        // made inside a lazily built table, stays on its thread).
+        if w * h >= PARALLEL_PIXELS {
+            use rayon::prelude::*;
+            c.par_chunks_mut(w)
+                .for_each(|row| prefilter(row, 0, w, 1, degree));
+        } else {
+            for y in 0..h {
+                prefilter(&mut c, y * w, w, 1, degree);
+            }
         }
-        for x in 0..w {
-            prefilter(&mut c, x, h, w, degree);
-        }
+        pulp::Arch::new().dispatch(Columns {
+            c: &mut c,
+            w,
+            h,
+            degree,
+        });
         BSpline {
             width: w,
             height: h,

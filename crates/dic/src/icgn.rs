@@ -580,6 +580,16 @@ fn smoothed_square(
     total
 }
 
+/// `Σ g·w` over a subset for w = 1, dx, dy, dx², dx·dy, dy² (the pixels' offsets from
+/// the centre), `g(k)` a product of the gradients at pixel k.
+#[inline(always)]
+fn weighted_moments(dx: &[f64], dy: &[f64], g: impl Fn(usize) -> f64) -> [f64; 6] {
+    sums(dx.len().min(dy.len()), |k| {
+        let (g, dx, dy) = (g(k), dx[k], dy[k]);
+        [g, g * dx, g * dy, g * dx * dx, g * dx * dy, g * dy * dy]
+    })
+}
+
 /// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
 /// not fit in the reference or has no texture.
 #[inline(always)]
@@ -612,18 +622,11 @@ pub fn prepare(
         &rs.dy[..n],
         &rs.f[..n],
     );
-    let mut mom = [[0.0f64; 6]; 3];
-    for (a, m) in mom.iter_mut().enumerate() {
-        let g = |k: usize| match a {
-            0 => gx[k] * gx[k],
-            1 => gx[k] * gy[k],
-            _ => gy[k] * gy[k],
-        };
-        *m = sums(n, |k| {
-            let (g, dx, dy) = (g(k), dx[k], dy[k]);
-            [g, g * dx, g * dy, g * dx * dx, g * dx * dy, g * dy * dy]
-        });
-    }
+    let mom = [
+        weighted_moments(dx, dy, |k| gx[k] * gx[k]),
+        weighted_moments(dx, dy, |k| gx[k] * gy[k]),
+        weighted_moments(dx, dy, |k| gy[k] * gy[k]),
+    ];
     // Sums of the steepest-descent images and of their products with f − f̄, for the
     // covariance with offset and gain eliminated.
     let s1 = sums(n, |k| {
@@ -1097,7 +1100,13 @@ fn noise_covariance(
     // the meat (see `smoothed_square`), scaled so that the residuals' mean square is
     // `var`; without residual, the white-noise `var·A`.
     let scale = n as f64 * var / residual2;
-    let (gx, gy, dx, dy, f) = (&rs.gx[..n], &rs.gy[..n], &rs.dx[..n], &rs.dy[..n], &rs.f[..n]);
+    let (gx, gy, dx, dy, f) = (
+        &rs.gx[..n],
+        &rs.gy[..n],
+        &rs.dx[..n],
+        &rs.dy[..n],
+        &rs.f[..n],
+    );
     let residuals = &residuals[..n];
     scores_u.resize(n, 0.0);
     scores_v.resize(n, 0.0);
@@ -1361,36 +1370,38 @@ pub struct Scratch {
 #[inline(always)]
 pub(crate) fn influence(prepared: &Prepared, scratch: &mut Scratch) -> Option<()> {
     let rs = &prepared.rs;
+    let n = rs.f.len();
     let (iu, iv) = (&mut scratch.influence_u, &mut scratch.influence_v);
-    iu.clear();
-    iv.clear();
+    iu.resize(n, 0.0);
+    iv.resize(n, 0.0);
+    let (iu, iv) = (&mut iu[..n], &mut iv[..n]);
+    let (gx, gy, dx, dy) = (&rs.gx[..n], &rs.gy[..n], &rs.dx[..n], &rs.dy[..n]);
     match prepared.shape {
         Shape::Affine => {
             let h = prepared.h6_inv?;
-            let row = |i: usize| -> [f64; 6] { std::array::from_fn(|j| h[(i, j)]) };
+            let row = |i: usize| -> [f64; 6] { std::array::from_fn(|j| -h[(i, j)]) };
             let (ru, rv) = (row(0), row(3));
-            for k in 0..rs.f.len() {
-                let (gx, gy, dx, dy) = (rs.gx[k], rs.gy[k], rs.dx[k], rs.dy[k]);
-                let at = |r: &[f64; 6]| {
-                    -(gx * (r[0] + r[1] * dx + r[2] * dy) + gy * (r[3] + r[4] * dx + r[5] * dy))
-                };
-                iu.push(at(&ru));
-                iv.push(at(&rv));
+            for k in 0..n {
+                let (gx, gy, dx, dy) = (gx[k], gy[k], dx[k], dy[k]);
+                iu[k] =
+                    gx * (ru[0] + ru[1] * dx + ru[2] * dy) + gy * (ru[3] + ru[4] * dx + ru[5] * dy);
+                iv[k] =
+                    gx * (rv[0] + rv[1] * dx + rv[2] * dy) + gy * (rv[3] + rv[4] * dx + rv[5] * dy);
             }
         }
         Shape::Rigid => {
-            let h = prepared.h2_inv?;
-            for (gx, gy) in rs.gx.iter().zip(&rs.gy) {
-                iu.push(-(h[(0, 0)] * gx + h[(0, 1)] * gy));
-                iv.push(-(h[(1, 0)] * gx + h[(1, 1)] * gy));
+            let h = -prepared.h2_inv?;
+            for k in 0..n {
+                iu[k] = h[(0, 0)] * gx[k] + h[(0, 1)] * gy[k];
+                iv[k] = h[(1, 0)] * gx[k] + h[(1, 1)] * gy[k];
             }
         }
     }
-    for a in [iu, iv] {
-        let mean = a.iter().sum::<f64>() / a.len() as f64;
-        for v in a.iter_mut() {
-            *v -= mean;
-        }
+    let [mu, mv] = sums(n, |k| [iu[k], iv[k]]);
+    let (mu, mv) = (mu / n as f64, mv / n as f64);
+    for k in 0..n {
+        iu[k] -= mu;
+        iv[k] -= mv;
     }
     Some(())
 }
@@ -1738,7 +1749,13 @@ pub fn iterate(
         }
         let ratio = rs.df / dg;
         // Residual and gradient of the criterion.
-        let (f, gx, gy, dx, dy) = (&rs.f[..n], &rs.gx[..n], &rs.gy[..n], &rs.dx[..n], &rs.dy[..n]);
+        let (f, gx, gy, dx, dy) = (
+            &rs.f[..n],
+            &rs.gx[..n],
+            &rs.gy[..n],
+            &rs.dx[..n],
+            &rs.dy[..n],
+        );
         let res = &mut residuals[..n];
         for k in 0..n {
             res[k] = f[k] - ratio * (gs[k] - gm);
@@ -1747,7 +1764,15 @@ pub fn iterate(
         let [b0, b1, b2, b3, b4, b5, r2] = sums(n, |k| {
             let r = res[k];
             let (ex, ey) = (gx[k] * r, gy[k] * r);
-            [ex, ex * dx[k], ex * dy[k], ey, ey * dx[k], ey * dy[k], r * r]
+            [
+                ex,
+                ex * dx[k],
+                ex * dy[k],
+                ey,
+                ey * dx[k],
+                ey * dy[k],
+                r * r,
+            ]
         });
         let b6 = [b0, b1, b2, b3, b4, b5];
         residual2 = r2;
