@@ -205,6 +205,61 @@ fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize, z: f64) {
     }
 }
 
+/// [`BSpline::separable`] compiled for the machine's vector units: each tap a pass
+/// over a whole (mirror-padded) row, so that no sum runs in a fixed order.
+struct Separable<'a> {
+    c: &'a [f64],
+    w: usize,
+    h: usize,
+    shift: isize,
+    wx: &'a [f64; TAPS],
+    wy: &'a [f64; TAPS],
+}
+
+impl pulp::WithSimd for Separable<'_> {
+    type Output = Vec<f64>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let Separable {
+            c,
+            w,
+            h,
+            shift,
+            wx,
+            wy,
+        } = self;
+        // Tap i of output m reads m + shift − 2 + i: the padded row starts at
+        // −(TAPS − 1) so that every index is non-negative.
+        let pad = TAPS as isize - 1;
+        let mut ext = vec![0.0; w + 2 * pad as usize];
+        let mut rows = vec![0.0; w * h];
+        for (src, dst) in c.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+            let p = pad as usize;
+            ext[p..p + w].copy_from_slice(src);
+            for i in (0..p).chain(p + w..w + 2 * p) {
+                ext[i] = src[mirror(i as isize - pad, w)];
+            }
+            for (i, wi) in wx.iter().enumerate() {
+                let from = (pad + shift - 2 + i as isize) as usize;
+                for (d, e) in dst.iter_mut().zip(&ext[from..from + w]) {
+                    *d += wi * e;
+                }
+            }
+        }
+        let mut out = vec![0.0; w * h];
+        for (y, dst) in out.chunks_exact_mut(w).enumerate() {
+            for (j, wj) in wy.iter().enumerate() {
+                let r = mirror(y as isize + shift - 2 + j as isize, h);
+                for (d, s) in dst.iter_mut().zip(&rows[r * w..(r + 1) * w]) {
+                    *d += wj * s;
+                }
+            }
+        }
+        out
+    }
+}
+
 /// Pixels from which [`BSpline::with_degree`] prefilters the rows in parallel.
 const PARALLEL_PIXELS: usize = 1 << 16;
 
@@ -589,34 +644,14 @@ impl BSpline {
     /// (x, y), the mirror beyond the edges: six taps along the rows, then six along
     /// the columns.
     fn separable(&self, shift: isize, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> Vec<f64> {
-        let (w, h) = (self.width, self.height);
-        // Source index of tap i for output index m along an axis of n samples.
-        let taps = |n: usize| -> Vec<[usize; TAPS]> {
-            (0..n as isize)
-                .map(|m| std::array::from_fn(|i| mirror(m + shift - 2 + i as isize, n)))
-                .collect()
-        };
-        let (tx, ty) = (taps(w), taps(h));
-        let mut rows = vec![0.0; w * h];
-        for (src, dst) in self.c.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
-            for (d, ix) in dst.iter_mut().zip(&tx) {
-                let mut acc = 0.0;
-                for (wi, i) in wx.iter().zip(ix) {
-                    acc += wi * src[*i];
-                }
-                *d = acc;
-            }
-        }
-        let mut out = vec![0.0; w * h];
-        for (dst, iy) in out.chunks_exact_mut(w).zip(&ty) {
-            for (wj, r) in wy.iter().zip(iy) {
-                let src = &rows[r * w..(r + 1) * w];
-                for (d, s) in dst.iter_mut().zip(src) {
-                    *d += wj * s;
-                }
-            }
-        }
-        out
+        pulp::Arch::new().dispatch(Separable {
+            c: &self.c,
+            w: self.width,
+            h: self.height,
+            shift,
+            wx,
+            wy,
+        })
     }
 
     #[inline(always)]

@@ -78,7 +78,13 @@ impl<'a> Corrections<'a> {
         let rounding = if quantisation_step > 0.0 {
             icgn::ROUNDING_PHASES[1..]
                 .par_iter()
-                .map(|&a| rounding_table(reference, a, quantisation_step))
+                .map(|&a| {
+                    pulp::Arch::new().dispatch(RoundingTable {
+                        reference,
+                        phase: a,
+                        step: quantisation_step,
+                    })
+                })
                 .collect()
         } else {
             Vec::new()
@@ -194,31 +200,38 @@ fn mismatch_table(img: &Image, axis: usize, t: f64, degree: Degree) -> Vec<f32> 
     for (line, dst) in lines.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
         // The line mirrored about its half-sample edges, as the subset's own
         // simulation mirrors the image.
-        for (i, e) in ext.iter_mut().enumerate() {
+        let half_sample = |i: usize| {
             let m = (i as isize - pad as isize).rem_euclid(2 * n as isize) as usize;
-            *e = line[if m < n { m } else { 2 * n - 1 - m }];
+            line[if m < n { m } else { 2 * n - 1 - m }]
+        };
+        ext[pad..pad + n].copy_from_slice(line);
+        for i in (0..pad).chain(pad + n..n + 2 * pad) {
+            ext[i] = half_sample(i);
         }
-        // The line resampled at m − t.
-        for (m, s) in sim.iter_mut().enumerate() {
-            let taps = &ext[m + pad - half..m + pad + half];
-            let mut acc = 0.0;
-            for (wj, e) in sinc.iter().zip(taps) {
-                acc += wj * e;
+        // The line resampled at m − t: each tap a pass over the line.
+        sim.fill(0.0);
+        for (j, wj) in sinc.iter().enumerate() {
+            let from = pad - half + j;
+            for (s, e) in sim.iter_mut().zip(&ext[from..from + n]) {
+                *s += wj * e;
             }
-            *s = acc;
         }
         // Its spline, interpolated back at m + t: taps m − 2..=m + 3.
         bspline::prefilter(&mut sim, 0, n, 1, degree);
-        for (i, c) in coef.iter_mut().enumerate() {
-            *c = sim[bspline::mirror(i as isize - (TAPS as isize - 1), n)];
+        let edge = TAPS - 1;
+        coef[edge..edge + n].copy_from_slice(&sim);
+        for i in (0..edge).chain(edge + n..n + 2 * edge) {
+            coef[i] = sim[bspline::mirror(i as isize - edge as isize, n)];
         }
-        for (m, d) in dst.iter_mut().enumerate() {
-            let taps = &coef[m + TAPS - 3..m + 2 * TAPS - 3];
-            let mut acc = 0.0;
-            for (wi, c) in spline.iter().zip(taps) {
-                acc += wi * c;
+        let mut acc = vec![0.0; n];
+        for (i, wi) in spline.iter().enumerate() {
+            let from = TAPS - 3 + i;
+            for (a, c) in acc.iter_mut().zip(&coef[from..from + n]) {
+                *a += wi * c;
             }
-            *d = (acc - line[m]) as f32;
+        }
+        for ((d, a), f) in dst.iter_mut().zip(&acc).zip(line) {
+            *d = (a - f) as f32;
         }
     }
     if axis == 0 {
@@ -239,8 +252,25 @@ fn transpose<T: Copy + Default>(a: &[T], w: usize, h: usize) -> Vec<T> {
     out
 }
 
+/// [`rounding_table`] compiled for the machine's vector units.
+struct RoundingTable<'a> {
+    reference: &'a Reference,
+    phase: f64,
+    step: f64,
+}
+
+impl pulp::WithSimd for RoundingTable<'_> {
+    type Output = Vec<f32>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        rounding_table(self.reference, self.phase, self.step)
+    }
+}
+
 /// The rounding residual at the reference's pixels for a current image translated by
 /// (a, a) (see the module's doc), row-major.
+#[inline(always)]
 fn rounding_table(reference: &Reference, a: f64, step: f64) -> Vec<f32> {
     let img = reference.image();
     let (w, h) = (img.width(), img.height());
