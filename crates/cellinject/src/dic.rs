@@ -4,7 +4,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use cellinject_core::dic::{PointReport, SynthSummary, TrackSummary, field_report, points};
+use cellinject_core::dic::{
+    PointReport, SynthSummary, TrackSummary, field_report_with_progress, points,
+};
 use cellinject_dic::accept::DEFAULT_MAX_SIGMA;
 use cellinject_dic::field::FieldOptions;
 use cellinject_dic::track::{Roi, Status, Tracker};
@@ -405,13 +407,25 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         ..FieldOptions::default()
     };
     let t0 = std::time::Instant::now();
-    let progress = crate::progress::spinner("correlating the grid");
-    let report = field_report(&r, &c, &opts).map_err(|e| match e {
+    // A bar for the fields that take more than a second (the grid's size is known
+    // once the field has checked its options: the first tile reports it).
+    let bar = std::sync::OnceLock::new();
+    let progress = |done: usize, total: usize| {
+        bar.get_or_init(|| {
+            crate::progress::delayed_bar(
+                total as u64,
+                "correlating the grid",
+                std::time::Duration::from_secs(1),
+            )
+        })
+        .set_from(done as u64);
+    };
+    let report = field_report_with_progress(&r, &c, &opts, &progress).map_err(|e| match e {
         DicError::SubsetSize { .. } => dic_error("--subset", e),
         other => dic_error("dic field", other),
     })?;
     let elapsed = t0.elapsed().as_secs_f64();
-    drop(progress);
+    drop(bar);
     let f = &report.field;
     let mut csv = String::from(
         "x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v,subset\n",

@@ -32,14 +32,18 @@ pub fn bar(len: u64, what: impl Into<String>) -> Progress {
     if !shown() {
         return Progress(None);
     }
-    let pb = ProgressBar::new(len);
+    Progress(Some(styled(ProgressBar::new(len), what)))
+}
+
+/// `pb` in the style of [`bar`].
+fn styled(pb: ProgressBar, what: impl Into<String>) -> ProgressBar {
     if let Ok(style) =
         ProgressStyle::with_template("{msg} [{bar:32}] {pos}/{len} ({elapsed}, {eta} left)")
     {
         pb.set_style(style.progress_chars("=> "));
     }
     pb.set_message(what.into());
-    Progress(Some(pb))
+    pb
 }
 
 /// A bar over `len` items of `what` that also shows the rate (items per minute of
@@ -62,6 +66,42 @@ pub fn rate_bar(len: u64, what: impl Into<String>) -> Progress {
     }
     pb.set_message(what.into());
     Progress(Some(pb))
+}
+
+/// A bar over `len` grid points of `what` that stays hidden until the work has taken
+/// `delay`: a field done in a second shows nothing. Updated from any thread with
+/// [`Progress::set_from`].
+pub fn delayed_bar(len: u64, what: impl Into<String>, delay: Duration) -> Delayed {
+    let hidden = indicatif::ProgressDrawTarget::hidden();
+    let bar =
+        Progress(shown().then(|| styled(ProgressBar::with_draw_target(Some(len), hidden), what)));
+    Delayed {
+        bar,
+        start: std::time::Instant::now(),
+        delay,
+        shown: std::sync::atomic::AtomicBool::new(false),
+    }
+}
+
+/// A [`delayed_bar`].
+pub struct Delayed {
+    bar: Progress,
+    start: std::time::Instant,
+    delay: Duration,
+    shown: std::sync::atomic::AtomicBool,
+}
+
+impl Delayed {
+    /// `pos` steps done; the bar appears once the delay has passed.
+    pub fn set_from(&self, pos: u64) {
+        let Some(pb) = &self.bar.0 else { return };
+        if self.start.elapsed() >= self.delay
+            && !self.shown.swap(true, std::sync::atomic::Ordering::Relaxed)
+        {
+            pb.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+        }
+        pb.set_position(pos);
+    }
 }
 
 impl Progress {

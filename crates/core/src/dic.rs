@@ -1,7 +1,7 @@
 //! `dic` and `dic field`: reports over the image correlation of `cellinject-dic`.
 //! Decoding image files is the front end's; these take decoded [`Image`]s.
 
-use cellinject_dic::field::{Field, FieldOptions, field};
+use cellinject_dic::field::{Field, FieldOptions, field_with_progress};
 use cellinject_dic::{
     Acceptance, DicError, Dropped, Image, PointOptions, PointResult, correlate_points, judge,
 };
@@ -296,7 +296,18 @@ pub fn field_report(
     current: &Image,
     options: &FieldOptions,
 ) -> Result<FieldReport, DicError> {
-    let f = field(reference, current, options)?;
+    field_report_with_progress(reference, current, options, &|_, _| {})
+}
+
+/// [`field_report`], calling `progress(done, total)` with the grid points computed
+/// so far as the field grows ([`field_with_progress`]).
+pub fn field_report_with_progress(
+    reference: &Image,
+    current: &Image,
+    options: &FieldOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<FieldReport, DicError> {
+    let f = field_with_progress(reference, current, options, progress)?;
     Ok(FieldReport {
         found: f.points.iter().flatten().count(),
         dropped: f.dropped,

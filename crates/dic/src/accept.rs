@@ -272,7 +272,7 @@ impl pulp::WithSimd for Measure<'_, '_> {
                 let coherent =
                     prepared.weakest_gradient() < COHERENT_ROUNDING * opts.quantisation_step;
                 let bound = if tables.is_empty() || coherent {
-                    icgn::rounding_error(reference, &prepared, &p, opts)
+                    icgn::rounding_error_translated(reference, &prepared, &p, opts, scratch)
                 } else {
                     Some(icgn::rounding_from_tables(&prepared, tables, iw, scratch))
                 };

@@ -260,6 +260,17 @@ impl pulp::WithSimd for Separable<'_> {
     }
 }
 
+/// A `w x h` row-major array transposed (`h x w`).
+pub(crate) fn transpose<T: Copy + Default>(a: &[T], w: usize, h: usize) -> Vec<T> {
+    let mut out = vec![T::default(); w * h];
+    for (y, row) in a.chunks_exact(w).enumerate() {
+        for (x, v) in row.iter().enumerate() {
+            out[x * h + y] = *v;
+        }
+    }
+    out
+}
+
 /// Pixels from which [`BSpline::with_degree`] prefilters the rows in parallel.
 const PARALLEL_PIXELS: usize = 1 << 16;
 
@@ -407,9 +418,16 @@ impl BSpline {
             c.par_chunks_mut(w)
                 .for_each(|row| prefilter(row, 0, w, 1, degree));
         } else {
-            for y in 0..h {
-                prefilter(&mut c, y * w, w, 1, degree);
-            }
+            // A small image (a subset's window): its rows are the columns of its
+            // transpose, prefiltered side by side.
+            let mut t = transpose(&c, w, h);
+            pulp::Arch::new().dispatch(Columns {
+                c: &mut t,
+                w: h,
+                h: w,
+                degree,
+            });
+            c = transpose(&t, h, w);
         }
         pulp::Arch::new().dispatch(Columns {
             c: &mut c,

@@ -30,7 +30,7 @@ use std::sync::OnceLock;
 
 use rayon::prelude::*;
 
-use crate::bspline::{self, BSpline, Degree, TAPS};
+use crate::bspline::{self, BSpline, Degree, TAPS, transpose};
 use crate::icgn::{self, Reference, SINC_HALF, Subset, sinc_weights};
 use crate::image::Image;
 
@@ -239,17 +239,6 @@ fn mismatch_table(img: &Image, axis: usize, t: f64, degree: Degree) -> Vec<f32> 
     } else {
         transpose(&out, h, w)
     }
-}
-
-/// A `w x h` row-major array transposed (`h x w`).
-fn transpose<T: Copy + Default>(a: &[T], w: usize, h: usize) -> Vec<T> {
-    let mut out = vec![T::default(); w * h];
-    for (y, row) in a.chunks_exact(w).enumerate() {
-        for (x, v) in row.iter().enumerate() {
-            out[x * h + y] = *v;
-        }
-    }
-    out
 }
 
 /// [`rounding_table`] compiled for the machine's vector units.

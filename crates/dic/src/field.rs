@@ -290,6 +290,18 @@ impl Tile {
 
 /// Computes the displacement field between two images.
 pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<Field, DicError> {
+    field_with_progress(reference, current, opts, &|_, _| {})
+}
+
+/// [`field`], calling `progress(done, total)` with the grid points computed so far
+/// each time a tile is done (from the worker threads, in any order of tiles; `done`
+/// only grows).
+pub fn field_with_progress(
+    reference: &Image,
+    current: &Image,
+    opts: &FieldOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Field, DicError> {
     check_subset(opts.subset)?;
     if (reference.width(), reference.height()) != (current.width(), current.height()) {
         return Err(DicError::SizeMismatch {
@@ -355,6 +367,7 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
         .flat_map(|ty| (0..nx.div_ceil(tile)).map(move |tx| (tx, ty)))
         .collect();
     let grid = |gx: usize, gy: usize| (x0 + gx * step, y0 + gy * step);
+    let finished = std::sync::atomic::AtomicUsize::new(0);
     // Per tile: (grid index, measurement) pairs and the tile's dropped points.
     type TileResult = (Vec<(usize, Option<PointResult>)>, Dropped);
     let results: Vec<TileResult> = tiles
@@ -441,6 +454,8 @@ pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<
                     }
                 }
             }
+            let total = finished.fetch_add(tw * th, std::sync::atomic::Ordering::Relaxed) + tw * th;
+            progress(total, nx * ny);
             let points = (0..tw * th)
                 .map(|k| {
                     let (i, j) = (k % tw, k / tw);

@@ -459,3 +459,54 @@ fn a_defocused_match_is_unbiased() {
         );
     }
 }
+
+/// Issue 37's accuracy guard for the fast field: a speckle pair with 1.5 grey levels
+/// of noise and an exact sub-pixel shift (rendered at the shifted position, not
+/// interpolated), 33 x 33 affine subsets, at step 10 (512 x 512) and at step 2
+/// (256 x 256, to keep the test short): at least 90 % of the grid points converge,
+/// and the median error is at most 0.015 px along both axes. Over four shifts and
+/// patterns (seeds not tuned on); `--nocapture` prints each run.
+#[test]
+fn a_noisy_speckle_pair_is_measured_at_both_steps() {
+    let shifts = [
+        (3u64, (0.25, -0.10)),
+        (5, (0.5, 0.5)),
+        (8, (-1.3, 0.7)),
+        (13, (2.1, -0.35)),
+    ];
+    let median = |mut e: Vec<f64>| {
+        e.sort_by(f64::total_cmp);
+        e[e.len() / 2]
+    };
+    for (step, size) in [(10, 512), (2, 256)] {
+        let mut p = SpeckleParams::default_for(size, size);
+        p.noise = 1.5;
+        for (seed, (u, v)) in shifts {
+            let sp = Speckle::new(&p, seed);
+            let (r, c) = (
+                sp.render_shifted(0.0, 0.0, 0.0, 1),
+                sp.render_shifted(u, v, 0.0, 2),
+            );
+            let opts = FieldOptions {
+                step,
+                subset: 33,
+                ..FieldOptions::default()
+            };
+            let f = field(&r, &c, &opts).unwrap();
+            let converged: Vec<_> = f.points.iter().flatten().filter(|p| p.converged).collect();
+            let share = converged.len() as f64 / (f.nx * f.ny) as f64;
+            let eu = median(converged.iter().map(|p| (p.u - u).abs()).collect());
+            let ev = median(converged.iter().map(|p| (p.v - v).abs()).collect());
+            let at = format!("seed {seed}, shift ({u}, {v}), step {step}");
+            eprintln!(
+                "{at}: {:.1} % converged, median |error| {eu:.4} / {ev:.4} px",
+                100.0 * share
+            );
+            assert!(share >= 0.9, "{at}: {:.1} % converged", 100.0 * share);
+            assert!(
+                eu <= 0.015 && ev <= 0.015,
+                "{at}: median |error| {eu:.4} / {ev:.4} px"
+            );
+        }
+    }
+}
