@@ -4,14 +4,16 @@
 # Images: `cellinject dic synth` (sum of Gaussians integrated over each pixel, 2 grey
 # levels of Gaussian noise, 8-bit), 512x512, shifts of 0.1, 0.25 and 0.5 px along x.
 # Both tools run their full-field, reliability-guided mode with 33x33 subsets, affine
-# shape functions, ZNSSD and B-spline interpolation, on the same grid (step 10), with two
-# threads. Printed per tool and shift: bias and standard deviation of u (px), and points
+# shape functions, ZNSSD and B-spline interpolation, on the same grid (step STEP, 10
+# unless given), with two threads. Printed per tool and shift: bias and standard deviation of u (px), and points
 # per second of the correlation itself (timed inside each tool, image loading excluded).
 #
 # pyvale is installed from PyPI into target/peers-venv on the first run (large: vtk,
-# PyQt6, opencv...). Usage: bash bench/dic_peers.sh
+# PyQt6, opencv...). Usage: bash bench/dic_peers.sh [STEP]
 set -euo pipefail
 cd "$(dirname "$0")/.."
+step="${1:-10}"
+case "$step" in ''|*[!0-9]*|0) echo "dic_peers.sh: STEP must be a positive whole number of pixels, got '$step'" >&2; exit 2;; esac
 work=target/dic-peers
 venv=target/peers-venv
 mkdir -p "$work"
@@ -28,7 +30,7 @@ for s in 0.1 0.25 0.5; do
   ref="$work/ref_$s.png"; cur="$work/cur_$s.png"
   "$bin" dic synth --size 512,512 --shift "$s,0" --noise 2 --seed 7 --reference "$ref" --current "$cur" >/dev/null
   # cellinject
-  out=$("$bin" dic field --reference "$ref" --current "$cur" --step 10 --subset 33 --out "$work/ci_$s.csv")
+  out=$("$bin" dic field --reference "$ref" --current "$cur" --step "$step" --subset 33 --threads 2 --out "$work/ci_$s.csv")
   pps=$(printf '%s\n' "$out" | sed -n 's/.*(\([0-9.]*\) points\/s).*/\1/p' | head -1)
   python3 - "$work/ci_$s.csv" "$s" "$pps" <<'PY'
 import csv, sys, statistics
@@ -37,20 +39,20 @@ u = [float(r["u"]) - float(sys.argv[2]) for r in rows]
 print(f"{'cellinject':<10} {sys.argv[2]:<7} {statistics.mean(u):10.5f} {statistics.stdev(u):10.5f} {float(sys.argv[3]):12.0f} {len(u):10d}")
 PY
   # pyvale
-  "$venv/bin/python" - "$ref" "$cur" "$s" "$work" <<'PY'
+  "$venv/bin/python" - "$ref" "$cur" "$s" "$work" "$step" <<'PY'
 import sys, time, glob, os
 import numpy as np
 import imageio.v3 as iio
 from pyvale import dic
-ref, cur, shift, work = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
+ref, cur, shift, work, step = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4], int(sys.argv[5])
 r = iio.imread(ref).astype(np.float32)
 c = iio.imread(cur).astype(np.float32)
 mask = np.zeros(r.shape, dtype=bool)
 mask[17:-17, 17:-17] = True
-out = os.path.join(work, f"pv_{shift}")
+out = os.path.join(work, f"pv_{shift}_{step}")
 os.makedirs(out, exist_ok=True)
 t = time.perf_counter()
-dic.calculate_2d(r, c, mask, [256, 256], subset_size=33, subset_step=10,
+dic.calculate_2d(r, c, mask, [256, 256], subset_size=33, subset_step=step,
                  correlation_criteria="ZNSSD", shape_function="AFFINE",
                  interpolation_routine="BSPLINE", num_threads=2,
                  method="SINGLEWINDOW_RG", output_basepath=out, print_level=0)

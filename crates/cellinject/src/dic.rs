@@ -127,6 +127,10 @@ pub enum DicCommand {
         /// Output format of the summary (the files are the same).
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
+        /// Threads the correlation runs on (default: all the machine's cores; the
+        /// result does not depend on it).
+        #[arg(long, value_name = "N")]
+        threads: Option<usize>,
     },
     /// Write a pair of exact synthetic speckle images (Gaussians integrated over the
     /// pixels, Gaussian noise, 8-bit) related by a known shift and rotation.
@@ -370,6 +374,7 @@ struct FieldArgs {
     acceptance: (f64, f64),
     um_per_px: Option<f64>,
     format: Format,
+    threads: Option<usize>,
 }
 
 fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Result<()> {
@@ -381,7 +386,11 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         acceptance: (min_zncc, max_sigma),
         um_per_px,
         format,
+        threads,
     } = a;
+    if threads == Some(0) {
+        return Err(InputError("--threads must be at least 1".into()).into());
+    }
     if let Some(s) = um_per_px
         && !(s > 0.0 && s.is_finite())
     {
@@ -404,6 +413,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         shape: shape.into(),
         prefilter,
         acceptance,
+        threads: threads.unwrap_or(0),
         ..FieldOptions::default()
     };
     let t0 = std::time::Instant::now();
@@ -820,6 +830,7 @@ pub fn run(a: &DicArgs) -> Result<()> {
             out,
             um_per_px,
             format,
+            threads,
         }) => run_field(
             reference,
             current,
@@ -831,6 +842,7 @@ pub fn run(a: &DicArgs) -> Result<()> {
                 acceptance: (*min_zncc, *max_sigma),
                 um_per_px: *um_per_px,
                 format: *format,
+                threads: *threads,
             },
             out,
         ),

@@ -1,5 +1,8 @@
-//! DIC speed. Targets (issue 4): at least 20,000 points per second for 33x33 IC-GN in the
-//! full-field mode on this 2-core machine; tracking one region in a VGA frame under 1 ms.
+//! DIC speed: one IC-GN refinement; the full field on 512 x 512 speckle with 33 x 33
+//! subsets at step 10 and at step 2, and the point mode on a 32 x 32 grid of points,
+//! each with the corrections and σ of every field point (each prints its points per
+//! second once, then criterion's figures); tracking one region in a VGA frame.
+//! `cargo bench -p cellinject-dic`.
 
 #![allow(missing_docs, clippy::unwrap_used)]
 
@@ -10,7 +13,7 @@ use cellinject_dic::field::{FieldOptions, field};
 use cellinject_dic::icgn::{IcgnOptions, refine};
 use cellinject_dic::synth::{Speckle, SpeckleParams};
 use cellinject_dic::track::{Roi, Tracker};
-use cellinject_dic::{BSpline, Reference, Shape, Subset};
+use cellinject_dic::{BSpline, PointOptions, Reference, Shape, Subset, correlate_points};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn point(c: &mut Criterion) {
@@ -39,24 +42,58 @@ fn full_field(c: &mut Criterion) {
     let sp = Speckle::new(&SpeckleParams::default_for(512, 512), 2);
     let r = sp.render_shifted(0.0, 0.0, 0.0, 1);
     let cur = sp.render_shifted(2.3, -1.4, 0.002, 2);
-    let opts = FieldOptions {
-        step: 2,
+    let mut g = c.benchmark_group("field");
+    g.sample_size(10);
+    for step in [10, 2] {
+        let opts = FieldOptions {
+            step,
+            subset: 33,
+            ..FieldOptions::default()
+        };
+        let t = Instant::now();
+        let f = field(&r, &cur, &opts).unwrap();
+        let n = f.points.iter().flatten().count();
+        println!(
+            "field 512x512 step {step}: {n} points in {:.3} s ({:.0} points/s, {} threads)",
+            t.elapsed().as_secs_f64(),
+            n as f64 / t.elapsed().as_secs_f64(),
+            rayon::current_num_threads()
+        );
+        g.bench_function(
+            format!("field: 512x512 at step {step}, 33x33 subsets"),
+            |b| b.iter(|| black_box(field(&r, &cur, &opts).unwrap().points.len())),
+        );
+    }
+    g.finish();
+}
+
+fn point_mode(c: &mut Criterion) {
+    let sp = Speckle::new(&SpeckleParams::default_for(512, 512), 4);
+    let r = sp.render_shifted(0.0, 0.0, 0.0, 1);
+    let cur = sp.render_shifted(0.6, 0.35, 0.0, 2);
+    let points: Vec<(f64, f64)> = (0..32)
+        .flat_map(|j| (0..32).map(move |i| (40.0 + 13.5 * i as f64, 40.0 + 13.5 * j as f64)))
+        .collect();
+    let opts = PointOptions {
         subset: 33,
-        ..FieldOptions::default()
+        ..PointOptions::default()
     };
     let t = Instant::now();
-    let f = field(&r, &cur, &opts).unwrap();
-    let n = f.points.iter().flatten().count();
+    let n = correlate_points(&r, &cur, &points, &opts)
+        .unwrap()
+        .iter()
+        .flatten()
+        .count();
     println!(
-        "field 512x512 step 2: {n} points in {:.3} s ({:.0} points/s, {} threads)",
+        "points 512x512: {n} points in {:.3} s ({:.0} points/s, {} threads)",
         t.elapsed().as_secs_f64(),
         n as f64 / t.elapsed().as_secs_f64(),
         rayon::current_num_threads()
     );
-    let mut g = c.benchmark_group("field");
+    let mut g = c.benchmark_group("points");
     g.sample_size(10);
-    g.bench_function("field: 512x512 at step 2, 33x33 subsets", |b| {
-        b.iter(|| black_box(field(&r, &cur, &opts).unwrap().points.len()))
+    g.bench_function("points: 1024 points of 512x512, 33x33 subsets", |b| {
+        b.iter(|| black_box(correlate_points(&r, &cur, &points, &opts).unwrap().len()))
     });
     g.finish();
 }
@@ -86,6 +123,6 @@ fn tracking(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30);
-    targets = point, full_field, tracking
+    targets = point, full_field, point_mode, tracking
 }
 criterion_main!(benches);

@@ -39,14 +39,23 @@ use crate::image::Image;
 /// between phases 1/32 px apart errs by about 0.5 % of it.
 pub const PHASES: usize = 32;
 
+/// Lines per block of the interpolation-error tables.
+pub const BLOCK: usize = 16;
+
 /// The tables of one reference image, for a current image whose spline has the given
 /// degree and whose grey levels are rounded to the given step.
 pub struct Corrections<'a> {
     reference: &'a Reference,
     degree: Degree,
     /// The interpolation error along x (0) and y (1) at phases p / PHASES,
-    /// p = 1..PHASES (slot p − 1); phase 0 has none.
-    mismatch: [Vec<OnceLock<Vec<f32>>>; 2],
+    /// p = 1..PHASES (slot p − 1; phase 0 has none), in blocks of [`BLOCK`] lines
+    /// (rows for x, columns for y), each made when a match first reads it: a
+    /// field whose phase drifts across the image (a rotation, a strain) makes only
+    /// the blocks each phase is met in.
+    mismatch: [Vec<Vec<OnceLock<Vec<f32>>>>; 2],
+    /// The reference's columns as rows (the lines of the y tables), made when first
+    /// needed.
+    columns: OnceLock<Vec<f64>>,
     /// The rounding residual at the reference's pixels for the phases
     /// `ROUNDING_PHASES[1..]` (empty when the current image is not quantised).
     rounding: Vec<Vec<f32>>,
@@ -58,11 +67,12 @@ impl std::fmt::Debug for Corrections<'_> {
             .mismatch
             .iter()
             .flatten()
+            .flatten()
             .filter(|s| s.get().is_some())
             .count();
         f.debug_struct("Corrections")
             .field("degree", &self.degree)
-            .field("mismatch_tables", &made)
+            .field("mismatch_blocks", &made)
             .field("rounding_tables", &self.rounding.len())
             .finish()
     }
@@ -74,7 +84,16 @@ impl<'a> Corrections<'a> {
     /// The rounding tables are made now, in parallel; the interpolation error's
     /// when a match first needs them.
     pub fn new(reference: &'a Reference, degree: Degree, quantisation_step: f64) -> Self {
-        let slots = || (1..PHASES).map(|_| OnceLock::new()).collect();
+        let img = reference.image();
+        let slots = |lines: usize| {
+            (1..PHASES)
+                .map(|_| {
+                    (0..lines.div_ceil(BLOCK))
+                        .map(|_| OnceLock::new())
+                        .collect()
+                })
+                .collect()
+        };
         let rounding = if quantisation_step > 0.0 {
             icgn::ROUNDING_PHASES[1..]
                 .par_iter()
@@ -92,7 +111,8 @@ impl<'a> Corrections<'a> {
         Corrections {
             reference,
             degree,
-            mismatch: [slots(), slots()],
+            mismatch: [slots(img.height()), slots(img.width())],
+            columns: OnceLock::new(),
             rounding,
         }
     }
@@ -103,18 +123,26 @@ impl<'a> Corrections<'a> {
         &self.rounding
     }
 
-    /// The table of `axis` (0: x, 1: y) at phase `p / PHASES`, `None` at whole pixels.
-    fn table(&self, axis: usize, p: usize) -> Option<&[f32]> {
+    /// Block `b` of the table of `axis` (0: x, 1: y) at phase `p / PHASES`: lines
+    /// `b·BLOCK..` of `n` samples each, `None` at whole pixels.
+    fn block(&self, axis: usize, p: usize, b: usize) -> Option<&[f32]> {
         if p == 0 || p >= PHASES {
             return None;
         }
-        let slot = &self.mismatch[axis][p - 1];
         let t = p as f64 / PHASES as f64;
-        Some(slot.get_or_init(|| {
+        Some(self.mismatch[axis][p - 1][b].get_or_init(|| {
             let img = self.reference.image();
+            let (w, h) = (img.width(), img.height());
+            let (lines, n, count) = if axis == 0 {
+                (img.data(), w, h)
+            } else {
+                let columns = self.columns.get_or_init(|| transpose(img.data(), w, h));
+                (&columns[..], h, w)
+            };
+            let last = ((b + 1) * BLOCK).min(count);
             pulp::Arch::new().dispatch(MismatchTable {
-                img,
-                axis,
+                lines: &lines[b * BLOCK * n..last * n],
+                n,
                 t,
                 degree: self.degree,
             })
@@ -124,6 +152,7 @@ impl<'a> Corrections<'a> {
     /// The interpolation error at the pixels of the subset `s` centred at (x, y) for a
     /// match at sub-pixel phase (u, v) (their fractional parts are used), in the
     /// subset's pixel order, grey levels: interpolated minus band-limited value.
+    #[inline(always)]
     pub(crate) fn mismatch(
         &self,
         x: usize,
@@ -133,24 +162,40 @@ impl<'a> Corrections<'a> {
         v: f64,
         out: &mut Vec<f64>,
     ) {
-        let w = self.reference.image().width();
-        let nw = 2 * s.half_w + 1;
-        let n = nw * (2 * s.half_h + 1);
+        let img = self.reference.image();
+        let (w, h) = (img.width(), img.height());
+        let (nw, nh) = (2 * s.half_w + 1, 2 * s.half_h + 1);
         out.clear();
-        out.resize(n, 0.0);
+        out.resize(nw * nh, 0.0);
+        let (x0, y0) = (x - s.half_w, y - s.half_h);
         for (axis, t) in [u, v].into_iter().enumerate() {
             let scaled = (t - t.floor()) * PHASES as f64;
             let p = (scaled as usize).min(PHASES - 1);
             let alpha = scaled - p as f64;
-            for (table, weight) in [
-                (self.table(axis, p), 1.0 - alpha),
-                (self.table(axis, p + 1), alpha),
-            ] {
-                let Some(table) = table else { continue };
-                for (j, row) in out.chunks_exact_mut(nw).enumerate() {
-                    let start = (y - s.half_h + j) * w + x - s.half_w;
-                    for (o, e) in row.iter_mut().zip(&table[start..start + nw]) {
-                        *o += weight * f64::from(*e);
+            for (phase, weight) in [(p, 1.0 - alpha), (p + 1, alpha)] {
+                if axis == 0 {
+                    // Row y0 + j of the subset is line y0 + j of the x table.
+                    for (j, row) in out.chunks_exact_mut(nw).enumerate() {
+                        let line = y0 + j;
+                        let Some(block) = self.block(0, phase, line / BLOCK) else {
+                            break;
+                        };
+                        let start = (line % BLOCK) * w + x0;
+                        for (o, e) in row.iter_mut().zip(&block[start..start + nw]) {
+                            *o += weight * f64::from(*e);
+                        }
+                    }
+                } else {
+                    // Column x0 + i is line x0 + i of the y table.
+                    for i in 0..nw {
+                        let line = x0 + i;
+                        let Some(block) = self.block(1, phase, line / BLOCK) else {
+                            break;
+                        };
+                        let start = (line % BLOCK) * h + y0;
+                        for (j, e) in block[start..start + nh].iter().enumerate() {
+                            out[j * nw + i] += weight * f64::from(*e);
+                        }
                     }
                 }
             }
@@ -160,8 +205,8 @@ impl<'a> Corrections<'a> {
 
 /// [`mismatch_table`] compiled for the machine's vector units.
 struct MismatchTable<'a> {
-    img: &'a Image,
-    axis: usize,
+    lines: &'a [f64],
+    n: usize,
     t: f64,
     degree: Degree,
 }
@@ -171,22 +216,15 @@ impl pulp::WithSimd for MismatchTable<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
-        mismatch_table(self.img, self.axis, self.t, self.degree)
+        mismatch_table(self.lines, self.n, self.t, self.degree)
     }
 }
 
-/// The interpolation error of every pixel along `axis` at phase `t` (see the module's
-/// doc), row-major over the image.
+/// The interpolation error along each of the `lines` (of `n` samples each, back to
+/// back) at phase `t` (see the module's doc).
 #[inline(always)]
-fn mismatch_table(img: &Image, axis: usize, t: f64, degree: Degree) -> Vec<f32> {
-    let (w, h) = (img.width(), img.height());
-    let lines: Vec<f64> = if axis == 0 {
-        img.data().to_vec()
-    } else {
-        transpose(img.data(), w, h)
-    };
-    let n = if axis == 0 { w } else { h };
-    let mut out = vec![0.0f32; w * h];
+fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
+    let mut out = vec![0.0f32; lines.len()];
     // Weight i of the sinc belongs to node m − (i − SINC_HALF + 1): reversed, tap j
     // reads the padded line at m + pad − SINC_HALF + j.
     let mut sinc = sinc_weights(t);
@@ -234,11 +272,7 @@ fn mismatch_table(img: &Image, axis: usize, t: f64, degree: Degree) -> Vec<f32> 
             *d = (a - f) as f32;
         }
     }
-    if axis == 0 {
-        out
-    } else {
-        transpose(&out, h, w)
-    }
+    out
 }
 
 /// [`rounding_table`] compiled for the machine's vector units.

@@ -59,6 +59,9 @@ pub struct FieldOptions {
     pub spline: Degree,
     /// Iteration control.
     pub icgn: IcgnOptions,
+    /// Threads to correlate on (0: rayon's pool, all the cores by default). The tiling
+    /// does not depend on it, so neither does the result.
+    pub threads: usize,
 }
 
 impl Default for FieldOptions {
@@ -80,6 +83,7 @@ impl Default for FieldOptions {
                 tolerance: 5e-4,
                 ..IcgnOptions::default()
             },
+            threads: 0,
         }
     }
 }
@@ -302,6 +306,20 @@ pub fn field_with_progress(
     opts: &FieldOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Field, DicError> {
+    if opts.threads > 0 {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(opts.threads)
+            .build()
+            .map_err(|e| DicError::Threads {
+                threads: opts.threads,
+                reason: e.to_string(),
+            })?;
+        let single = FieldOptions {
+            threads: 0,
+            ..*opts
+        };
+        return pool.install(|| field_with_progress(reference, current, &single, progress));
+    }
     check_subset(opts.subset)?;
     if (reference.width(), reference.height()) != (current.width(), current.height()) {
         return Err(DicError::SizeMismatch {

@@ -92,6 +92,14 @@ pub enum DicError {
         /// Centre, pixels.
         y: f64,
     },
+    /// The worker threads could not be started.
+    #[error("cannot start {threads} worker threads: {reason}")]
+    Threads {
+        /// Threads asked for.
+        threads: usize,
+        /// What the system said.
+        reason: String,
+    },
     /// A fit needs more or better-conditioned data.
     #[error("calibration: {reason}")]
     Calibration {
