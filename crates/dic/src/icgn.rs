@@ -1481,6 +1481,12 @@ pub(crate) fn influence(prepared: &Prepared, scratch: &mut Scratch) -> Option<()
 }
 
 impl Scratch {
+    /// [`Scratch::first_order`], for the tests of other modules.
+    #[cfg(test)]
+    pub(crate) fn first_order_for_test(&self, e: &[f64]) -> (f64, f64) {
+        self.first_order(e)
+    }
+
     /// [`first_order_change`] of `e` on the subset of the last [`influence`].
     #[inline(always)]
     fn first_order(&self, e: &[f64]) -> (f64, f64) {

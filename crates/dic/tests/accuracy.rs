@@ -510,3 +510,26 @@ fn a_noisy_speckle_pair_is_measured_at_both_steps() {
         }
     }
 }
+
+/// The field does not depend on the number of threads it runs on (`FieldOptions::threads`):
+/// the tiling is the grid's, and every table a point reads is the same whoever makes it.
+#[test]
+fn the_field_is_the_same_on_one_thread_and_on_three() {
+    let sp = Speckle::new(&SpeckleParams::default_for(200, 180), 61);
+    let (r, c) = (
+        sp.render_shifted(0.0, 0.0, 0.0, 1),
+        sp.render_shifted(0.7, -0.3, 0.004, 2),
+    );
+    let at = |threads: usize| {
+        let opts = FieldOptions {
+            step: 3,
+            subset: 25,
+            threads,
+            ..FieldOptions::default()
+        };
+        field(&r, &c, &opts).unwrap()
+    };
+    let (one, three) = (at(1), at(3));
+    assert!(one.points.iter().flatten().count() > 1000);
+    assert_eq!(one.points, three.points);
+}
