@@ -84,7 +84,7 @@ struct BenchStation {
     /// m, the stacks' sensor readings the session's first run started from: every
     /// later run refers its focus to them (the stacks still creep back from the run
     /// before).
-    rest: Option<[f64; 2]>,
+    rest: Option<cellinject_core::inject::Session>,
 }
 
 impl Station for BenchStation {
@@ -132,7 +132,7 @@ impl Station for BenchStation {
             d: &self.d,
             options: self.options,
             hysteresis,
-            rest: self.rest,
+            rest: self.rest.clone(),
             twin: self.twin.clone(),
             plate: self.plate.clone(),
             run_id: id,
@@ -146,7 +146,7 @@ impl Station for BenchStation {
         let r = db.run(Some(id)).map_err(|e| records_error(e).to_string())?;
         let (cells_per_min, calibration) = match result {
             Ok((report, cal)) => {
-                self.rest.get_or_insert(report.rest_m);
+                self.rest.get_or_insert(report.session);
                 (report.cells_per_min, Some(cal))
             }
             Err(_) => (0.0, None),

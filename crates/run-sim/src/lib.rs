@@ -393,10 +393,10 @@ pub struct Job<'a> {
     pub options: Options,
     /// A hysteresis calibration to use (else the stacks are identified).
     pub hysteresis: Option<HysteresisCalibration>,
-    /// m, the stacks' sensor readings the session's first run started from (its
-    /// [`cellinject_core::inject::RunReport::rest_m`]): a later run of the same
-    /// session refers its focus to them. `None`: the run's own start.
-    pub rest: Option<[f64; 2]>,
+    /// What the session's first run found of the resting tip (its
+    /// [`cellinject_core::inject::RunReport::session`]): a later run of the same
+    /// session refers its focus to it. `None`: the run's own start.
+    pub rest: Option<cellinject_core::inject::Session>,
     /// The twin, when it is the backend (its truth goes into the records).
     pub twin: Option<SharedTwin>,
     /// The plate.
@@ -535,7 +535,7 @@ pub fn execute(
     };
     let wf = Workflow::new(rig, &d.design, &d.rig, &plate, options)
         .map_err(|e| RunError::Input(e.to_string()))?
-        .with_rest(rest);
+        .with_session(rest);
     let result = wf.run(hysteresis, &mut tee);
     let rec = tee.rec;
     let (status, stopped, sim, cell, found) = match &result {
@@ -547,6 +547,9 @@ pub fn execute(
                         "hysteresis": cal,
                         "map": r.map,
                         "rest_m": r.rest_m,
+                        "focus_by": r.focus_by,
+                        "tip_above_m": r.tip_above_m,
+                        "focus_m": r.focus_m,
                         "hysteresis_check": r.hysteresis_check,
                     }),
                 )

@@ -16,6 +16,7 @@
 //! plate file's cells are never read (only its grid).
 
 pub mod approach;
+mod height;
 pub mod machine;
 pub mod window;
 
@@ -33,6 +34,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::calibrate::HysteresisCalibration;
+pub use height::{Height, SideReference};
 pub use machine::{Event, State, Transition};
 
 /// s, the longest a withdrawal of A3 may take before the run stops on a fault.
@@ -117,10 +119,20 @@ const OUT_OF_VIEW_SPREAD: f64 = 0.5;
 
 /// m, farthest the stage moves the tip (in focus, across the plate) to find plain
 /// floor on which to learn its blur ([`Workflow::learn_blur`]).
-const BLUR_REACH: f64 = 18e-6;
+const BLUR_REACH: f64 = 40e-6;
 
-/// The latest frames of the resting tip whose fitted blurs make the tip's blur (a
-/// re-check's frames renew a part of them: the focus can drift).
+/// m, how far ahead of the tip's end the floor under the tip locator's strip must be
+/// plain when the blur is learnt ([`plainest`]).
+const PLAIN_AHEAD: f64 = 10e-6;
+
+/// m, how far behind the tip's end, along the glass (the locator reads the tube's
+/// darkness up to 50 um behind the end).
+const PLAIN_BEHIND: f64 = 55e-6;
+
+/// m, how far either side of the glass's axis.
+const PLAIN_ACROSS: f64 = 12e-6;
+
+/// The most frames of the resting tip whose fitted blurs make the tip's blur.
 const BLUR_FRAMES: usize = 60;
 
 /// Settings of a run.
@@ -640,20 +652,44 @@ impl ImageMap {
     }
 }
 
+/// What a session's first run found of the resting tip, for the session's later
+/// runs ([`Workflow::with_session`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Session {
+    /// m, A1's and A2's sensor readings at which the option's focus puts the tip in
+    /// focus (used when the side camera cannot measure the tip's height).
+    pub rest_m: [f64; 2],
+    /// The side camera's reference of the tip's height, taken with the stacks at
+    /// rest as the session's first run started.
+    pub side: Option<SideReference>,
+}
+
 /// The run's summary.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunReport {
     /// Cells the survey found.
     pub cells_found: usize,
-    /// m, A1's and A2's sensor readings the focus referred to (the session's rest:
-    /// pass them to the session's next run, [`Workflow::with_rest`]).
+    /// m, A1's and A2's sensor readings the stack sensors' fallback refers the focus
+    /// to (the session's rest, carried in [`RunReport::session`]).
     pub rest_m: [f64; 2],
     /// A loaded hysteresis calibration checked against the stacks (null when none was
     /// loaded, or it failed its own check): [`crate::calibrate::ResponseCheck`].
     pub hysteresis_check: Option<crate::calibrate::ResponseCheck>,
     /// m, the stage height that put the tip in focus with the stacks at their zero
-    /// (the option's focus less the tip's drop since the session's rest).
+    /// as last measured (after the image map, or at the last re-check): the option's
+    /// focus less [`RunReport::tip_above_m`].
     pub focus_m: f64,
+    /// What measured the tip's height: `"side camera"` (the marker tab against the
+    /// session's side reference) or `"stack sensors"` (their readings against the
+    /// session's rest, through the model's Jacobian).
+    pub focus_by: &'static str,
+    /// m, how much higher the resting tip stood than where the session's first run
+    /// found it (negative: lower), as last measured.
+    pub tip_above_m: f64,
+    /// What the session's next run refers its focus to (not in the records: it holds
+    /// the side reference's frame).
+    #[serde(skip)]
+    pub session: Session,
     /// Fields of view the plate was served in.
     pub fields: usize,
     /// Attempts by outcome.
@@ -841,15 +877,20 @@ pub struct Workflow<'r, B: Backend> {
     /// m, A1's and A2's travels.
     travel_a12: [f64; 2],
     /// m, the stage height that puts the tip in the focal plane with the stacks held
-    /// at their zero: the option's focus, less the tip's drop along the optical axis
-    /// since the session's rest ([`Workflow::with_rest`]: A1 and A2 held where the
-    /// identification of their hysteresis or an earlier run left them, through the
-    /// mechanism's Jacobian).
+    /// at their zero: the option's focus, less the tip's height above where the
+    /// session's first run found it (the side camera's [`SideReference`], else the
+    /// stacks' sensors against `rest` through the mechanism's Jacobian).
     focus: f64,
+    /// What measured the tip's height ([`RunReport::focus_by`]).
+    focus_by: &'static str,
     /// m, A1's and A2's sensor readings at which the option's focus puts the tip in
     /// focus: the stacks as the session's first run found them (a later run of the
-    /// session is given them, [`Workflow::with_rest`]), else as this run finds them.
+    /// session is given them, [`Workflow::with_session`]), else as this run finds them.
     rest: Option<[f64; 2]>,
+    /// The session's side reference of the tip's height ([`SideReference`]): given
+    /// by the session, or taken as this run starts; `None` when the side camera could
+    /// not take one.
+    side: Option<SideReference>,
     /// m, the surveyed cells' mean diameter: the plate is focused on their equators,
     /// so a cell of diameter d has its centre (d - mean) / 2 above the focal plane.
     mean_diameter: f64,
@@ -1013,7 +1054,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
             })?,
             travel_a12: [design.actuators[0].travel, design.actuators[1].travel],
             focus: options.focus,
+            focus_by: "stack sensors",
             rest: None,
+            side: None,
             mean_diameter: 0.0,
             state: State::Start,
             log: Vec::new(),
@@ -1047,14 +1090,16 @@ impl<'r, B: Backend> Workflow<'r, B> {
         })
     }
 
-    /// The stacks' sensor readings (A1, A2, m) at which the option's focus puts the
-    /// tip in focus: a session's later runs pass what its first run reported
-    /// ([`RunReport::rest_m`]). Without it the run takes the stacks as it finds them,
-    /// which is right on a bench at rest since long, not after a run: the stacks then
-    /// still creep back from it, and a second run of the dashboard measured the tip's
-    /// drop from that creeping start and set its focus 1.4 um low.
-    pub fn with_rest(mut self, rest: Option<[f64; 2]>) -> Self {
-        self.rest = rest.filter(|r| r.iter().all(|v| v.is_finite()));
+    /// What the session's first run found ([`RunReport::session`]): a session's later
+    /// runs refer the focus to it. Without it the run takes the bench as it finds it
+    /// (right on a bench at rest since long, not after a run: the stacks then still
+    /// creep back from it, and a second run of the dashboard that measured the tip's
+    /// drop from that creeping start set its focus 1.4 um low).
+    pub fn with_session(mut self, session: Option<Session>) -> Self {
+        if let Some(s) = session {
+            self.rest = Some(s.rest_m).filter(|r| r.iter().all(|v| v.is_finite()));
+            self.side = s.side;
+        }
         self
     }
 
@@ -1237,6 +1282,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
             RunReport {
                 cells_found: targets.len(),
                 rest_m: self.rest.unwrap_or([0.0; 2]),
+                focus_by: self.focus_by,
+                tip_above_m: self.options.focus - self.focus,
+                session: Session {
+                    rest_m: self.rest.unwrap_or([0.0; 2]),
+                    side: self.side.clone(),
+                },
                 hysteresis_check: self.response_check.clone(),
                 focus_m: self.focus,
                 fields,
@@ -1524,8 +1575,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
 
     /// The resting tip in full frames: the median of [`TIP_FRAMES`] frames' tips
     /// (`tries`: frames without a tip tolerated on top), each found with the tip's blur
-    /// known ([`Workflow::blur`]). Every frame also measures the blur (a free fit), and
-    /// the run's first call looks at the resting tip until [`BLUR_MIN`] frames have:
+    /// known ([`Workflow::blur`], learnt on plain floor by [`Workflow::learn_blur`];
+    /// should that leave fewer than [`BLUR_MIN`] fits, the frames here add theirs
+    /// until there are enough):
     /// with the blur free, a frame's tip stood up to 5 px behind the true one along the
     /// axis (the fit trades the end's blur against its position in the noise), and the
     /// image map extrapolates each of its points' errors over the plate: seed 15's map,
@@ -1562,7 +1614,15 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 seen.push([free.x, free.y]);
                 continue;
             }
-            self.add_blurs([free.sigma]);
+            // The blur is learnt on plain floor ([`Workflow::learn_blur`]); a frame
+            // elsewhere adds its free fit only while too few fits are known (the
+            // image map's points lie at the walls' crossings, where free fits learn
+            // twice the optics' blur: measured 0.8-1.05 px against 0.5 px on plain
+            // floor, and the tip located with it stood 0.1-0.2 um further behind the
+            // true one along the axis, differently in every run).
+            if self.blur().is_none() {
+                self.add_blurs([free.sigma]);
+            }
             let Some(blur) = self.blur() else {
                 // Still measuring the blur.
                 continue;
@@ -1591,10 +1651,12 @@ impl<'r, B: Backend> Workflow<'r, B> {
     /// after with that blur stood 0.2 um behind the true one along the axis, and every
     /// cell's tip error grew by as much, while on a first run the stacks' creep after
     /// the identification had moved the tip's end a pixel off the wall. So the tip is
-    /// first moved, in focus, to the plainest patch of the background within
-    /// [`BLUR_REACH`] (no wall, no cell: the window around the tip's end with the least
-    /// contrast), and the phases within a pixel, on which a fit's blur also depends,
-    /// are sampled evenly there.
+    /// first moved (lifted over the cells, and down into focus there) to the plainest
+    /// floor within [`BLUR_REACH`] (no wall, no cell under the strip the locator reads:
+    /// [`plainest`]; with only the end's 31 x 31 px window plain and 18 um of reach, a
+    /// run from a saved calibration learnt 1.1 px where the optics give 0.5 px), and
+    /// the phases within a pixel, on which a fit's blur also depends, are sampled
+    /// evenly there.
     fn learn_blur(&mut self) -> Result<(), WorkflowError> {
         let here = [
             self.rig.stage.position(0).map_err(dev("stage"))?,
@@ -1603,17 +1665,19 @@ impl<'r, B: Backend> Workflow<'r, B> {
         let pixel = self.background.as_ref().expect("background").pixel_size;
         let shot = self.shoot(None)?;
         let bg = self.background.as_ref().expect("background");
-        let start = shot
-            .normalised(bg)
-            .and_then(|n| shot.locate(&n, None))
-            .map(|t| [t.x, t.y]);
+        let start = shot.normalised(bg).and_then(|n| shot.locate(&n, None));
         let centre = match start {
-            Some(tip) => {
-                let d = plainest(bg, tip, pixel);
+            Some(t) => {
+                let d = plainest(bg, [t.x, t.y], t.axis, pixel);
                 [here[0] + d[0], here[1] + d[1]]
             }
             None => here,
         };
+        // Over the cells at the lift, to the patch and back (the patch may be up to
+        // BLUR_REACH away, beyond the 18 um the tip could cross at focus height).
+        let height = self.rig.stage.position(1).map_err(dev("stage"))?;
+        let over = height.max(self.options.focus + self.options.lift);
+        self.lifted_to([centre[0], centre[1]], over, height)?;
         let step = pixel / BLUR_PHASES as f64;
         let mut fits = Vec::with_capacity(BLUR_PHASES * BLUR_PHASES);
         for k in 0..BLUR_PHASES * BLUR_PHASES {
@@ -1629,7 +1693,22 @@ impl<'r, B: Backend> Workflow<'r, B> {
             }
         }
         self.add_blurs(fits);
-        self.stage_to([Some(here[0]), None, Some(here[1])])?.ok();
+        self.lifted_to(here, over, height)?;
+        Ok(())
+    }
+
+    /// The stage to `xz` (m) by way of height `over`, then down to `height`; a move
+    /// the stage refuses leaves it where it got.
+    fn lifted_to(&mut self, xz: [f64; 2], over: f64, height: f64) -> Result<(), WorkflowError> {
+        for p in [
+            [None, Some(over), None],
+            [Some(xz[0]), None, Some(xz[1])],
+            [None, Some(height), None],
+        ] {
+            if self.stage_to(p)?.is_err() {
+                break;
+            }
+        }
         Ok(())
     }
 
@@ -1640,12 +1719,17 @@ impl<'r, B: Backend> Workflow<'r, B> {
         self.blurs.drain(..extra);
     }
 
-    /// Pixels, the blur of the tip's end in focus: the median of the latest
+    /// Pixels, the blur of the tip's end in focus: the lower quartile of the latest
     /// [`BLUR_FRAMES`] free fits of the resting tip, once there are [`BLUR_MIN`] of
     /// them. The optics' blur at the focus is the same in every frame taken there; a
-    /// single frame's free fit scatters from 0.3 to 6 px around it.
+    /// single frame's free fit scatters from 0.3 to 6 px around it, and whatever
+    /// spoils a frame (the floor's texture under the glass, the tip moving in the
+    /// exposure) widens the fit, never narrows it: so the lower quartile, not the
+    /// median (on a dashboard's second run 16 fits on plain floor gave 0.3-3.6 px,
+    /// median 2.45 px against 0.5 px in focus, and every tip located with it stood
+    /// 0.8 um behind the true one along the axis; three cells died).
     fn blur(&self) -> Option<f64> {
-        (self.blurs.len() >= BLUR_MIN).then(|| median(self.blurs.clone()))
+        (self.blurs.len() >= BLUR_MIN).then(|| lower_quartile(self.blurs.clone()))
     }
 
     fn calibrate(
@@ -1679,6 +1763,18 @@ impl<'r, B: Backend> Workflow<'r, B> {
         // The fields over the plate for the view the set-up gives: a plate the feeder
         // cannot present is refused here, before anything else moves.
         let boot = self.bootstrap_plan()?;
+        // The session's side reference of the tip's height, with the stacks at rest
+        // as the session starts (the stage arrived and settled at the lift first).
+        if self.side.is_none() {
+            self.raise_to(lift)?;
+            self.rig.clock.sleep(0.3).map_err(dev("clock"))?;
+            match self.side_reference()? {
+                Ok(r) => self.side = Some(r),
+                Err(e) => why.push(format!(
+                    "the side camera cannot measure the tip's height ({e}): the focus follows the stack sensors"
+                )),
+            }
+        }
         // The identification (and the check of a loaded calibration) sweeps the
         // stacks over their travel, A3 down the pipette's axis: the pipette goes that
         // much higher first, so that the tip stays clear of the cells and the floor.
@@ -1777,21 +1873,6 @@ impl<'r, B: Backend> Workflow<'r, B> {
             }
             *z = s / 20.0;
         }
-        // The stacks now rest where the identification (or a previous run of the
-        // session) left them, creeping back: the tip stands that much higher or lower
-        // than where the option's focus puts it in focus, and the stage makes up for it.
-        let rest = *self.rest.get_or_insert(start);
-        let j = self.jacobian;
-        let drop = j[1][0] * (zero[0] - rest[0]) + j[1][1] * (zero[1] - rest[1]);
-        self.focus = self.options.focus - drop;
-        if drop.abs() > 0.05e-6 {
-            why.push(format!(
-                "the tip rests {:.2} um {} than at the session's start: focus height {:.2} um",
-                drop.abs() * 1e6,
-                if drop < 0.0 { "lower" } else { "higher" },
-                self.focus * 1e6
-            ));
-        }
         let a3_vmax = self.rig.piezo[2].voltage_range().1;
         self.servo = Some(Servo {
             ctl,
@@ -1803,6 +1884,57 @@ impl<'r, B: Backend> Workflow<'r, B> {
             zero,
             t: 0.0,
         });
+        // The stacks now rest where the identification (or a previous run of the
+        // session) left them, creeping back, and the drives have grown with the lab's
+        // temperature: the tip stands higher or lower than where the option's focus
+        // puts it in focus, and the stage makes up for it. The side camera sees that
+        // height; the stacks' sensors see the creep only (through the model's
+        // Jacobian), so they are the fallback. It is measured with the loops holding
+        // the stacks at their zero, as they will through the run (the zero's own noise,
+        // some 0.7 nm a stack, is 0.1-0.2 um of tip height).
+        let seen = match self.side.clone() {
+            Some(r) => match self.side_height(&r)? {
+                Ok(h) => Some(h),
+                Err(e) => {
+                    why.push(format!(
+                        "the side camera could not measure the tip's height ({e}): the focus follows the stack sensors"
+                    ));
+                    None
+                }
+            },
+            None => None,
+        };
+        let rest = *self.rest.get_or_insert(start);
+        let j = self.jacobian;
+        let sensed = j[1][0] * (zero[0] - rest[0]) + j[1][1] * (zero[1] - rest[1]);
+        let drop = match seen {
+            Some(h) => {
+                self.focus_by = "side camera";
+                why.push(format!(
+                    "the side camera sees the tip {:.2} um {} than at the session's start (± {:.3} um; magnification {:+.2e}; the stack sensors say {:+.2} um): focus height {:.2} um",
+                    h.above.abs() * 1e6,
+                    if h.above < 0.0 { "lower" } else { "higher" },
+                    h.sigma * 1e6,
+                    h.scale,
+                    sensed * 1e6,
+                    (self.options.focus - h.above) * 1e6
+                ));
+                h.above
+            }
+            None => {
+                self.focus_by = "stack sensors";
+                if sensed.abs() > 0.05e-6 {
+                    why.push(format!(
+                        "the tip rests {:.2} um {} than at the session's start: focus height {:.2} um",
+                        sensed.abs() * 1e6,
+                        if sensed < 0.0 { "lower" } else { "higher" },
+                        (self.options.focus - sensed) * 1e6
+                    ));
+                }
+                sensed
+            }
+        };
+        self.focus = self.options.focus - drop;
         // Full frames for the map and the survey.
         let (sw, sh) = self.rig.camera.sensor_size();
         self.settings_full = Some(CameraSettings {
@@ -1833,8 +1965,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 Ok(map) => {
                     self.last_check = self.now();
                     why.push(format!(
-                        "image mapped to the stage (4 points, rms {:.2} px){}",
+                        "image mapped to the stage (4 points, rms {:.2} px; the tip's blur in focus {:.2} px){}",
                         map.residual_px,
+                        self.blur().unwrap_or(f64::NAN),
                         if attempt > 0 {
                             " on the second try"
                         } else {
@@ -1842,6 +1975,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
                         }
                     ));
                     self.map = Some(map);
+                    if let Some(said) = self.refocus()? {
+                        why.push(format!("after the map, {said}"));
+                    }
                     return Ok((cal, why.join("; ")));
                 }
                 Err(reason) => last = reason,
@@ -2078,8 +2214,15 @@ impl<'r, B: Backend> Workflow<'r, B> {
                     (s1[0] - s0[0]).hypot(s1[1] - s0[1]) * 1e6,
                 );
                 if worst <= RECHECK_TOLERANCE {
+                    let focus = match self.refocus()? {
+                        Some(f) => format!("; {f}"),
+                        None => String::new(),
+                    };
                     self.last_check = self.now();
-                    let r = format!("{said}: the map holds (re-check {:.1} s)", self.now() - t0);
+                    let r = format!(
+                        "{said}: the map holds{focus} (re-check {:.1} s)",
+                        self.now() - t0
+                    );
                     self.fire(Event::Rechecked, r, obs, None)?;
                     return Ok(None);
                 }
@@ -2092,9 +2235,13 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 Ok(m) => {
                     self.map = Some(m);
                     obs.mapped(&m);
+                    let focus = match self.refocus()? {
+                        Some(f) => format!("; {f}"),
+                        None => String::new(),
+                    };
                     self.last_check = self.now();
                     let r = format!(
-                        "{verdict}: image mapped to the stage again (4 points, rms {:.2} px; re-check {:.1} s)",
+                        "{verdict}: image mapped to the stage again (4 points, rms {:.2} px{focus}; re-check {:.1} s)",
                         m.residual_px,
                         self.now() - t0
                     );
@@ -2839,25 +2986,38 @@ impl<'r, B: Backend> Workflow<'r, B> {
 }
 
 /// The stage offset (m, x and z, at most [`BLUR_REACH`] along each) that puts the
-/// tip's end, now at full-frame pixel `tip`, over the plainest patch of `bg`: the
-/// window of 31 x 31 pixels around the end with the least relative contrast (standard
-/// deviation over mean), nearer offsets first among equals. Stage x and z move the
-/// image's x and y by one pixel per `pixel` m (the rig's set-up; the image map is
-/// not yet measured when the blur is learnt).
-fn plainest(bg: &Background, tip: [f64; 2], pixel: f64) -> [f64; 2] {
-    const HALF: i64 = 15;
+/// tip's end, now at full-frame pixel `tip` with the glass along `axis` (unit, towards
+/// the tip), over the plainest floor of `bg`: the strip the tip locator reads (from
+/// [`PLAIN_AHEAD`] ahead of the end to [`PLAIN_BEHIND`] behind it along the glass,
+/// [`PLAIN_ACROSS`] either side) with the least relative contrast (standard deviation
+/// over mean), nearer offsets first among equals. Stage x and z move the image's x and
+/// y by one pixel per `pixel` m (the rig's set-up; the image map is not yet measured
+/// when the blur is learnt).
+fn plainest(bg: &Background, tip: [f64; 2], axis: [f64; 2], pixel: f64) -> [f64; 2] {
     let h = (bg.pixels.len() / bg.width.max(1)) as i64;
     let w = bg.width as i64;
+    let n = axis[0].hypot(axis[1]);
+    let axis = if n > 0.0 && n.is_finite() {
+        [axis[0] / n, axis[1] / n]
+    } else {
+        [0.0, 1.0]
+    };
+    let across = [-axis[1], axis[0]];
+    let (ahead, behind, side) = (
+        (PLAIN_AHEAD / pixel).ceil() as i64,
+        (PLAIN_BEHIND / pixel).ceil() as i64,
+        (PLAIN_ACROSS / pixel).ceil() as i64,
+    );
     let contrast = |c: [f64; 2]| -> Option<f64> {
-        let (cx, cy) = (c[0].round() as i64, c[1].round() as i64);
-        if cx - HALF < 0 || cy - HALF < 0 || cx + HALF >= w || cy + HALF >= h {
-            return None;
-        }
         let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
-        for j in cy - HALF..=cy + HALF {
-            let row = &bg.pixels[(j * w) as usize..((j + 1) * w) as usize];
-            for &v in &row[(cx - HALF) as usize..=(cx + HALF) as usize] {
-                let v = v as f64;
+        for a in -behind..=ahead {
+            for b in -side..=side {
+                let x = (c[0] + a as f64 * axis[0] + b as f64 * across[0]).round() as i64;
+                let y = (c[1] + a as f64 * axis[1] + b as f64 * across[1]).round() as i64;
+                if x < 0 || y < 0 || x >= w || y >= h {
+                    return None;
+                }
+                let v = bg.pixels[(y * w + x) as usize] as f64;
                 s += v;
                 s2 += v * v;
                 n += 1.0;
@@ -2896,6 +3056,15 @@ fn decompose(e: [f64; 2], u: [f64; 2], v: [f64; 2]) -> [f64; 2] {
 /// The median of `v` (the mean of the middle two for an even count); NaN if empty.
 fn median(mut v: Vec<f64>) -> f64 {
     cellinject_numeric::median(&mut v)
+}
+
+/// The lower quartile of `v` (not empty): the value a quarter of the way up the
+/// sorted values, interpolated linearly between neighbours.
+fn lower_quartile(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let at = 0.25 * (v.len() - 1) as f64;
+    let (k, f) = (at.floor() as usize, at.fract());
+    v[k] + f * (v[(k + 1).min(v.len() - 1)] - v[k])
 }
 
 fn unit(v: [f64; 2]) -> [f64; 2] {
@@ -3819,8 +3988,8 @@ mod tests {
 
     /// A background of plain floor at 150 with the plate's walls (dark lines every
     /// 170 px, 4 px wide, at 110) and one dark cell; `plainest` must carry the tip's
-    /// end, put at a wall crossing, off every wall and away from the cell, within its
-    /// reach.
+    /// end, put at a wall crossing, so far that the glass behind it too lies off every
+    /// wall and away from the cell, within its reach.
     #[test]
     fn the_blur_is_learnt_on_plain_floor_off_the_walls() {
         let (w, h) = (400usize, 400usize);
@@ -3841,14 +4010,24 @@ mod tests {
             pixel_size: pixel,
         };
         // The tip's end at the crossing of the walls at x = 171..175, y = 171..175.
+        // The glass comes down the image (its axis towards the tip along +y).
         let tip = [172.0, 172.0];
-        let d = plainest(&bg, tip, pixel);
+        let d = plainest(&bg, tip, [0.0, 1.0], pixel);
         assert!(d[0].abs() <= BLUR_REACH + 1e-12 && d[1].abs() <= BLUR_REACH + 1e-12);
         let at = [tip[0] + d[0] / pixel, tip[1] + d[1] / pixel];
-        // The 31 x 31 window around the new end touches no wall and not the cell.
-        let (x0, y0) = (at[0].round() as usize - 15, at[1].round() as usize - 15);
-        for j in y0..=y0 + 30 {
-            for i in x0..=x0 + 30 {
+        // The strip the locator reads around the new end (10 um ahead, 55 um behind,
+        // 12 um either side) touches no wall and not the cell.
+        let px = |m: f64| (m / pixel).ceil() as usize;
+        let (x0, x1) = (
+            at[0].round() as usize - px(12e-6),
+            at[0].round() as usize + px(12e-6),
+        );
+        let (y0, y1) = (
+            at[1].round() as usize - px(55e-6),
+            at[1].round() as usize + px(10e-6),
+        );
+        for j in y0..=y1 {
+            for i in x0..=x1 {
                 assert_eq!(bg.pixels[j * w + i], 150, "({i}, {j}) for offset {d:?}");
             }
         }
