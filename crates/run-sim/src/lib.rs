@@ -549,6 +549,7 @@ pub fn execute(
                         "rest_m": r.rest_m,
                         "focus_by": r.focus_by,
                         "tip_above_m": r.tip_above_m,
+                        "tip_blur_px": r.tip_blur_px,
                         "focus_m": r.focus_m,
                         "hysteresis_check": r.hysteresis_check,
                     }),

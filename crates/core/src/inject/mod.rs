@@ -686,6 +686,9 @@ pub struct RunReport {
     /// m, how much higher the resting tip stood than where the session's first run
     /// found it (negative: lower), as last measured.
     pub tip_above_m: f64,
+    /// Pixels (of the full frames), the blur of the tip's end in focus that every
+    /// tip location used ([`Workflow::learn_blur`]; NaN if never learnt).
+    pub tip_blur_px: f64,
     /// What the session's next run refers its focus to (not in the records: it holds
     /// the side reference's frame).
     #[serde(skip)]
@@ -1284,6 +1287,7 @@ impl<'r, B: Backend> Workflow<'r, B> {
                 rest_m: self.rest.unwrap_or([0.0; 2]),
                 focus_by: self.focus_by,
                 tip_above_m: self.options.focus - self.focus,
+                tip_blur_px: self.blur().unwrap_or(f64::NAN),
                 session: Session {
                     rest_m: self.rest.unwrap_or([0.0; 2]),
                     side: self.side.clone(),
