@@ -118,8 +118,11 @@ def main(argv):
             print(f"strip_plate.py --score: {e}", file=sys.stderr)
             return 2
         return 0
+    if len(argv) == 2:
+        print(__doc__.strip())
+        return 0
     print(__doc__.strip(), file=sys.stderr)
-    return 0 if len(argv) == 2 else 2
+    return 2
 
 
 if __name__ == "__main__":
