@@ -259,10 +259,11 @@ impl Plane {
 /// Farthest a tile's focus may lie from the plane through the others, m.
 pub const PLANE_OUTLIER: f64 = 1.5e-6;
 
-/// m/m, tilts that differ by less than this count as equal when the consensus picks
-/// among planes with as many points near (0.5 um/mm: a tenth of a field's usual
-/// slope).
-const TILT_EQUAL: f64 = 0.5e-3;
+/// m/m, how much steeper than another with as many points near a plane must be for
+/// the consensus to prefer the other whatever their sums of distances (10 um/mm:
+/// twice the steepest field of the prototype's plates; closer tilts are told apart
+/// by the sum, as a plate truly tilted by 5 um/mm needs).
+const TILT_EQUAL: f64 = 10e-3;
 
 /// m, least rms spread of the points along a direction for the plane's slope along
 /// it to be fitted: along a narrower direction (a plate a few wells wide, seen in one
@@ -303,12 +304,14 @@ pub fn fit_plane(points: &[([f64; 2], f64)], centre: [f64; 2]) -> Result<Plane, 
 /// The points within [`PLANE_OUTLIER`] of the plane through three of them that the
 /// most points lie near (see [`fit_plane`]); all of them when there are four or fewer,
 /// or when no three make a plane that three points lie near. Among planes with as many
-/// points near, the least tilted wins (then the smaller sum of distances): a plate
-/// lies nearly level on its holder (the prototype's fields slope 1.5-5.6 um/mm), and
-/// points along one line fit any tilt about it, so a noise peak beside them makes a
-/// plane that four points lie near as well as the true one. A 1 x 16 strip plate's
-/// field had three right tiles on one column: with the smaller sum of distances
-/// first, such a plane won (22.9 um/mm, the cells 13.6 um off their focus).
+/// points near, the smaller sum of distances wins, unless one is steeper than the
+/// other by [`TILT_EQUAL`]: then the flatter. A plate lies nearly level on its holder
+/// (the prototype's fields slope 1.5-5.6 um/mm), and points along one line fit any
+/// tilt about it, so a noise peak beside them makes a plane that four points lie near
+/// as well as the true one. A 1 x 16 strip plate's field had three right tiles on one
+/// column: by the sum alone such a plane won (22.9 um/mm, the cells 13.6 um off their
+/// focus); preferring the flatter at any difference lost a truly tilted plate's
+/// slope (3.7 for 5 um/mm, the cells 2.1 um off).
 fn consensus(points: &[([f64; 2], f64)], centre: [f64; 2]) -> Vec<([f64; 2], f64)> {
     let n = points.len();
     if n <= 4 {
