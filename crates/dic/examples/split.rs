@@ -88,9 +88,16 @@ fn main() {
         .map(|p| icgn::refine_prepared(p, &s, init, &opts).unwrap())
         .collect();
     let _ = at(256, 256, &mut sc);
-    time("measure", &mut |x, y| {
-        std::hint::black_box(at(x, y, &mut sc));
-    });
+    // SPLIT_REPEAT=N measures the points N times (for a profiler's samples).
+    let repeat: usize = std::env::var("SPLIT_REPEAT")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    for _ in 0..repeat {
+        time("measure", &mut |x, y| {
+            std::hint::black_box(at(x, y, &mut sc));
+        });
+    }
     if std::env::var("SPLIT_NEW").is_ok() {
         return;
     }

@@ -380,6 +380,24 @@ pub(crate) fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree:
     }
 }
 
+/// [`prefilter`] along each of the lines of `n` samples stored back to back in `d`:
+/// side by side in the vector registers (the lines are the columns of the transpose),
+/// where one line alone waits on each step of the recursion.
+pub(crate) fn prefilter_lines(d: &mut [f64], n: usize, degree: Degree) {
+    if n == 0 {
+        return;
+    }
+    let count = d.len() / n;
+    let mut t = transpose(&d[..count * n], n, count);
+    pulp::Arch::new().dispatch(Columns {
+        c: &mut t,
+        w: count,
+        h: n,
+        degree,
+    });
+    d[..count * n].copy_from_slice(&transpose(&t, count, n));
+}
+
 /// `floor` without a library call (baseline x86-64 has no rounding instruction).
 #[inline]
 fn fast_floor(x: f64) -> f64 {
@@ -592,12 +610,7 @@ impl BSpline {
     ) -> bool {
         let (nw, nh) = (2 * hw + 1, 2 * hh + 1);
         let (hwf, hhf) = (hw as f64, hh as f64);
-        let corners = [(-hwf, -hhf), (hwf, -hhf), (-hwf, hhf), (hwf, hhf)].map(|(dx, dy)| {
-            (
-                xc + dx + p[0] + p[1] * dx + p[2] * dy,
-                yc + dy + p[3] + p[4] * dx + p[5] * dy,
-            )
-        });
+        let corners = warped_corners(xc, yc, hw, hh, p);
         if !corners.iter().all(|&(x, y)| self.contains(x, y, margin)) {
             return false;
         }
@@ -656,6 +669,15 @@ impl BSpline {
             self.separable(0, &d, &w),
             self.separable(0, &w, &d),
         )
+    }
+
+    /// The spline's gradient (∂/∂x, ∂/∂y) at every pixel, row-major.
+    pub fn node_gradients(&self) -> (Vec<f64>, Vec<f64>) {
+        let (w, d) = (
+            self.degree.weights(0.0),
+            self.degree.weights_derivative(0.0),
+        );
+        rayon::join(|| self.separable(0, &d, &w), || self.separable(0, &w, &d))
     }
 
     /// `Σ_j wy_j Σ_i wx_i c[y + shift − 2 + j][x + shift − 2 + i]` at every pixel
@@ -817,6 +839,26 @@ impl WarpedRows<'_> {
             }
         }
     }
+}
+
+/// The corners of the rectangle `2·hw + 1` x `2·hh + 1` centred at (xc, yc), warped by
+/// the affine `p` = (u, ∂u/∂x, ∂u/∂y, v, ∂v/∂x, ∂v/∂y): the extremes of the warped
+/// rectangle, so it lies `margin` inside a spline ([`BSpline::contains`]) when they do.
+#[inline(always)]
+pub(crate) fn warped_corners(
+    xc: f64,
+    yc: f64,
+    hw: usize,
+    hh: usize,
+    p: &[f64; 6],
+) -> [(f64, f64); 4] {
+    let (hwf, hhf) = (hw as f64, hh as f64);
+    [(-hwf, -hhf), (hwf, -hhf), (-hwf, hhf), (hwf, hhf)].map(|(dx, dy)| {
+        (
+            xc + dx + p[0] + p[1] * dx + p[2] * dy,
+            yc + dy + p[3] + p[4] * dx + p[5] * dy,
+        )
+    })
 }
 
 /// How many pixels k = 0, 1, ... keep `t0 + s·k` in [0, 1) (at least one: `t0` is).

@@ -233,9 +233,10 @@ fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
     let half = SINC_HALF as usize;
     let pad = 2 * half;
     let mut ext = vec![0.0; n + 2 * pad];
-    let mut sim = vec![0.0; n];
-    let mut coef = vec![0.0; n + 2 * (TAPS - 1)];
-    for (line, dst) in lines.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
+    // Each line resampled at m − t (each tap a pass over the line), all the lines
+    // first: their splines are then made side by side.
+    let mut sims = vec![0.0; lines.len()];
+    for (line, sim) in lines.chunks_exact(n).zip(sims.chunks_exact_mut(n)) {
         // The line mirrored about its half-sample edges, as the subset's own
         // simulation mirrors the image.
         let half_sample = |i: usize| {
@@ -246,22 +247,28 @@ fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
         for i in (0..pad).chain(pad + n..n + 2 * pad) {
             ext[i] = half_sample(i);
         }
-        // The line resampled at m − t: each tap a pass over the line.
-        sim.fill(0.0);
         for (j, wj) in sinc.iter().enumerate() {
             let from = pad - half + j;
             for (s, e) in sim.iter_mut().zip(&ext[from..from + n]) {
                 *s += wj * e;
             }
         }
-        // Its spline, interpolated back at m + t: taps m − 2..=m + 3.
-        bspline::prefilter(&mut sim, 0, n, 1, degree);
-        let edge = TAPS - 1;
-        coef[edge..edge + n].copy_from_slice(&sim);
+    }
+    bspline::prefilter_lines(&mut sims, n, degree);
+    // Each spline interpolated back at m + t: taps m − 2..=m + 3.
+    let edge = TAPS - 1;
+    let mut coef = vec![0.0; n + 2 * (TAPS - 1)];
+    let mut acc = vec![0.0; n];
+    for ((line, sim), dst) in lines
+        .chunks_exact(n)
+        .zip(sims.chunks_exact(n))
+        .zip(out.chunks_exact_mut(n))
+    {
+        coef[edge..edge + n].copy_from_slice(sim);
         for i in (0..edge).chain(edge + n..n + 2 * edge) {
             coef[i] = sim[bspline::mirror(i as isize - edge as isize, n)];
         }
-        let mut acc = vec![0.0; n];
+        acc.fill(0.0);
         for (i, wi) in spline.iter().enumerate() {
             let from = TAPS - 3 + i;
             for (a, c) in acc.iter_mut().zip(&coef[from..from + n]) {

@@ -14,7 +14,7 @@ use std::sync::OnceLock;
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 
-use crate::bspline::{BSpline, Degree};
+use crate::bspline::{BSpline, Degree, warped_corners};
 use crate::image::Image;
 
 /// Lanes of [`sums`]: as many as the widest vector unit holds (AVX-512, f64).
@@ -163,7 +163,7 @@ impl Reference {
     /// Precomputes the gradients of the spline of the given degree at the pixel centres.
     pub fn with_degree(image: Image, degree: Degree) -> Self {
         let s = BSpline::with_degree(&image, degree);
-        let (_, gx, gy) = s.node_values_gradients();
+        let (gx, gy) = s.node_gradients();
         Reference {
             image,
             spline: s,
@@ -361,6 +361,21 @@ fn interpolation_bias_1d(
 }
 
 impl RefSubset {
+    /// The grey levels less their mean, the gradients and the offsets from the centre,
+    /// each as long as the subset (one length the compiler sees, for the loops over
+    /// them to run unchecked).
+    #[inline(always)]
+    fn slices(&self) -> [&[f64]; 5] {
+        let n = self.f.len();
+        [
+            &self.f[..n],
+            &self.gx[..n],
+            &self.gy[..n],
+            &self.dx[..n],
+            &self.dy[..n],
+        ]
+    }
+
     #[inline(always)]
     fn new(r: &Reference, x: usize, y: usize, s: Subset) -> Self {
         let (nw, nh) = (2 * s.half_w + 1, 2 * s.half_h + 1);
@@ -387,10 +402,6 @@ impl RefSubset {
             out.dy.extend(std::iter::repeat_n(dy, nw));
             out.dx.extend((0..nw).map(|i| i as f64 - s.half_w as f64));
         }
-        let (f, gx, gy) = (&out.f[..n], &out.gx[..n], &out.gy[..n]);
-        let [sf, sx2, sy2] = sums(n, |k| [f[k], gx[k] * gx[k], gy[k] * gy[k]]);
-        out.sum_gx2 = sx2;
-        out.sum_gy2 = sy2;
         // Σ1, Σdx², Σdy² of a centred rectangle.
         let square_sum = |h: usize| (1..=h).map(|d| 2.0 * (d * d) as f64).sum::<f64>();
         out.moments = [
@@ -398,12 +409,6 @@ impl RefSubset {
             nh as f64 * square_sum(s.half_w),
             nw as f64 * square_sum(s.half_h),
         ];
-        let mean = sf / n as f64;
-        for v in &mut out.f {
-            *v -= mean;
-        }
-        let f = &out.f[..n];
-        out.df = sums(n, |k| [f[k] * f[k]])[0].sqrt();
         out
     }
 }
@@ -526,68 +531,103 @@ fn projections<const N: usize>(
 pub const RESIDUAL_CORRELATION_PX: usize = 2;
 
 /// The sandwich's meat `B = Σ_k Σ_l K(k, l) q_k q_lᵀ` with `q_k = J̃_k r_k` (the rows
-/// of J̃ and the residuals r, on a subset `nw` pixels wide) and the Bartlett kernel
+/// of J̃ and the residuals r) and the Bartlett kernel
 /// `K = (1 − |Δx|/(L + 1))(1 − |Δy|/(L + 1))` for |Δx|, |Δy| ≤ L =
 /// [`RESIDUAL_CORRELATION_PX`] (Newey & West, Econometrica 55, 1987; positive
 /// semi-definite), which is `Σ J̃J̃ᵀ r²` for L = 0, projected on `z` (a column of
 /// `A_s⁻¹`): `zᵀBz`, the only entry the covariance needs. With the scores
-/// `s_k = (z·J̃_k) r_k` it is `Σ_k s_k (K s)_k`, the scores smoothed by the separable
-/// kernel: a few operations per pixel where the whole matrix costs N². The caller
-/// scales it so that the residuals' mean square is the variance the noise model uses.
+/// `s_k = (z·J̃_k) r_k` it is `Σ_k Σ_l K(k, l) s_k s_l`: the scores' autocorrelation
+/// `R(Δ) = Σ_k s_k s_{k+Δ}` at the (2L + 1)² lags, weighted by K, and `R(−Δ) = R(Δ)`
+/// leaves `(L + 1) + L(2L + 1)` of them. The scores are laid out `nw + L` apart row
+/// to row, with L zero columns after each row and zeros after the last
+/// ([`padded_scores`]): a lag then is one offset into the buffer, the pairs across a
+/// row's end meet the zeros, and every lag of both projections (u and v) is summed
+/// in one pass over the buffer, a vector of pixels at a time. The caller scales the
+/// results so that the residuals' mean square is the variance the noise model uses.
 #[inline(always)]
-fn smoothed_square(
-    scores: &[f64],
-    nw: usize,
-    smoothed: &mut Vec<f64>,
-    column: &mut Vec<f64>,
-) -> f64 {
-    let n = scores.len();
-    let nh = n / nw;
-    let lag = RESIDUAL_CORRELATION_PX;
-    let weight = |d: usize| 1.0 - d as f64 / (lag as f64 + 1.0);
-    // Along the rows.
-    smoothed.clear();
-    smoothed.extend_from_slice(scores);
-    for (src, dst) in scores.chunks_exact(nw).zip(smoothed.chunks_exact_mut(nw)) {
-        for d in 1..=lag.min(nw.saturating_sub(1)) {
-            let w = weight(d);
-            for (o, s) in dst[d..].iter_mut().zip(&src[..nw - d]) {
-                *o += w * s;
-            }
-            for (o, s) in dst[..nw - d].iter_mut().zip(&src[d..]) {
-                *o += w * s;
-            }
-        }
-    }
-    // Along the columns, and the sum of the scores times their smoothed values.
-    let mut total = 0.0;
-    column.clear();
-    column.resize(nw, 0.0);
-    for y in 0..nh {
-        column.copy_from_slice(&smoothed[y * nw..(y + 1) * nw]);
-        for o in y.saturating_sub(lag)..(y + lag + 1).min(nh) {
-            if o == y {
+fn meat(u: &[f64], v: &[f64], nw: usize, nh: usize) -> (f64, f64) {
+    const L: usize = RESIDUAL_CORRELATION_PX;
+    const LAGS: usize = (L + 1) + L * (2 * L + 1);
+    let stride = nw + L;
+    let weight = |d: usize| 1.0 - d as f64 / (L as f64 + 1.0);
+    let mut offsets = [0usize; LAGS];
+    let mut coef = [0.0; LAGS];
+    let mut m = 0;
+    for dy in 0..=L {
+        for dx in -(L as isize)..=L as isize {
+            if dy == 0 && dx < 0 {
                 continue;
             }
-            let w = weight(y.abs_diff(o));
-            for (c, s) in column.iter_mut().zip(&smoothed[o * nw..(o + 1) * nw]) {
-                *c += w * s;
-            }
+            offsets[m] = (dy as isize * stride as isize + dx) as usize;
+            let pair = if dy == 0 && dx == 0 { 1.0 } else { 2.0 };
+            coef[m] = pair * weight(dx.unsigned_abs()) * weight(dy);
+            m += 1;
         }
-        let row = &scores[y * nw..(y + 1) * nw];
-        total += sums(nw, |x| [column[x] * row[x]])[0];
     }
-    total
+    let n = nh * stride;
+    let lags = |s: &[f64]| -> f64 {
+        let a = &s[..n];
+        offsets
+            .iter()
+            .zip(&coef)
+            .map(|(&o, c)| c * dot(a, &s[o..o + n]))
+            .sum()
+    };
+    (lags(u), lags(v))
 }
 
-/// `Σ g·w` over a subset for w = 1, dx, dy, dx², dx·dy, dy² (the pixels' offsets from
-/// the centre), `g(k)` a product of the gradients at pixel k.
+/// `Σ a_k b_k` of two slices of one length, in [`LANES`] interleaved partial sums (as
+/// [`sums`], without an index to check).
 #[inline(always)]
-fn weighted_moments(dx: &[f64], dy: &[f64], g: impl Fn(usize) -> f64) -> [f64; 6] {
-    sums(dx.len().min(dy.len()), |k| {
-        let (g, dx, dy) = (g(k), dx[k], dy[k]);
-        [g, g * dx, g * dy, g * dx * dx, g * dx * dy, g * dy * dy]
-    })
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    debug_assert_eq!(a.len(), b.len());
+    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let tail: f64 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    let mut acc = [0.0; LANES];
+    for (x, y) in ca.zip(cb) {
+        for l in 0..LANES {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    acc.iter().sum::<f64>() + tail
+}
+
+/// Writes the scores `score(k)` of the pixels k of an `nw x nh` subset (row-major)
+/// into the padded layouts of [`padded_scores`] (`stride` apart).
+#[inline(always)]
+fn fill_padded(
+    su: &mut [f64],
+    sv: &mut [f64],
+    nw: usize,
+    nh: usize,
+    stride: usize,
+    score: impl Fn(usize) -> (f64, f64),
+) {
+    let rows = su.chunks_exact_mut(stride).zip(sv.chunks_exact_mut(stride));
+    for (j, (ru, rv)) in rows.take(nh).enumerate() {
+        for (i, (a, b)) in ru[..nw].iter_mut().zip(&mut rv[..nw]).enumerate() {
+            (*a, *b) = score(j * nw + i);
+        }
+    }
+}
+
+/// Resizes `buf` to hold the scores of an `nw x nh` subset laid out for [`meat`]:
+/// rows `nw + L` apart, the gaps zero, and zeros after the last row up to a whole
+/// vector and for the farthest lag past it. Returns the stride.
+fn padded_scores(buf: &mut Vec<f64>, nw: usize, nh: usize) -> usize {
+    let stride = nw + RESIDUAL_CORRELATION_PX;
+    buf.clear();
+    let whole = (nh * stride).div_ceil(LANES) * LANES;
+    buf.resize(
+        whole + RESIDUAL_CORRELATION_PX * stride + RESIDUAL_CORRELATION_PX,
+        0.0,
+    );
+    stride
 }
 
 /// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
@@ -604,39 +644,76 @@ pub fn prepare(
     if !subset.fits(x, y, img.width(), img.height()) {
         return None;
     }
-    let rs = RefSubset::new(reference, x, y, subset);
+    let mut rs = RefSubset::new(reference, x, y, subset);
+    let n = rs.f.len();
+    // Two passes over the pixels. The first: the grey levels' sum, and the sums of the steepest-descent images J = [gx, gx·dx, gx·dy, gy,
+    // gy·dx, gy·dy] alone and times f (for the covariance with offset and gain
+    // eliminated; times f − f̄ below).
+    let [f, gx, gy, dx, dy] = rs.slices();
+    let first = sums(n, |k| {
+        let (gx, gy, dx, dy, f) = (gx[k], gy[k], dx[k], dy[k], f[k]);
+        let (hx, hy) = (gx * f, gy * f);
+        [
+            f,
+            gx,
+            gx * dx,
+            gx * dy,
+            gy,
+            gy * dx,
+            gy * dy,
+            hx,
+            hx * dx,
+            hx * dy,
+            hy,
+            hy * dx,
+            hy * dy,
+        ]
+    });
+    // The second: the Hessian of the steepest-descent images (constant: computed
+    // once), its 21 distinct products from 6 moments w = 1, dx, dy, dx², dx·dy, dy²
+    // of each gradient product: mom[a][b] for a in {xx, xy, yy}.
+    let second = sums(n, |k| {
+        let (gx, gy, dx, dy) = (gx[k], gy[k], dx[k], dy[k]);
+        let w = [1.0, dx, dy, dx * dx, dx * dy, dy * dy];
+        let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
+        [
+            xx * w[0],
+            xx * w[1],
+            xx * w[2],
+            xx * w[3],
+            xx * w[4],
+            xx * w[5],
+            xy * w[0],
+            xy * w[1],
+            xy * w[2],
+            xy * w[3],
+            xy * w[4],
+            xy * w[5],
+            yy * w[0],
+            yy * w[1],
+            yy * w[2],
+            yy * w[3],
+            yy * w[4],
+            yy * w[5],
+        ]
+    });
+    let mom: [[f64; 6]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| second[6 * a + b]));
+    let mean = first[0] / n as f64;
+    rs.sum_gx2 = mom[0][0];
+    rs.sum_gy2 = mom[2][0];
+    for v in &mut rs.f {
+        *v -= mean;
+    }
+    // From the centred values (exactly zero on a uniform subset).
+    let f = &rs.f[..n];
+    rs.df = sums(n, |k| [f[k] * f[k]])[0].sqrt();
     if rs.df == 0.0 || rs.sum_gx2 == 0.0 || rs.sum_gy2 == 0.0 {
         return None;
     }
-    let n = rs.f.len();
-    // Hessian of the steepest-descent images (constant: computed once). For the affine
-    // shape J = [gx, gx·dx, gx·dy, gy, gy·dx, gy·dy]: the 21 distinct products are
-    // accumulated from 10 moments per gradient pair.
+    let s1: [f64; 6] = std::array::from_fn(|i| first[1 + i]);
+    let sf: [f64; 6] = std::array::from_fn(|i| first[7 + i] - mean * s1[i]);
     let mut h6 = SMatrix::<f64, 6, 6>::zeros();
     let mut h2 = SMatrix::<f64, 2, 2>::zeros();
-    // m[a][b] for (a, b) in {xx, xy, yy} x {1, dx, dy, dx², dx·dy, dy²}
-    let (gx, gy, dx, dy, f) = (
-        &rs.gx[..n],
-        &rs.gy[..n],
-        &rs.dx[..n],
-        &rs.dy[..n],
-        &rs.f[..n],
-    );
-    let mom = [
-        weighted_moments(dx, dy, |k| gx[k] * gx[k]),
-        weighted_moments(dx, dy, |k| gx[k] * gy[k]),
-        weighted_moments(dx, dy, |k| gy[k] * gy[k]),
-    ];
-    // Sums of the steepest-descent images and of their products with f − f̄, for the
-    // covariance with offset and gain eliminated.
-    let s1 = sums(n, |k| {
-        let (gx, gy, dx, dy) = (gx[k], gy[k], dx[k], dy[k]);
-        [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy]
-    });
-    let sf = sums(n, |k| {
-        let (gx, gy, dx, dy) = (gx[k] * f[k], gy[k] * f[k], dx[k], dy[k]);
-        [gx, gx * dx, gx * dy, gy, gy * dx, gy * dy]
-    });
     let ff = rs.df * rs.df;
     match shape {
         Shape::Affine => {
@@ -1164,27 +1241,17 @@ fn noise_covariance(
     // The reference's noise (half the residual's variance) in its gradients.
     let nu = 0.5 * var * degree.derivative_noise_gain();
     let nw = 2 * subset.half_w + 1;
-    let Sandwich {
-        scores_u,
-        scores_v,
-        smoothed,
-        column,
-    } = scratch;
+    let Sandwich { scores_u, scores_v } = scratch;
     // The sandwich `A_s⁻¹ B A_s⁻¹` at u and v: the scores of its projections, then
-    // the meat (see `smoothed_square`), scaled so that the residuals' mean square is
+    // the meat (see [`meat`]), scaled so that the residuals' mean square is
     // `var`; without residual, the white-noise `var·A`.
     let scale = n as f64 * var / residual2;
-    let (gx, gy, dx, dy, f) = (
-        &rs.gx[..n],
-        &rs.gy[..n],
-        &rs.dx[..n],
-        &rs.dy[..n],
-        &rs.f[..n],
-    );
+    let [f, gx, gy, dx, dy] = rs.slices();
     let residuals = &residuals[..n];
-    scores_u.resize(n, 0.0);
-    scores_v.resize(n, 0.0);
-    let (su, sv) = (&mut scores_u[..n], &mut scores_v[..n]);
+    let nh = n / nw;
+    let stride = padded_scores(scores_u, nw, nh);
+    padded_scores(scores_v, nw, nh);
+    let (su, sv) = (&mut scores_u[..], &mut scores_v[..]);
     let white = match info {
         Information::Affine(a) => {
             // Σ wwᵀ over a centred subset, w = (1, dx, dy): diagonal.
@@ -1196,19 +1263,16 @@ fn noise_covariance(
             let Some((zu, zv)) = projections(a, &noise, 3) else {
                 return ((f64::INFINITY, f64::INFINITY), var);
             };
-            for k in 0..n {
+            fill_padded(su, sv, nw, nh, stride, |k| {
                 let (gx, gy, dx, dy, f, r) = (gx[k], gy[k], dx[k], dy[k], f[k], residuals[k]);
-                su[k] = r
-                    * (gx * (zu[0] + zu[1] * dx + zu[2] * dy)
-                        + gy * (zu[3] + zu[4] * dx + zu[5] * dy)
-                        + zu[6]
-                        + zu[7] * f);
-                sv[k] = r
-                    * (gx * (zv[0] + zv[1] * dx + zv[2] * dy)
-                        + gy * (zv[3] + zv[4] * dx + zv[5] * dy)
-                        + zv[6]
-                        + zv[7] * f);
-            }
+                let score = |z: &[f64; 8]| {
+                    r * (gx * (z[0] + z[1] * dx + z[2] * dy)
+                        + gy * (z[3] + z[4] * dx + z[5] * dy)
+                        + z[6]
+                        + z[7] * f)
+                };
+                (score(&zu), score(&zv))
+            });
             let white = |z: &[f64; 8]| {
                 let z = SVector::<f64, 8>::from(*z);
                 var * (z.transpose() * a * z)[(0, 0)]
@@ -1222,11 +1286,11 @@ fn noise_covariance(
             let Some((zu, zv)) = projections(a, &noise, 1) else {
                 return ((f64::INFINITY, f64::INFINITY), var);
             };
-            for k in 0..n {
+            fill_padded(su, sv, nw, nh, stride, |k| {
                 let (gx, gy, f, r) = (gx[k], gy[k], f[k], residuals[k]);
-                su[k] = r * (gx * zu[0] + gy * zu[1] + zu[2] + zu[3] * f);
-                sv[k] = r * (gx * zv[0] + gy * zv[1] + zv[2] + zv[3] * f);
-            }
+                let score = |z: &[f64; 4]| r * (gx * z[0] + gy * z[1] + z[2] + z[3] * f);
+                (score(&zu), score(&zv))
+            });
             let white = |z: &[f64; 4]| {
                 let z = SVector::<f64, 4>::from(*z);
                 var * (z.transpose() * a * z)[(0, 0)]
@@ -1237,10 +1301,8 @@ fn noise_covariance(
     let cov = if residual2 <= 0.0 {
         white
     } else {
-        (
-            scale * smoothed_square(su, nw, smoothed, column),
-            scale * smoothed_square(sv, nw, smoothed, column),
-        )
+        let (mu, mv) = meat(su, sv, nw, nh);
+        (scale * mu, scale * mv)
     };
     (cov, var)
 }
@@ -1449,7 +1511,7 @@ pub(crate) fn influence(prepared: &Prepared, scratch: &mut Scratch) -> Option<()
     iu.resize(n, 0.0);
     iv.resize(n, 0.0);
     let (iu, iv) = (&mut iu[..n], &mut iv[..n]);
-    let (gx, gy, dx, dy) = (&rs.gx[..n], &rs.gy[..n], &rs.dx[..n], &rs.dy[..n]);
+    let [_, gx, gy, dx, dy] = rs.slices();
     match prepared.shape {
         Shape::Affine => {
             let h = prepared.h6_inv?;
@@ -1497,14 +1559,12 @@ impl Scratch {
     }
 }
 
-/// Buffers of the sandwich covariance: the scores of its projections on u and v, and
-/// the smoothing's.
+/// Buffers of the sandwich covariance: the scores of its projections on u and v, laid
+/// out for [`meat`].
 #[derive(Debug, Default, Clone)]
 struct Sandwich {
     scores_u: Vec<f64>,
     scores_v: Vec<f64>,
-    smoothed: Vec<f64>,
-    column: Vec<f64>,
 }
 
 /// The outcome of the iteration alone (no σ): the residuals stay in the scratch.
@@ -1512,6 +1572,9 @@ struct Sandwich {
 #[doc(hidden)]
 pub struct Iterated {
     pub(crate) p: [f64; 6],
+    /// The parameters of the last warp: the current image's values at them stay in the
+    /// scratch (`p` is one update further).
+    pub(crate) sampled: [f64; 6],
     pub(crate) iterations: usize,
     pub(crate) converged: bool,
     pub(crate) zncc: f64,
@@ -1585,60 +1648,49 @@ pub(crate) fn correct(
     let mut p = it.p;
     p[0] -= bu;
     p[3] -= bv;
-    let (s, hw, hh) = (
-        prepared.subset,
-        prepared.subset.half_w,
-        prepared.subset.half_h,
-    );
-    let warped = match prepared.shape {
-        Shape::Affine => current_spline.warped_block(
-            prepared.x as f64,
-            prepared.y as f64,
-            hw,
-            hh,
-            &p,
-            2.0,
-            &mut scratch.g,
-        ),
-        Shape::Rigid => {
-            let (cx, cy) = (prepared.x as f64 + p[0], prepared.y as f64 + p[3]);
-            let (fx, fy) = (cx.floor(), cy.floor());
-            let d = current_spline.degree();
-            let inside = current_spline.contains(cx - hw as f64, cy - hh as f64, 2.0)
-                && current_spline.contains(cx + hw as f64, cy + hh as f64, 2.0);
-            if inside {
-                current_spline.translated_block(
-                    fx,
-                    fy,
-                    s.half_w,
-                    s.half_h,
-                    &d.weights(cx - fx),
-                    &d.weights(cy - fy),
-                    &mut scratch.tmp,
-                    &mut scratch.g,
-                );
-            }
-            inside
-        }
-    };
-    if !warped {
+    // The current image's values there, from those of the iteration's last warp (at
+    // `it.sampled`, within a few hundredths of a pixel of `p`): to first order,
+    // moved along the image's gradient by the change of each pixel's position. The
+    // gradient is the reference's, scaled by the contrast between the images (the
+    // match maps one onto the other): the neglected second-order term is the
+    // texture's curvature times the squared move, some 0.01 grey levels here against
+    // a noise of grey levels, and a warp of the whole subset is saved.
+    let (hw, hh) = (prepared.subset.half_w, prepared.subset.half_h);
+    let corners = warped_corners(prepared.x as f64, prepared.y as f64, hw, hh, &p);
+    if !corners
+        .iter()
+        .all(|&(x, y)| current_spline.contains(x, y, 2.0))
+    {
         return None;
     }
-    let g = &mut scratch.g;
-    for (gk, ek) in g.iter_mut().zip(e) {
-        *gk -= ek;
+    let d: [f64; 6] = std::array::from_fn(|i| p[i] - it.sampled[i]);
+    let [f, gx, gy, dx, dy] = rs.slices();
+    let g = &mut scratch.g[..n];
+    let e = &e[..n];
+    let [sum, sum2] = sums(n, |k| [g[k], g[k] * g[k]]);
+    let spread = (sum2 - sum * sum / n as f64).max(0.0).sqrt();
+    let contrast = spread / rs.df;
+    for k in 0..n {
+        let (mx, my) = (
+            d[0] + d[1] * dx[k] + d[2] * dy[k],
+            d[3] + d[4] * dx[k] + d[5] * dy[k],
+        );
+        g[k] += contrast * (gx[k] * mx + gy[k] * my) - e[k];
     }
-    let gm = g.iter().sum::<f64>() / n as f64;
-    let dg = g.iter().map(|x| (x - gm) * (x - gm)).sum::<f64>().sqrt();
+    let g = &scratch.g[..n];
+    let [sum, sum2] = sums(n, |k| [g[k], g[k] * g[k]]);
+    let gm = sum / n as f64;
+    let dg = (sum2 - sum * gm).max(0.0).sqrt();
     if dg == 0.0 {
         return None;
     }
     let ratio = rs.df / dg;
-    let mut residual2 = 0.0;
-    for ((r, f), gk) in scratch.residuals.iter_mut().zip(&rs.f).zip(g.iter()) {
-        *r = f - ratio * (gk - gm);
-        residual2 += *r * *r;
+    let r = &mut scratch.residuals[..n];
+    for k in 0..n {
+        r[k] = f[k] - ratio * (g[k] - gm);
     }
+    let r = &scratch.residuals[..n];
+    let residual2 = sums(n, |k| [r[k] * r[k]])[0];
     let gain = lx.gain * ly.gain;
     let (cov, var) = noise_covariance(
         prepared,
@@ -1792,8 +1844,10 @@ pub fn iterate(
     let mut converged = false;
     let mut residual2 = 0.0;
     let mut zncc = 0.0;
+    let mut sampled = p;
     while iterations < opts.max_iterations {
         iterations += 1;
+        sampled = p;
         // Interpolate the current image at the warped subset.
         match shape {
             Shape::Rigid => {
@@ -1829,13 +1883,7 @@ pub fn iterate(
         }
         let ratio = rs.df / dg;
         // Residual and gradient of the criterion.
-        let (f, gx, gy, dx, dy) = (
-            &rs.f[..n],
-            &rs.gx[..n],
-            &rs.gy[..n],
-            &rs.dx[..n],
-            &rs.dy[..n],
-        );
+        let [f, gx, gy, dx, dy] = rs.slices();
         let res = &mut residuals[..n];
         for k in 0..n {
             res[k] = f[k] - ratio * (gs[k] - gm);
@@ -1884,6 +1932,7 @@ pub fn iterate(
     }
     Some(Iterated {
         p,
+        sampled,
         iterations,
         converged,
         zncc,
@@ -1893,7 +1942,43 @@ pub fn iterate(
 
 #[cfg(test)]
 mod tests {
-    use super::Subset;
+    use super::{RESIDUAL_CORRELATION_PX, Subset, meat, padded_scores};
+
+    #[test]
+    fn the_meat_is_the_bartlett_weighted_double_sum_of_the_scores() {
+        // Independent: Σ_k Σ_l K(k, l) s_k s_l over every pair of pixels, K the
+        // separable Bartlett kernel, on pseudo-random scores of several subset shapes.
+        let lag = RESIDUAL_CORRELATION_PX as f64;
+        let weight = |d: usize| (1.0 - d as f64 / (lag + 1.0)).max(0.0);
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for (nw, nh) in [(1usize, 1usize), (2, 5), (7, 5), (33, 33), (41, 29)] {
+            let s: Vec<f64> = (0..nw * nh).map(|_| next()).collect();
+            let mut direct = 0.0f64;
+            for k in 0..nw * nh {
+                for l in 0..nw * nh {
+                    let (dx, dy) = ((k % nw).abs_diff(l % nw), (k / nw).abs_diff(l / nw));
+                    direct += weight(dx) * weight(dy) * s[k] * s[l];
+                }
+            }
+            let mut buf = Vec::new();
+            let stride = padded_scores(&mut buf, nw, nh);
+            for (k, v) in s.iter().enumerate() {
+                buf[k / nw * stride + k % nw] = *v;
+            }
+            let (m, same) = meat(&buf, &buf, nw, nh);
+            assert_eq!(m, same);
+            assert!(
+                (m - direct).abs() <= 1e-12 * direct.abs().max(1.0),
+                "{nw} x {nh}: {m} against {direct}"
+            );
+        }
+    }
 
     #[test]
     fn a_subset_fits_exactly_its_image_and_a_centre_near_usize_max_does_not_overflow() {

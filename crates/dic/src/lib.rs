@@ -192,20 +192,35 @@ impl Prepared {
         let floor = (image::quantisation_variance(reference)
             + image::quantisation_variance(current))
             * image::blur_noise_gain(prefilter);
-        let (reference, current) = if prefilter > 0.0 {
+        let blurred = (prefilter > 0.0).then(|| {
             (
                 reference.gaussian_blur(prefilter),
                 current.gaussian_blur(prefilter),
             )
-        } else {
-            (reference.clone(), current.clone())
+        });
+        let (reference, current) = match blurred {
+            Some((r, c)) => (r, std::borrow::Cow::Owned(c)),
+            None => (reference.clone(), std::borrow::Cow::Borrowed(current)),
         };
         let levels = (search_radius as f64 / 8.0).log2().ceil().clamp(0.0, 5.0) as usize;
+        // The two images' splines and pyramids side by side.
+        let ((pr, r), (pc, s)) = rayon::join(
+            || {
+                let pr = search::pyramid(&reference, levels);
+                (pr, Reference::with_degree(reference, spline))
+            },
+            || {
+                (
+                    search::pyramid(&current, levels),
+                    BSpline::with_degree(&current, spline),
+                )
+            },
+        );
         Prepared {
-            pr: search::pyramid(&reference, levels),
-            pc: search::pyramid(&current, levels),
-            s: BSpline::with_degree(&current, spline),
-            r: Reference::with_degree(reference, spline),
+            pr,
+            pc,
+            s,
+            r,
             floor,
             step,
         }
