@@ -165,7 +165,9 @@ pub struct BSpline {
 }
 
 /// In-place causal/anticausal recursion of one pole `z` along a line of `n` samples
-/// with stride `s` (the overall gain is applied by the caller).
+/// with stride `s` (the overall gain is applied by the caller): one line alone, the
+/// reference the side-by-side [`Columns`] is tested against.
+#[cfg(test)]
 fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize, z: f64) {
     if n < 2 {
         return;
@@ -274,6 +276,10 @@ pub(crate) fn transpose<T: Copy + Default>(a: &[T], w: usize, h: usize) -> Vec<T
 /// Pixels from which [`BSpline::with_degree`] prefilters the rows in parallel.
 const PARALLEL_PIXELS: usize = 1 << 16;
 
+/// Rows [`BSpline::with_degree`] prefilters side by side on a large image: two
+/// vectors wide, and a group of 512-pixel rows fits the first-level cache.
+const ROW_GROUP: usize = 16;
+
 /// [`prefilter`] along every column of a `w x h` row-major array at once: the same
 /// recursions, each step applied to a whole row, so that the columns sit side by
 /// side in the vector registers instead of a stride apart in memory.
@@ -363,7 +369,8 @@ impl pulp::WithSimd for Columns<'_> {
 }
 
 /// All the poles of `degree` along one line, with the overall gain.
-pub(crate) fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
+#[cfg(test)]
+fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
     if n < 2 {
         return;
     }
@@ -429,23 +436,15 @@ impl BSpline {
     pub fn with_degree(img: &Image, degree: Degree) -> Self {
         let (w, h) = (img.width(), img.height());
         let mut c = img.data().to_vec();
-        // Rows in parallel on large images (a small one, such as the line splines
-        // made inside a lazily built table, stays on its thread).
+        // The rows side by side ([`prefilter_lines`]): on a large image
+        // [`ROW_GROUP`] at a time, the groups in parallel (a small one, such as a
+        // tracked window, stays on its thread).
         if w * h >= PARALLEL_PIXELS {
             use rayon::prelude::*;
-            c.par_chunks_mut(w)
-                .for_each(|row| prefilter(row, 0, w, 1, degree));
+            c.par_chunks_mut(ROW_GROUP * w)
+                .for_each(|rows| prefilter_lines(rows, w, degree));
         } else {
-            // A small image (a subset's window): its rows are the columns of its
-            // transpose, prefiltered side by side.
-            let mut t = transpose(&c, w, h);
-            pulp::Arch::new().dispatch(Columns {
-                c: &mut t,
-                w: h,
-                h: w,
-                degree,
-            });
-            c = transpose(&t, h, w);
+            prefilter_lines(&mut c, w, degree);
         }
         pulp::Arch::new().dispatch(Columns {
             c: &mut c,
@@ -899,6 +898,36 @@ mod tests {
             })
             .collect();
         Image::new(w, h, data).unwrap()
+    }
+
+    #[test]
+    fn lines_prefiltered_side_by_side_match_each_line_alone() {
+        // The vectorised recursions over many lines at once against the scalar one
+        // line at a time, on lines shorter and longer than the poles' horizon.
+        let mut state = 99u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 255.0
+        };
+        for degree in [Degree::Cubic, Degree::Quintic] {
+            for (n, count) in [(1usize, 3usize), (2, 5), (7, 9), (40, 17), (600, 3)] {
+                let lines: Vec<f64> = (0..n * count).map(|_| next()).collect();
+                let mut together = lines.clone();
+                prefilter_lines(&mut together, n, degree);
+                let mut alone = lines.clone();
+                for k in 0..count {
+                    prefilter(&mut alone, k * n, n, 1, degree);
+                }
+                for (a, b) in together.iter().zip(&alone) {
+                    assert!(
+                        (a - b).abs() <= 1e-9,
+                        "{degree:?}, n = {n}: {a} against {b}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
