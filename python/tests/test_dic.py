@@ -153,8 +153,11 @@ def test_a_long_field_releases_the_gil():
     span = {}
 
     def work():
+        # Fields one after the other for half a second at least, however fast one is:
+        # long enough to tell a released GIL from a held one.
         span["start"] = time.perf_counter()
-        dic.field(ref, cur, step=3)
+        while time.perf_counter() - span["start"] < 0.5:
+            dic.field(ref, cur, step=3)
         span["end"] = time.perf_counter()
         done.set()
 

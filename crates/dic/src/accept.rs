@@ -118,7 +118,8 @@ pub const COHERENT_ROUNDING: f64 = 8.0;
 
 /// Refines the point (x, y) from `initial` and judges it; when `adaptive`, a result
 /// rejected only for its predicted σ is refined again with larger subsets
-/// ([`subset_sizes`], each started from the last solution) until one is accepted, one
+/// ([`subset_sizes`], each started from the last solution, those its σ shows would
+/// still miss the bound skipped: [`next_size`]) until one is accepted, one
 /// does not converge or none fits: a self-adaptive subset after Pan et al., "Study on
 /// subset size selection in digital image correlation for speckle patterns", Opt.
 /// Express 16 (2008), which sizes each subset by its sum of squared intensity
@@ -232,7 +233,9 @@ impl pulp::WithSimd for Measure<'_, '_> {
         let mut best: Option<PointResult> = None;
         let mut last = Subset::square(subset);
         let (iw, ih) = (reference.image().width(), reference.image().height());
-        for &size in &sizes[..count] {
+        let mut k = 0;
+        while k < count {
+            let size = sizes[k];
             let start = match &best {
                 None => initial,
                 Some(b) => {
@@ -291,9 +294,35 @@ impl pulp::WithSimd for Measure<'_, '_> {
             if judge(&p, acceptance) != Err(Rejection::Uncertain) {
                 break;
             }
+            let side = (((2 * sub.half_w + 1) * (2 * sub.half_h + 1)) as f64).sqrt();
+            k = next_size(
+                &sizes[..count],
+                k,
+                side,
+                p.sigma_u.max(p.sigma_v),
+                acceptance,
+            );
         }
         best
     }
+}
+
+/// The index of the next subset size [`measure`] tries after `sizes[k]` (a subset of
+/// `side`² pixels) predicted `sigma` over the bound: the smallest larger size at
+/// which σ, falling as the side grows (the noise term's `1/√n` on a texture like the
+/// one already seen), would meet it, else the largest. The sizes in between would
+/// still miss it, and each costs a whole measurement. A σ held up by what more
+/// pixels do not average out (the rounding's bound) is underestimated: the next size
+/// misses the bound as well, and the one after is tried, as before.
+fn next_size(sizes: &[usize], k: usize, side: f64, sigma: f64, acceptance: &Acceptance) -> usize {
+    let last = sizes.len().saturating_sub(1);
+    if k >= last {
+        return k + 1;
+    }
+    let needed = side * sigma / acceptance.max_sigma;
+    (k + 1..=last)
+        .find(|&j| sizes[j] as f64 >= needed)
+        .unwrap_or(last)
 }
 
 /// Distance in pixels that [`grown_subset`] keeps between a displaced subset and the
@@ -521,6 +550,25 @@ mod tests {
     /// A faint texture under noise: the 31 px subset's σ is above the bound, so the
     /// point is no measurement; the self-adaptive subset grows it until it is one, says
     /// which size it used, and its error is within its σ's reach.
+    #[test]
+    fn the_next_size_is_the_first_at_which_sigma_would_meet_the_bound() {
+        let sizes = subset_sizes(33);
+        assert_eq!(sizes, [33, 45, 55, 65]);
+        let a = Acceptance::default();
+        // σ ∝ 1/side: 0.03 at 33 px meets 0.025 from 39.6 px, 0.04 from 52.8 px.
+        assert_eq!(next_size(&sizes, 0, 33.0, 0.03, &a), 1);
+        assert_eq!(next_size(&sizes, 0, 33.0, 0.04, &a), 2);
+        assert_eq!(next_size(&sizes, 0, 33.0, 0.0255, &a), 1);
+        // Out of reach: the largest, once; after the largest, the end.
+        assert_eq!(next_size(&sizes, 0, 33.0, 0.1, &a), 3);
+        assert_eq!(next_size(&sizes, 1, 45.0, 0.1, &a), 3);
+        assert_eq!(next_size(&sizes, 3, 65.0, 0.1, &a), 4);
+        // A rectangle near a border counts by its area; NaN tries the largest.
+        assert_eq!(next_size(&sizes, 0, (25.0f64 * 43.0).sqrt(), 0.03, &a), 1);
+        assert_eq!(next_size(&sizes, 0, 33.0, f64::NAN, &a), 3);
+        assert_eq!(next_size(&sizes[..1], 0, 33.0, 0.04, &a), 1);
+    }
+
     #[test]
     fn a_faint_texture_is_measured_by_a_grown_subset() {
         let (w, h) = (128, 128);
