@@ -1,7 +1,9 @@
 //! Integer-pixel search by zero-normalised cross-correlation (ZNCC), computed for every
 //! candidate shift at once through the FFT, with the local means and energies of the
-//! search region from integral images (Lewis, "Fast normalized cross-correlation", 1995).
-//! Coarse-to-fine over an image pyramid for large jumps.
+//! search region from integral images (Lewis, "Fast normalized cross-correlation", 1995);
+//! where the candidates are few (a refinement within ±2 px, a small template at a
+//! pyramid's top) the cross-correlation is summed directly, which costs less than the
+//! three transforms. Coarse-to-fine over an image pyramid for large jumps.
 
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
@@ -17,6 +19,11 @@ pub struct IntegerMatch {
     pub v: i64,
     /// ZNCC at the shift (−1..1).
     pub zncc: f64,
+}
+
+thread_local! {
+    /// Each thread's FFT plans, kept from one search to the next.
+    static PLANNER: std::cell::RefCell<FftPlanner<f64>> = std::cell::RefCell::new(FftPlanner::new());
 }
 
 fn fft2(planner: &mut FftPlanner<f64>, data: &mut [Complex<f64>], n: usize, inverse: bool) {
@@ -82,27 +89,19 @@ pub fn search(
     if t_energy == 0.0 {
         return None;
     }
-    let zero = Complex::new(0.0, 0.0);
-    let mut a = vec![zero; size * size];
-    let mut b = vec![zero; size * size];
-    for j in 0..sh {
-        for i in 0..sw {
-            a[j as usize * size + i as usize].re = current.at((x0 + i) as usize, (y0 + j) as usize);
-        }
-    }
-    for j in 0..n {
-        for i in 0..n {
-            b[j as usize * size + i as usize].re = t[(j * n + i) as usize] - tm;
-        }
-    }
-    let mut planner = FftPlanner::new();
-    fft2(&mut planner, &mut a, size, false);
-    fft2(&mut planner, &mut b, size, false);
-    for (p, q) in a.iter_mut().zip(&b) {
-        *p *= q.conj();
-    }
-    fft2(&mut planner, &mut a, size, true);
-    let scale = 1.0 / (size * size) as f64;
+    // The cross-correlation of the zero-mean template with the region at every
+    // candidate offset (i, j), row-major with `stride`: summed directly where that
+    // costs less than three transforms of `size`², else through the FFT.
+    let region = Region { x0, y0, sw, sh };
+    let tz: Vec<f64> = t.iter().map(|v| v - tm).collect();
+    let candidates = ((sw - n + 1) * (sh - n + 1)) as usize;
+    let nn = n as usize;
+    let transforms = 3 * size * size * (2 * size.trailing_zeros() as usize).max(1) * 2;
+    let (cross, stride) = if candidates * nn * nn <= transforms {
+        cross_direct(current, &tz, nn, region)
+    } else {
+        cross_fft(current, &tz, nn, region, size)
+    };
     // Integral images of the region and its square.
     let w1 = (sw + 1) as usize;
     let mut s1 = vec![0.0; w1 * (sh + 1) as usize];
@@ -132,7 +131,7 @@ pub fn search(
             if var <= 0.0 {
                 continue;
             }
-            let num = a[j * size + i].re * scale;
+            let num = cross[j * stride + i];
             let zncc = num / (t_energy * var.sqrt());
             if zncc > best.zncc {
                 best = IntegerMatch {
@@ -144,6 +143,68 @@ pub fn search(
         }
     }
     best.zncc.is_finite().then_some(best)
+}
+
+/// The search region in the current image: its top-left pixel and size.
+#[derive(Debug, Clone, Copy)]
+struct Region {
+    x0: i64,
+    y0: i64,
+    sw: i64,
+    sh: i64,
+}
+
+/// `Σ tz_k c_{(i, j) + k}` of the zero-mean `n x n` template `tz` with the region of
+/// `current` at every candidate offset (i, j) (row-major, as many columns as the
+/// returned stride): summed directly.
+fn cross_direct(current: &Image, tz: &[f64], n: usize, r: Region) -> (Vec<f64>, usize) {
+    let (cols, rows) = (r.sw as usize + 1 - n, r.sh as usize + 1 - n);
+    let (data, cw) = (current.data(), current.width());
+    let mut out = vec![0.0; cols * rows];
+    for (j, row) in out.chunks_exact_mut(cols).enumerate() {
+        for (i, o) in row.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (jj, trow) in tz.chunks_exact(n).enumerate() {
+                let start = (r.y0 as usize + j + jj) * cw + r.x0 as usize + i;
+                acc += trow
+                    .iter()
+                    .zip(&data[start..start + n])
+                    .map(|(a, b)| a * b)
+                    .sum::<f64>();
+            }
+            *o = acc;
+        }
+    }
+    (out, cols)
+}
+
+/// [`cross_direct`] through `size`² FFTs (the product of the transforms, transformed
+/// back), row-major with stride `size`.
+fn cross_fft(current: &Image, tz: &[f64], n: usize, r: Region, size: usize) -> (Vec<f64>, usize) {
+    let zero = Complex::new(0.0, 0.0);
+    let mut a = vec![zero; size * size];
+    let mut b = vec![zero; size * size];
+    for j in 0..r.sh as usize {
+        for i in 0..r.sw as usize {
+            a[j * size + i].re = current.at(r.x0 as usize + i, r.y0 as usize + j);
+        }
+    }
+    for (j, trow) in tz.chunks_exact(n).enumerate() {
+        for (i, v) in trow.iter().enumerate() {
+            b[j * size + i].re = *v;
+        }
+    }
+    PLANNER.with(|p| {
+        let mut planner = p.borrow_mut();
+        fft2(&mut planner, &mut a, size, false);
+        fft2(&mut planner, &mut b, size, false);
+        for (p, q) in a.iter_mut().zip(&b) {
+            *p *= q.conj();
+        }
+        fft2(&mut planner, &mut a, size, true);
+    });
+    let scale = 1.0 / (size * size) as f64;
+    (a.iter().map(|c| c.re * scale).collect(), size)
 }
 
 /// Coarse-to-fine search: a wide search on a pyramid level where the jump is small, then
@@ -205,6 +266,41 @@ pub fn pyramid(img: &Image, levels: usize) -> Vec<Image> {
 mod tests {
     use super::*;
     use crate::synth::{Speckle, SpeckleParams};
+
+    #[test]
+    fn the_direct_and_the_fft_cross_correlations_agree() {
+        let s = Speckle::new(&SpeckleParams::default_for(96, 80), 8);
+        let c = s.render_shifted(1.3, -0.7, 0.0, 2);
+        let n = 9;
+        let tz: Vec<f64> = (0..n * n).map(|k| ((k * 37 % 11) as f64) - 5.0).collect();
+        for r in [
+            Region {
+                x0: 10,
+                y0: 12,
+                sw: 27,
+                sh: 27,
+            },
+            Region {
+                x0: 0,
+                y0: 0,
+                sw: 40,
+                sh: 23,
+            },
+        ] {
+            let size = (r.sw.max(r.sh) as usize).next_power_of_two();
+            let (d, ds) = cross_direct(&c, &tz, n, r);
+            let (f, fs) = cross_fft(&c, &tz, n, r, size);
+            for j in 0..=(r.sh as usize - n) {
+                for i in 0..=(r.sw as usize - n) {
+                    let (a, b) = (d[j * ds + i], f[j * fs + i]);
+                    assert!(
+                        (a - b).abs() <= 1e-9 * a.abs().max(1.0),
+                        "({i}, {j}): {a} against {b}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn finds_integer_and_large_shifts() {
