@@ -311,9 +311,9 @@ impl pulp::WithSimd for Measure<'_, '_> {
 /// `side`² pixels) predicted `sigma` over the bound: the smallest larger size at
 /// which σ, falling as the side grows (the noise term's `1/√n` on a texture like the
 /// one already seen), would meet it, else the largest. The sizes in between would
-/// still miss it, and each costs a whole measurement. A σ held up by what more
-/// pixels do not average out (the rounding's bound) is underestimated: the next size
-/// misses the bound as well, and the one after is tried, as before.
+/// still miss it, and each costs a whole measurement. Where σ is held up by what more
+/// pixels do not average out (the rounding's bound), the size this predicts is too
+/// small: it misses the bound as well, and the one after it is tried, as before.
 fn next_size(sizes: &[usize], k: usize, side: f64, sigma: f64, acceptance: &Acceptance) -> usize {
     let last = sizes.len().saturating_sub(1);
     if k >= last {
