@@ -382,7 +382,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         d,
         options,
         hysteresis,
-        rest: None,
+        session: None,
         twin,
         plate: plate.clone(),
         run_id,
@@ -760,7 +760,7 @@ mod tests {
             d: &d,
             options,
             hysteresis: None,
-            rest: None,
+            session: None,
             twin: Some(twin),
             plate,
             run_id,
@@ -841,7 +841,7 @@ mod tests {
         ));
         std::fs::create_dir_all(&dir).unwrap();
         let mut db = Records::open(&dir.join("runs.sqlite")).unwrap();
-        let (mut rest, mut hysteresis) = (None, hysteresis);
+        let (mut session, mut hysteresis) = (None, hysteresis);
         let mut out = Vec::new();
         for (run, &gap) in idle.iter().enumerate() {
             {
@@ -862,7 +862,7 @@ mod tests {
                 d: &d,
                 options,
                 hysteresis: hysteresis.clone(),
-                rest: rest.clone(),
+                session: session.clone(),
                 twin: Some(twin.clone()),
                 plate: plate.clone(),
                 run_id,
@@ -876,10 +876,10 @@ mod tests {
             let (report, cal) = result.unwrap();
             let at = truth.at.expect("the image was mapped");
             assert_eq!(stopped, None, "run {run}");
-            if let Some(r) = &rest {
+            if let Some(r) = &session {
                 assert_eq!(&report.session, r, "the session's rest is carried");
             }
-            rest = Some(report.session.clone());
+            session = Some(report.session.clone());
             hysteresis = Some(cal.clone());
             out.push((report.focus_m - at, report, cal));
         }

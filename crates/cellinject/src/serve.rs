@@ -81,10 +81,10 @@ struct BenchStation {
     options: Options,
     /// Bumped when the twin gets a fresh plate (the viewer renews its camera).
     generation: Arc<AtomicU64>,
-    /// m, the stacks' sensor readings the session's first run started from: every
-    /// later run refers its focus to them (the stacks still creep back from the run
-    /// before).
-    rest: Option<cellinject_core::inject::Session>,
+    /// What the session's first run found of the resting tip (the side camera's
+    /// reference of its height, the stacks' readings at rest): every later run of
+    /// the dashboard's session refers its focus to it.
+    session: Option<cellinject_core::inject::Session>,
 }
 
 impl Station for BenchStation {
@@ -132,7 +132,7 @@ impl Station for BenchStation {
             d: &self.d,
             options: self.options,
             hysteresis,
-            rest: self.rest.clone(),
+            session: self.session.clone(),
             twin: self.twin.clone(),
             plate: self.plate.clone(),
             run_id: id,
@@ -146,7 +146,7 @@ impl Station for BenchStation {
         let r = db.run(Some(id)).map_err(|e| records_error(e).to_string())?;
         let (cells_per_min, calibration) = match result {
             Ok((report, cal)) => {
-                self.rest.get_or_insert(report.session);
+                self.session.get_or_insert(report.session);
                 (report.cells_per_min, Some(cal))
             }
             Err(_) => (0.0, None),
@@ -382,7 +382,7 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
         backend: opened.name,
         options,
         generation,
-        rest: None,
+        session: None,
     };
     let archive = Arc::new(DbArchive {
         path: a.db.clone(),

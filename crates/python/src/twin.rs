@@ -320,7 +320,7 @@ fn twin_run(
             d: &d,
             options,
             hysteresis: None,
-            rest: None,
+            session: None,
             twin: Some(twin.clone()),
             plate: plate.clone(),
             run_id,

@@ -396,7 +396,7 @@ pub struct Job<'a> {
     /// What the session's first run found of the resting tip (its
     /// [`cellinject_core::inject::RunReport::session`]): a later run of the same
     /// session refers its focus to it. `None`: the run's own start.
-    pub rest: Option<cellinject_core::inject::Session>,
+    pub session: Option<cellinject_core::inject::Session>,
     /// The twin, when it is the backend (its truth goes into the records).
     pub twin: Option<SharedTwin>,
     /// The plate.
@@ -511,7 +511,7 @@ pub fn execute(
         d,
         options,
         hysteresis,
-        rest,
+        session,
         twin,
         plate,
         run_id,
@@ -535,7 +535,7 @@ pub fn execute(
     };
     let wf = Workflow::new(rig, &d.design, &d.rig, &plate, options)
         .map_err(|e| RunError::Input(e.to_string()))?
-        .with_session(rest);
+        .with_session(session);
     let result = wf.run(hysteresis, &mut tee);
     let rec = tee.rec;
     let (status, stopped, sim, cell, found) = match &result {
