@@ -464,11 +464,6 @@ mod tests {
         assert!(peak(&z, &nan, TILE_CONTRAST).is_err());
     }
 
-    /// Five tiles of a strip plate's field as the twin gave them (pixels of 0.88 um,
-    /// heights in um): four agree on a floor within 1 um, the one alone at the left
-    /// edge (a weak curve) says 11.3 um. The plane through all five leant to it, the
-    /// farthest point was then a right one, and the floor came out sloping 15 um/mm;
-    /// the consensus leaves the wrong tile out.
     /// Six tiles of a 1 x 16 plate's field as the twin gave them (mm, heights in um):
     /// four right ones, three of them on one column (x about -0.1 mm), and two noise
     /// peaks at 15.4 and 11.2 um. The plane through the column and the peak at
@@ -499,6 +494,11 @@ mod tests {
         }
     }
 
+    /// Five tiles of a strip plate's field as the twin gave them (pixels of 0.88 um,
+    /// heights in um): four agree on a floor within 1 um, the one alone at the left
+    /// edge (a weak curve) says 11.3 um. The plane through all five leant to it, the
+    /// farthest point was then a right one, and the floor came out sloping 15 um/mm;
+    /// the consensus leaves the wrong tile out.
     #[test]
     fn a_lone_wrong_tile_at_the_edge_does_not_tilt_the_plane() {
         let px = 0.88e-6;

@@ -657,19 +657,6 @@ impl BSpline {
         self.separable(shift as isize, &wt, &wt)
     }
 
-    /// The spline's value and gradient (∂/∂x, ∂/∂y) at every pixel, row-major.
-    pub fn node_values_gradients(&self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        let (w, d) = (
-            self.degree.weights(0.0),
-            self.degree.weights_derivative(0.0),
-        );
-        (
-            self.separable(0, &w, &w),
-            self.separable(0, &d, &w),
-            self.separable(0, &w, &d),
-        )
-    }
-
     /// The spline's gradient (∂/∂x, ∂/∂y) at every pixel, row-major.
     pub fn node_gradients(&self) -> (Vec<f64>, Vec<f64>) {
         let (w, d) = (

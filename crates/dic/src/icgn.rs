@@ -617,14 +617,13 @@ fn fill_padded(
 }
 
 /// Resizes `buf` to hold the scores of an `nw x nh` subset laid out for [`meat`]:
-/// rows `nw + L` apart, the gaps zero, and zeros after the last row up to a whole
-/// vector and for the farthest lag past it. Returns the stride.
+/// rows `nw + L` apart, the gaps zero, and zeros after the last row as far as the
+/// farthest lag reaches. Returns the stride.
 fn padded_scores(buf: &mut Vec<f64>, nw: usize, nh: usize) -> usize {
     let stride = nw + RESIDUAL_CORRELATION_PX;
     buf.clear();
-    let whole = (nh * stride).div_ceil(LANES) * LANES;
     buf.resize(
-        whole + RESIDUAL_CORRELATION_PX * stride + RESIDUAL_CORRELATION_PX,
+        (nh + RESIDUAL_CORRELATION_PX) * stride + RESIDUAL_CORRELATION_PX,
         0.0,
     );
     stride
@@ -646,9 +645,10 @@ pub fn prepare(
     }
     let mut rs = RefSubset::new(reference, x, y, subset);
     let n = rs.f.len();
-    // Two passes over the pixels. The first: the grey levels' sum, and the sums of the steepest-descent images J = [gx, gx·dx, gx·dy, gy,
-    // gy·dx, gy·dy] alone and times f (for the covariance with offset and gain
-    // eliminated; times f − f̄ below).
+    // Two passes over the pixels. The first: the grey levels' sum, and the sums of
+    // the steepest-descent images J = [gx, gx·dx, gx·dy, gy, gy·dx, gy·dy] alone and
+    // times f (for the covariance with offset and gain eliminated; times f − f̄
+    // below).
     let [f, gx, gy, dx, dy] = rs.slices();
     let first = sums(n, |k| {
         let (gx, gy, dx, dy, f) = (gx[k], gy[k], dx[k], dy[k], f[k]);
@@ -1575,6 +1575,8 @@ pub struct Iterated {
     /// The parameters of the last warp: the current image's values at them stay in the
     /// scratch (`p` is one update further).
     pub(crate) sampled: [f64; 6],
+    /// The spread `√Σ(g − ḡ)²` of those values.
+    pub(crate) spread: f64,
     pub(crate) iterations: usize,
     pub(crate) converged: bool,
     pub(crate) zncc: f64,
@@ -1667,9 +1669,7 @@ pub(crate) fn correct(
     let [f, gx, gy, dx, dy] = rs.slices();
     let g = &mut scratch.g[..n];
     let e = &e[..n];
-    let [sum, sum2] = sums(n, |k| [g[k], g[k] * g[k]]);
-    let spread = (sum2 - sum * sum / n as f64).max(0.0).sqrt();
-    let contrast = spread / rs.df;
+    let contrast = it.spread / rs.df;
     for k in 0..n {
         let (mx, my) = (
             d[0] + d[1] * dx[k] + d[2] * dy[k],
@@ -1845,6 +1845,7 @@ pub fn iterate(
     let mut residual2 = 0.0;
     let mut zncc = 0.0;
     let mut sampled = p;
+    let mut spread = 0.0;
     while iterations < opts.max_iterations {
         iterations += 1;
         sampled = p;
@@ -1881,6 +1882,7 @@ pub fn iterate(
         if dg == 0.0 {
             return None;
         }
+        spread = dg;
         let ratio = rs.df / dg;
         // Residual and gradient of the criterion.
         let [f, gx, gy, dx, dy] = rs.slices();
@@ -1933,6 +1935,7 @@ pub fn iterate(
     Some(Iterated {
         p,
         sampled,
+        spread,
         iterations,
         converged,
         zncc,

@@ -687,7 +687,8 @@ pub struct RunReport {
     /// found it (negative: lower), as last measured.
     pub tip_above_m: f64,
     /// Pixels (of the full frames), the blur of the tip's end in focus that every
-    /// tip location used ([`Workflow::learn_blur`]; NaN if never learnt).
+    /// tip location used ([`Workflow::learn_blur`]; NaN, null in the records, if never
+    /// learnt).
     pub tip_blur_px: f64,
     /// What the session's next run refers its focus to (not in the records: it holds
     /// the side reference's frame).
