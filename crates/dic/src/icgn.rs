@@ -24,29 +24,94 @@ const LANES: usize = 8;
 /// partial sums. A floating-point sum taken in order cannot be vectorised (the
 /// compiler may not reassociate it); interleaved partial sums can, and are as
 /// accurate. Used by every reduction over a subset's pixels.
+///
+/// `f` sees [`LANES`] pixels at once ([`At`]: `at.of(slice)` is their values, a
+/// [`V`]), so its products are vector products, not lane-by-lane work the compiler
+/// would have to gather; a tail shorter than a vector is read zero-padded and only
+/// its own lanes are added, in order, after the partial sums (the same sums, in the
+/// same order, as one pixel at a time).
 #[inline(always)]
-pub(crate) fn sums<const M: usize>(n: usize, f: impl Fn(usize) -> [f64; M]) -> [f64; M] {
-    let mut acc = [[0.0; LANES]; M];
+pub(crate) fn sums<const M: usize>(n: usize, f: impl Fn(At) -> [V; M]) -> [f64; M] {
+    let mut acc = [V::splat(0.0); M];
     let full = n / LANES * LANES;
-    for base in (0..full).step_by(LANES) {
-        for l in 0..LANES {
-            let v = f(base + l);
-            for m in 0..M {
-                acc[m][l] += v[m];
-            }
+    for k in (0..full).step_by(LANES) {
+        let v = f(At { k, len: LANES });
+        for m in 0..M {
+            acc[m] = acc[m] + v[m];
         }
     }
     let mut out = [0.0; M];
     for m in 0..M {
-        out[m] = acc[m].iter().sum();
+        out[m] = acc[m].0.iter().sum();
     }
-    for k in full..n {
-        let v = f(k);
-        for m in 0..M {
-            out[m] += v[m];
+    if full < n {
+        let v = f(At {
+            k: full,
+            len: n - full,
+        });
+        for l in 0..n - full {
+            for m in 0..M {
+                out[m] += v[m].0[l];
+            }
         }
     }
     out
+}
+
+/// [`LANES`] consecutive pixels' values, the operand of [`sums`]' terms: plain
+/// lane-by-lane arithmetic the compiler keeps in vector registers.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct V(pub(crate) [f64; LANES]);
+
+impl V {
+    /// Every lane `x`.
+    #[inline(always)]
+    pub(crate) fn splat(x: f64) -> V {
+        V([x; LANES])
+    }
+}
+
+macro_rules! lanewise {
+    ($trait:ident, $method:ident, $op:tt) => {
+        impl std::ops::$trait for V {
+            type Output = V;
+            #[inline(always)]
+            fn $method(self, o: V) -> V {
+                V(std::array::from_fn(|l| self.0[l] $op o.0[l]))
+            }
+        }
+        impl std::ops::$trait<f64> for V {
+            type Output = V;
+            #[inline(always)]
+            fn $method(self, o: f64) -> V {
+                V(std::array::from_fn(|l| self.0[l] $op o))
+            }
+        }
+    };
+}
+lanewise!(Add, add, +);
+lanewise!(Sub, sub, -);
+lanewise!(Mul, mul, *);
+
+/// Which pixels a term of [`sums`] reads: `len` (at most [`LANES`]) from `k`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct At {
+    k: usize,
+    len: usize,
+}
+
+impl At {
+    /// `s[k..k + len]` as a vector, zero-padded.
+    #[inline(always)]
+    pub(crate) fn of(self, s: &[f64]) -> V {
+        if self.len == LANES {
+            V(s[self.k..self.k + LANES].try_into().expect("LANES values"))
+        } else {
+            let mut v = [0.0; LANES];
+            v[..self.len].copy_from_slice(&s[self.k..self.k + self.len]);
+            V(v)
+        }
+    }
 }
 
 /// The subset shape function.
@@ -565,15 +630,16 @@ fn meat(u: &[f64], v: &[f64], nw: usize, nh: usize) -> (f64, f64) {
         }
     }
     let n = nh * stride;
-    let lags = |s: &[f64]| -> f64 {
+    // A loop, not a closure: a closure is compiled apart, without the vector
+    // context of its caller, unless it is inlined.
+    let mut out = [0.0; 2];
+    for (o, s) in out.iter_mut().zip([u, v]) {
         let a = &s[..n];
-        offsets
-            .iter()
-            .zip(&coef)
-            .map(|(&o, c)| c * dot(a, &s[o..o + n]))
-            .sum()
-    };
-    (lags(u), lags(v))
+        for (&off, c) in offsets.iter().zip(&coef) {
+            *o += c * dot(a, &s[off..off + n]);
+        }
+    }
+    (out[0], out[1])
 }
 
 /// `Σ a_k b_k` of two slices of one length, in [`LANES`] interleaved partial sums (as
@@ -601,11 +667,8 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// into the padded layouts of [`padded_scores`] (`stride` apart).
 #[inline(always)]
 fn fill_padded(
-    su: &mut [f64],
-    sv: &mut [f64],
-    nw: usize,
-    nh: usize,
-    stride: usize,
+    (su, sv): (&mut [f64], &mut [f64]),
+    (nw, nh, stride): (usize, usize, usize),
     score: impl Fn(usize) -> (f64, f64),
 ) {
     let rows = su.chunks_exact_mut(stride).zip(sv.chunks_exact_mut(stride));
@@ -650,53 +713,61 @@ pub fn prepare(
     // times f (for the covariance with offset and gain eliminated; times f − f̄
     // below).
     let [f, gx, gy, dx, dy] = rs.slices();
-    let first = sums(n, |k| {
-        let (gx, gy, dx, dy, f) = (gx[k], gy[k], dx[k], dy[k], f[k]);
-        let (hx, hy) = (gx * f, gy * f);
-        [
-            f,
-            gx,
-            gx * dx,
-            gx * dy,
-            gy,
-            gy * dx,
-            gy * dy,
-            hx,
-            hx * dx,
-            hx * dy,
-            hy,
-            hy * dx,
-            hy * dy,
-        ]
-    });
+    let first = sums(
+        n,
+        #[inline(always)]
+        |a| {
+            let (gx, gy, dx, dy, f) = (a.of(gx), a.of(gy), a.of(dx), a.of(dy), a.of(f));
+            let (hx, hy) = (gx * f, gy * f);
+            [
+                f,
+                gx,
+                gx * dx,
+                gx * dy,
+                gy,
+                gy * dx,
+                gy * dy,
+                hx,
+                hx * dx,
+                hx * dy,
+                hy,
+                hy * dx,
+                hy * dy,
+            ]
+        },
+    );
     // The second: the Hessian of the steepest-descent images (constant: computed
     // once), its 21 distinct products from 6 moments w = 1, dx, dy, dx², dx·dy, dy²
     // of each gradient product: mom[a][b] for a in {xx, xy, yy}.
-    let second = sums(n, |k| {
-        let (gx, gy, dx, dy) = (gx[k], gy[k], dx[k], dy[k]);
-        let w = [1.0, dx, dy, dx * dx, dx * dy, dy * dy];
-        let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
-        [
-            xx * w[0],
-            xx * w[1],
-            xx * w[2],
-            xx * w[3],
-            xx * w[4],
-            xx * w[5],
-            xy * w[0],
-            xy * w[1],
-            xy * w[2],
-            xy * w[3],
-            xy * w[4],
-            xy * w[5],
-            yy * w[0],
-            yy * w[1],
-            yy * w[2],
-            yy * w[3],
-            yy * w[4],
-            yy * w[5],
-        ]
-    });
+    let second = sums(
+        n,
+        #[inline(always)]
+        |a| {
+            let (gx, gy, dx, dy) = (a.of(gx), a.of(gy), a.of(dx), a.of(dy));
+            let w = [V::splat(1.0), dx, dy, dx * dx, dx * dy, dy * dy];
+            let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
+            [
+                xx * w[0],
+                xx * w[1],
+                xx * w[2],
+                xx * w[3],
+                xx * w[4],
+                xx * w[5],
+                xy * w[0],
+                xy * w[1],
+                xy * w[2],
+                xy * w[3],
+                xy * w[4],
+                xy * w[5],
+                yy * w[0],
+                yy * w[1],
+                yy * w[2],
+                yy * w[3],
+                yy * w[4],
+                yy * w[5],
+            ]
+        },
+    );
     let mom: [[f64; 6]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| second[6 * a + b]));
     let mean = first[0] / n as f64;
     rs.sum_gx2 = mom[0][0];
@@ -706,7 +777,12 @@ pub fn prepare(
     }
     // From the centred values (exactly zero on a uniform subset).
     let f = &rs.f[..n];
-    rs.df = sums(n, |k| [f[k] * f[k]])[0].sqrt();
+    rs.df = sums(
+        n,
+        #[inline(always)]
+        |a| [a.of(f) * a.of(f)],
+    )[0]
+    .sqrt();
     if rs.df == 0.0 || rs.sum_gx2 == 0.0 || rs.sum_gy2 == 0.0 {
         return None;
     }
@@ -1263,16 +1339,21 @@ fn noise_covariance(
             let Some((zu, zv)) = projections(a, &noise, 3) else {
                 return ((f64::INFINITY, f64::INFINITY), var);
             };
-            fill_padded(su, sv, nw, nh, stride, |k| {
-                let (gx, gy, dx, dy, f, r) = (gx[k], gy[k], dx[k], dy[k], f[k], residuals[k]);
-                let score = |z: &[f64; 8]| {
-                    r * (gx * (z[0] + z[1] * dx + z[2] * dy)
-                        + gy * (z[3] + z[4] * dx + z[5] * dy)
-                        + z[6]
-                        + z[7] * f)
-                };
-                (score(&zu), score(&zv))
-            });
+            fill_padded(
+                (su, sv),
+                (nw, nh, stride),
+                #[inline(always)]
+                |k| {
+                    let (gx, gy, dx, dy, f, r) = (gx[k], gy[k], dx[k], dy[k], f[k], residuals[k]);
+                    let score = |z: &[f64; 8]| {
+                        r * (gx * (z[0] + z[1] * dx + z[2] * dy)
+                            + gy * (z[3] + z[4] * dx + z[5] * dy)
+                            + z[6]
+                            + z[7] * f)
+                    };
+                    (score(&zu), score(&zv))
+                },
+            );
             let white = |z: &[f64; 8]| {
                 let z = SVector::<f64, 8>::from(*z);
                 var * (z.transpose() * a * z)[(0, 0)]
@@ -1286,11 +1367,16 @@ fn noise_covariance(
             let Some((zu, zv)) = projections(a, &noise, 1) else {
                 return ((f64::INFINITY, f64::INFINITY), var);
             };
-            fill_padded(su, sv, nw, nh, stride, |k| {
-                let (gx, gy, f, r) = (gx[k], gy[k], f[k], residuals[k]);
-                let score = |z: &[f64; 4]| r * (gx * z[0] + gy * z[1] + z[2] + z[3] * f);
-                (score(&zu), score(&zv))
-            });
+            fill_padded(
+                (su, sv),
+                (nw, nh, stride),
+                #[inline(always)]
+                |k| {
+                    let (gx, gy, f, r) = (gx[k], gy[k], f[k], residuals[k]);
+                    let score = |z: &[f64; 4]| r * (gx * z[0] + gy * z[1] + z[2] + z[3] * f);
+                    (score(&zu), score(&zv))
+                },
+            );
             let white = |z: &[f64; 4]| {
                 let z = SVector::<f64, 4>::from(*z);
                 var * (z.transpose() * a * z)[(0, 0)]
@@ -1533,7 +1619,11 @@ pub(crate) fn influence(prepared: &Prepared, scratch: &mut Scratch) -> Option<()
             }
         }
     }
-    let [mu, mv] = sums(n, |k| [iu[k], iv[k]]);
+    let [mu, mv] = sums(
+        n,
+        #[inline(always)]
+        |a| [a.of(iu), a.of(iv)],
+    );
     let (mu, mv) = (mu / n as f64, mv / n as f64);
     for k in 0..n {
         iu[k] -= mu;
@@ -1554,7 +1644,11 @@ impl Scratch {
     fn first_order(&self, e: &[f64]) -> (f64, f64) {
         let n = e.len();
         let (a, b) = (&self.influence_u[..n], &self.influence_v[..n]);
-        let [u, v] = sums(n, |k| [a[k] * e[k], b[k] * e[k]]);
+        let [u, v] = sums(
+            n,
+            #[inline(always)]
+            |at| [at.of(a) * at.of(e), at.of(b) * at.of(e)],
+        );
         (u, v)
     }
 }
@@ -1678,7 +1772,11 @@ pub(crate) fn correct(
         g[k] += contrast * (gx[k] * mx + gy[k] * my) - e[k];
     }
     let g = &scratch.g[..n];
-    let [sum, sum2] = sums(n, |k| [g[k], g[k] * g[k]]);
+    let [sum, sum2] = sums(
+        n,
+        #[inline(always)]
+        |a| [a.of(g), a.of(g) * a.of(g)],
+    );
     let gm = sum / n as f64;
     let dg = (sum2 - sum * gm).max(0.0).sqrt();
     if dg == 0.0 {
@@ -1690,7 +1788,11 @@ pub(crate) fn correct(
         r[k] = f[k] - ratio * (g[k] - gm);
     }
     let r = &scratch.residuals[..n];
-    let residual2 = sums(n, |k| [r[k] * r[k]])[0];
+    let residual2 = sums(
+        n,
+        #[inline(always)]
+        |a| [a.of(r) * a.of(r)],
+    )[0];
     let gain = lx.gain * ly.gain;
     let (cov, var) = noise_covariance(
         prepared,
@@ -1876,7 +1978,11 @@ pub fn iterate(
             }
         }
         let gs = &g[..n];
-        let [sum, sum2] = sums(n, |k| [gs[k], gs[k] * gs[k]]);
+        let [sum, sum2] = sums(
+            n,
+            #[inline(always)]
+            |a| [a.of(gs), a.of(gs) * a.of(gs)],
+        );
         let gm = sum / n as f64;
         let dg = (sum2 - sum * gm).max(0.0).sqrt();
         if dg == 0.0 {
@@ -1891,19 +1997,16 @@ pub fn iterate(
             res[k] = f[k] - ratio * (gs[k] - gm);
         }
         let res = &residuals[..n];
-        let [b0, b1, b2, b3, b4, b5, r2] = sums(n, |k| {
-            let r = res[k];
-            let (ex, ey) = (gx[k] * r, gy[k] * r);
-            [
-                ex,
-                ex * dx[k],
-                ex * dy[k],
-                ey,
-                ey * dx[k],
-                ey * dy[k],
-                r * r,
-            ]
-        });
+        let [b0, b1, b2, b3, b4, b5, r2] = sums(
+            n,
+            #[inline(always)]
+            |a| {
+                let r = a.of(res);
+                let (dx, dy) = (a.of(dx), a.of(dy));
+                let (ex, ey) = (a.of(gx) * r, a.of(gy) * r);
+                [ex, ex * dx, ex * dy, ey, ey * dx, ey * dy, r * r]
+            },
+        );
         let b6 = [b0, b1, b2, b3, b4, b5];
         residual2 = r2;
         zncc = 1.0 - 0.5 * residual2 / (rs.df * rs.df);
