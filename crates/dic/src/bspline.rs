@@ -235,25 +235,40 @@ impl pulp::WithSimd for Separable<'_> {
         // −(TAPS − 1) so that every index is non-negative.
         let pad = TAPS as isize - 1;
         let mut ext = vec![0.0; w + 2 * pad as usize];
-        let mut rows = vec![0.0; w * h];
-        for (src, dst) in c.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
-            let p = pad as usize;
-            ext[p..p + w].copy_from_slice(src);
-            for i in (0..p).chain(p + w..w + 2 * p) {
-                ext[i] = src[mirror(i as isize - pad, w)];
-            }
-            for (i, wi) in wx.iter().enumerate() {
-                let from = (pad + shift - 2 + i as isize) as usize;
-                for (d, e) in dst.iter_mut().zip(&ext[from..from + w]) {
-                    *d += wi * e;
-                }
-            }
-        }
+        // The rows filtered along x, made as the output first needs them, in
+        // [`ROW_SLOTS`] slots (row r in slot r mod ROW_SLOTS): an output row reads
+        // six rows within a window of six (mirrored at the edges), so a row is made
+        // once and stays until the window has passed it; no image-sized temporary.
+        let mut rows = vec![0.0; ROW_SLOTS * w];
+        let mut held = [usize::MAX; ROW_SLOTS];
         let mut out = vec![0.0; w * h];
         for (y, dst) in out.chunks_exact_mut(w).enumerate() {
-            for (j, wj) in wy.iter().enumerate() {
-                let r = mirror(y as isize + shift - 2 + j as isize, h);
-                for (d, s) in dst.iter_mut().zip(&rows[r * w..(r + 1) * w]) {
+            let need: [usize; TAPS] =
+                std::array::from_fn(|j| mirror(y as isize + shift - 2 + j as isize, h));
+            for &r in &need {
+                let slot = r % ROW_SLOTS;
+                if held[slot] == r {
+                    continue;
+                }
+                held[slot] = r;
+                let src = &c[r * w..(r + 1) * w];
+                let row = &mut rows[slot * w..(slot + 1) * w];
+                row.fill(0.0);
+                let p = pad as usize;
+                ext[p..p + w].copy_from_slice(src);
+                for i in (0..p).chain(p + w..w + 2 * p) {
+                    ext[i] = src[mirror(i as isize - pad, w)];
+                }
+                for (i, wi) in wx.iter().enumerate() {
+                    let from = (pad + shift - 2 + i as isize) as usize;
+                    for (d, e) in row.iter_mut().zip(&ext[from..from + w]) {
+                        *d += wi * e;
+                    }
+                }
+            }
+            for (wj, &r) in wy.iter().zip(&need) {
+                let slot = r % ROW_SLOTS;
+                for (d, s) in dst.iter_mut().zip(&rows[slot * w..(slot + 1) * w]) {
                     *d += wj * s;
                 }
             }
@@ -261,6 +276,10 @@ impl pulp::WithSimd for Separable<'_> {
         out
     }
 }
+
+/// Slots of [`Separable`]'s x-filtered rows: twice the rows one output row reads, so
+/// that the rows of one output never share a slot.
+const ROW_SLOTS: usize = 2 * TAPS;
 
 /// A `w x h` row-major array transposed (`h x w`).
 ///
@@ -448,8 +467,14 @@ impl BSpline {
 
     /// Coefficients of a whole image for a spline of the given degree.
     pub fn with_degree(img: &Image, degree: Degree) -> Self {
-        let (w, h) = (img.width(), img.height());
-        let mut c = img.data().to_vec();
+        BSpline::from_values(img.width(), img.height(), img.data().to_vec(), degree)
+    }
+
+    /// [`BSpline::with_degree`] of the `w x h` row-major values `c`, prefiltered in
+    /// place (no copy of an image the caller no longer needs). The caller checks the
+    /// values are finite and fill `w x h`, as [`Image::new`] does.
+    pub(crate) fn from_values(w: usize, h: usize, mut c: Vec<f64>, degree: Degree) -> Self {
+        debug_assert_eq!(c.len(), w * h);
         // The rows side by side ([`prefilter_lines`]): on a large image
         // [`ROW_GROUP`] at a time, the groups in parallel (a small one, such as a
         // tracked window, stays on its thread).
@@ -473,6 +498,11 @@ impl BSpline {
             origin: (0.0, 0.0),
             degree,
         }
+    }
+
+    /// The coefficients' buffer, for reuse (its contents are the coefficients).
+    pub(crate) fn into_coefficients(self) -> Vec<f64> {
+        self.c
     }
 
     /// The spline's degree.
@@ -539,8 +569,10 @@ impl BSpline {
     /// The values at `(fx + dx, fy + dy)` for `dy` in `−hh..=hh` (outer) and `dx` in
     /// `−hw..=hw` (inner), for one fractional offset whose weights are `wx`, `wy`
     /// (a translated subset), written into `out`. Separable: two passes of six taps
-    /// instead of thirty-six products per value; `tmp` is scratch.
+    /// instead of thirty-six products per value; `tmp` is scratch. Inlined, so that
+    /// it is compiled for the vector units of the caller's context (a measurement).
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     pub fn translated_block(
         &self,
         fx: f64,
@@ -584,18 +616,17 @@ impl BSpline {
                     + wx[5] * s[5];
             }
         }
-        for j in 0..nh {
+        out.resize(nw * nh, 0.0);
+        for (j, dst) in out.chunks_exact_mut(nw).enumerate() {
             let rows: [&[f64]; TAPS] =
                 std::array::from_fn(|k| &tmp[(j + k) * nw..(j + k + 1) * nw]);
-            for i in 0..nw {
-                out.push(
-                    wy[0] * rows[0][i]
-                        + wy[1] * rows[1][i]
-                        + wy[2] * rows[2][i]
-                        + wy[3] * rows[3][i]
-                        + wy[4] * rows[4][i]
-                        + wy[5] * rows[5][i],
-                );
+            for (i, d) in dst.iter_mut().enumerate() {
+                *d = wy[0] * rows[0][i]
+                    + wy[1] * rows[1][i]
+                    + wy[2] * rows[2][i]
+                    + wy[3] * rows[3][i]
+                    + wy[4] * rows[4][i]
+                    + wy[5] * rows[5][i];
             }
         }
     }
@@ -994,6 +1025,35 @@ mod tests {
             })
             .collect();
         Image::new(w, h, data).unwrap()
+    }
+
+    #[test]
+    fn translated_image_is_the_value_at_the_moved_pixels() {
+        // Pixel (x, y) of translated_image(t) against value(x + t, y + t), mirror
+        // beyond the edges included: images shorter than the six rows a value reads
+        // (the filtered rows' slots then hold mirrored rows), and taller ones.
+        for degree in [Degree::Cubic, Degree::Quintic] {
+            for (w, h) in [(5usize, 1usize), (4, 3), (9, 7), (31, 40)] {
+                let data = (0..w * h)
+                    .map(|k| {
+                        let (x, y) = ((k % w) as f64, (k / w) as f64);
+                        90.0 + 30.0 * (0.9 * x + 0.2).sin() * (0.7 * y).cos() + 2.0 * y
+                    })
+                    .collect();
+                let spline = BSpline::with_degree(&Image::new(w, h, data).unwrap(), degree);
+                for t in [-0.7, -0.25, 0.0, 0.4, 0.95] {
+                    let moved = spline.translated_image(t);
+                    for (k, m) in moved.iter().enumerate() {
+                        let (x, y) = ((k % w) as f64, (k / w) as f64);
+                        let v = spline.value(x + t, y + t);
+                        assert!(
+                            (m - v).abs() <= 1e-11 * v.abs(),
+                            "{degree:?} {w} x {h}, t = {t}, pixel ({x}, {y}): {m} against {v}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

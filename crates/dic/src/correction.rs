@@ -32,7 +32,6 @@ use rayon::prelude::*;
 
 use crate::bspline::{self, BSpline, Degree, TAPS, transpose};
 use crate::icgn::{self, Reference, SINC_HALF, Subset, sinc_weights};
-use crate::image::Image;
 
 /// Phases per pixel of the interpolation-error tables. The error is a smooth,
 /// periodic function of the phase, zero at whole pixels; linear interpolation
@@ -305,16 +304,15 @@ fn rounding_table(reference: &Reference, a: f64, step: f64) -> Vec<f32> {
     let img = reference.image();
     let (w, h) = (img.width(), img.height());
     // The current image: the reference's spline at (x − a, y − a), rounded.
-    let exact = reference.spline().translated_image(-a);
-    let residual: Vec<f64> = exact
-        .iter()
-        .map(|v| (v / step).round() * step - v)
-        .collect();
-    let Ok(residual) = Image::new(w, h, residual) else {
+    let mut residual = reference.spline().translated_image(-a);
+    for v in &mut residual {
+        *v = (*v / step).round() * step - *v;
+    }
+    if !residual.iter().all(|v| v.is_finite()) {
         return vec![0.0; w * h];
-    };
+    }
     // Interpolated where the reference's pixels lie in it, at (x + a, y + a).
-    BSpline::with_degree(&residual, reference.spline().degree())
+    BSpline::from_values(w, h, residual, reference.spline().degree())
         .translated_image(a)
         .into_iter()
         .map(|v| v as f32)

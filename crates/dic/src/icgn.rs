@@ -645,7 +645,7 @@ fn meat(u: &[f64], v: &[f64], nw: usize, nh: usize) -> (f64, f64) {
 /// `Σ a_k b_k` of two slices of one length, in [`LANES`] interleaved partial sums (as
 /// [`sums`], without an index to check).
 #[inline(always)]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     debug_assert_eq!(a.len(), b.len());
     let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
     let tail: f64 = ca
@@ -995,7 +995,10 @@ pub(crate) fn rounding_error_translated(
             *v = (*v / q).round() * q - *v;
         }
         let (ww, wh) = (2 * (hw + pad) + 1, 2 * (hh + pad) + 1);
-        let residual = BSpline::with_degree(&Image::new(ww, wh, exact).ok()?, d);
+        if exact.len() != ww * wh || !exact.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        let residual = BSpline::from_values(ww, wh, exact, d);
         // Subset pixel dx lies at window position hw + pad + dx + tu.
         let mut e = std::mem::take(&mut scratch.mismatch);
         residual.translated_block(
@@ -1010,6 +1013,7 @@ pub(crate) fn rounding_error_translated(
         );
         let (du, dv) = scratch.first_order(&e);
         scratch.mismatch = e;
+        scratch.g = residual.into_coefficients();
         su += du * du;
         sv += dv * dv;
     }

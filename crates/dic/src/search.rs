@@ -8,6 +8,7 @@
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
+use crate::icgn::dot;
 use crate::image::Image;
 
 /// Best integer shift of a subset and its ZNCC.
@@ -156,26 +157,42 @@ struct Region {
 
 /// `Σ tz_k c_{(i, j) + k}` of the zero-mean `n x n` template `tz` with the region of
 /// `current` at every candidate offset (i, j) (row-major, as many columns as the
-/// returned stride): summed directly.
+/// returned stride): summed directly, each row's products in interleaved partial
+/// sums on the machine's vector units (an in-order sum is one long chain of
+/// dependent additions).
 fn cross_direct(current: &Image, tz: &[f64], n: usize, r: Region) -> (Vec<f64>, usize) {
-    let (cols, rows) = (r.sw as usize + 1 - n, r.sh as usize + 1 - n);
-    let (data, cw) = (current.data(), current.width());
-    let mut out = vec![0.0; cols * rows];
-    for (j, row) in out.chunks_exact_mut(cols).enumerate() {
-        for (i, o) in row.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for (jj, trow) in tz.chunks_exact(n).enumerate() {
-                let start = (r.y0 as usize + j + jj) * cw + r.x0 as usize + i;
-                acc += trow
-                    .iter()
-                    .zip(&data[start..start + n])
-                    .map(|(a, b)| a * b)
-                    .sum::<f64>();
+    pulp::Arch::new().dispatch(CrossDirect { current, tz, n, r })
+}
+
+/// [`cross_direct`] compiled for the machine's vector units.
+struct CrossDirect<'a> {
+    current: &'a Image,
+    tz: &'a [f64],
+    n: usize,
+    r: Region,
+}
+
+impl pulp::WithSimd for CrossDirect<'_> {
+    type Output = (Vec<f64>, usize);
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let CrossDirect { current, tz, n, r } = self;
+        let (cols, rows) = (r.sw as usize + 1 - n, r.sh as usize + 1 - n);
+        let (data, cw) = (current.data(), current.width());
+        let mut out = vec![0.0; cols * rows];
+        for (j, row) in out.chunks_exact_mut(cols).enumerate() {
+            for (i, o) in row.iter_mut().enumerate() {
+                let mut acc = 0.0;
+                for (jj, trow) in tz.chunks_exact(n).enumerate() {
+                    let start = (r.y0 as usize + j + jj) * cw + r.x0 as usize + i;
+                    acc += dot(trow, &data[start..start + n]);
+                }
+                *o = acc;
             }
-            *o = acc;
         }
+        (out, cols)
     }
-    (out, cols)
 }
 
 /// [`cross_direct`] through `size`² FFTs (the product of the transforms, transformed
