@@ -119,7 +119,7 @@ pub const COHERENT_ROUNDING: f64 = 8.0;
 /// Refines the point (x, y) from `initial` and judges it; when `adaptive`, a result
 /// rejected only for its predicted σ is refined again with larger subsets
 /// ([`subset_sizes`], each started from the last solution, those its σ shows would
-/// still miss the bound skipped: [`next_size`]) until one is accepted, one
+/// still miss the bound skipped: `next_size`) until one is accepted, one
 /// does not converge or none fits: a self-adaptive subset after Pan et al., "Study on
 /// subset size selection in digital image correlation for speckle patterns", Opt.
 /// Express 16 (2008), which sizes each subset by its sum of squared intensity

@@ -341,9 +341,10 @@ const PARALLEL_PIXELS: usize = 1 << 16;
 /// vectors wide, and a group of 512-pixel rows fits the first-level cache.
 const ROW_GROUP: usize = 16;
 
-/// [`prefilter`] along every column of a `w x h` row-major array at once: the same
-/// recursions, each step applied to a whole row, so that the columns sit side by
-/// side in the vector registers instead of a stride apart in memory.
+/// The B-spline prefilter (its causal and anticausal recursions) along every column
+/// of a `w x h` row-major array at once: each step of the recursions applied to a
+/// whole row, so that the columns sit side by side in the vector registers instead
+/// of a stride apart in memory.
 struct Columns<'a> {
     c: &'a mut [f64],
     w: usize,
@@ -448,9 +449,9 @@ fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
     }
 }
 
-/// [`prefilter`] along each of the lines of `n` samples stored back to back in `d`:
-/// side by side in the vector registers (the lines are the columns of the transpose),
-/// where one line alone waits on each step of the recursion.
+/// The B-spline prefilter along each of the lines of `n` samples stored back to back
+/// in `d`: side by side in the vector registers (the lines are the columns of the
+/// transpose), where one line alone waits on each step of the recursion.
 pub(crate) fn prefilter_lines(d: &mut [f64], n: usize, degree: Degree) {
     if n == 0 {
         return;

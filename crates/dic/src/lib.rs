@@ -24,6 +24,7 @@ pub mod correction;
 pub mod field;
 pub mod icgn;
 pub mod image;
+mod lanes;
 pub mod search;
 pub mod synth;
 pub mod track;

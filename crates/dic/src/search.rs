@@ -8,8 +8,8 @@
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
-use crate::icgn::dot;
 use crate::image::Image;
+use crate::lanes::dot;
 
 /// Best integer shift of a subset and its ZNCC.
 #[derive(Debug, Clone, Copy, PartialEq)]
