@@ -16,7 +16,7 @@ use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::bspline::{BSpline, Degree, warped_corners};
 use crate::image::Image;
-use crate::lanes::{V, dot, sums};
+use crate::lanes::{V, dot, lane_sums};
 
 /// The subset shape function.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -596,61 +596,53 @@ pub fn prepare(
     // times f (for the covariance with offset and gain eliminated; times f − f̄
     // below).
     let [f, gx, gy, dx, dy] = rs.slices();
-    let first = sums(
-        n,
-        #[inline(always)]
-        |a| {
-            let (gx, gy, dx, dy, f) = (a.of(gx), a.of(gy), a.of(dx), a.of(dy), a.of(f));
-            let (hx, hy) = (gx * f, gy * f);
-            [
-                f,
-                gx,
-                gx * dx,
-                gx * dy,
-                gy,
-                gy * dx,
-                gy * dy,
-                hx,
-                hx * dx,
-                hx * dy,
-                hy,
-                hy * dx,
-                hy * dy,
-            ]
-        },
-    );
+    let first = lane_sums!(n, |a| {
+        let (gx, gy, dx, dy, f) = (a.of(gx), a.of(gy), a.of(dx), a.of(dy), a.of(f));
+        let (hx, hy) = (gx * f, gy * f);
+        [
+            f,
+            gx,
+            gx * dx,
+            gx * dy,
+            gy,
+            gy * dx,
+            gy * dy,
+            hx,
+            hx * dx,
+            hx * dy,
+            hy,
+            hy * dx,
+            hy * dy,
+        ]
+    },);
     // The second: the Hessian of the steepest-descent images (constant: computed
     // once), its 21 distinct products from 6 moments w = 1, dx, dy, dx², dx·dy, dy²
     // of each gradient product: mom[a][b] for a in {xx, xy, yy}.
-    let second = sums(
-        n,
-        #[inline(always)]
-        |a| {
-            let (gx, gy, dx, dy) = (a.of(gx), a.of(gy), a.of(dx), a.of(dy));
-            let w = [V::splat(1.0), dx, dy, dx * dx, dx * dy, dy * dy];
-            let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
-            [
-                xx * w[0],
-                xx * w[1],
-                xx * w[2],
-                xx * w[3],
-                xx * w[4],
-                xx * w[5],
-                xy * w[0],
-                xy * w[1],
-                xy * w[2],
-                xy * w[3],
-                xy * w[4],
-                xy * w[5],
-                yy * w[0],
-                yy * w[1],
-                yy * w[2],
-                yy * w[3],
-                yy * w[4],
-                yy * w[5],
-            ]
-        },
-    );
+    let second = lane_sums!(n, |a| {
+        let (gx, gy, dx, dy) = (a.of(gx), a.of(gy), a.of(dx), a.of(dy));
+        let w = [V::splat(1.0), dx, dy, dx * dx, dx * dy, dy * dy];
+        let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
+        [
+            xx * w[0],
+            xx * w[1],
+            xx * w[2],
+            xx * w[3],
+            xx * w[4],
+            xx * w[5],
+            xy * w[0],
+            xy * w[1],
+            xy * w[2],
+            xy * w[3],
+            xy * w[4],
+            xy * w[5],
+            yy * w[0],
+            yy * w[1],
+            yy * w[2],
+            yy * w[3],
+            yy * w[4],
+            yy * w[5],
+        ]
+    },);
     let mom: [[f64; 6]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| second[6 * a + b]));
     let mean = first[0] / n as f64;
     rs.sum_gx2 = mom[0][0];
@@ -660,12 +652,7 @@ pub fn prepare(
     }
     // From the centred values (exactly zero on a uniform subset).
     let f = &rs.f[..n];
-    rs.df = sums(
-        n,
-        #[inline(always)]
-        |a| [a.of(f) * a.of(f)],
-    )[0]
-    .sqrt();
+    rs.df = lane_sums!(n, |a| [a.of(f) * a.of(f)])[0].sqrt();
     if rs.df == 0.0 || rs.sum_gx2 == 0.0 || rs.sum_gy2 == 0.0 {
         return None;
     }
@@ -1506,11 +1493,7 @@ pub(crate) fn influence(prepared: &Prepared, scratch: &mut Scratch) -> Option<()
             }
         }
     }
-    let [mu, mv] = sums(
-        n,
-        #[inline(always)]
-        |a| [a.of(iu), a.of(iv)],
-    );
+    let [mu, mv] = lane_sums!(n, |a| [a.of(iu), a.of(iv)]);
     let (mu, mv) = (mu / n as f64, mv / n as f64);
     for k in 0..n {
         iu[k] -= mu;
@@ -1531,11 +1514,7 @@ impl Scratch {
     fn first_order(&self, e: &[f64]) -> (f64, f64) {
         let n = e.len();
         let (a, b) = (&self.influence_u[..n], &self.influence_v[..n]);
-        let [u, v] = sums(
-            n,
-            #[inline(always)]
-            |at| [at.of(a) * at.of(e), at.of(b) * at.of(e)],
-        );
+        let [u, v] = lane_sums!(n, |at| [at.of(a) * at.of(e), at.of(b) * at.of(e)]);
         (u, v)
     }
 }
@@ -1659,11 +1638,7 @@ pub(crate) fn correct(
         g[k] += contrast * (gx[k] * mx + gy[k] * my) - e[k];
     }
     let g = &scratch.g[..n];
-    let [sum, sum2] = sums(
-        n,
-        #[inline(always)]
-        |a| [a.of(g), a.of(g) * a.of(g)],
-    );
+    let [sum, sum2] = lane_sums!(n, |a| [a.of(g), a.of(g) * a.of(g)]);
     let gm = sum / n as f64;
     let dg = (sum2 - sum * gm).max(0.0).sqrt();
     if dg == 0.0 {
@@ -1675,11 +1650,7 @@ pub(crate) fn correct(
         r[k] = f[k] - ratio * (g[k] - gm);
     }
     let r = &scratch.residuals[..n];
-    let residual2 = sums(
-        n,
-        #[inline(always)]
-        |a| [a.of(r) * a.of(r)],
-    )[0];
+    let residual2 = lane_sums!(n, |a| [a.of(r) * a.of(r)])[0];
     let gain = lx.gain * ly.gain;
     let (cov, var) = noise_covariance(
         prepared,
@@ -1865,11 +1836,7 @@ pub fn iterate(
             }
         }
         let gs = &g[..n];
-        let [sum, sum2] = sums(
-            n,
-            #[inline(always)]
-            |a| [a.of(gs), a.of(gs) * a.of(gs)],
-        );
+        let [sum, sum2] = lane_sums!(n, |a| [a.of(gs), a.of(gs) * a.of(gs)]);
         let gm = sum / n as f64;
         let dg = (sum2 - sum * gm).max(0.0).sqrt();
         if dg == 0.0 {
@@ -1884,16 +1851,12 @@ pub fn iterate(
             res[k] = f[k] - ratio * (gs[k] - gm);
         }
         let res = &residuals[..n];
-        let [b0, b1, b2, b3, b4, b5, r2] = sums(
-            n,
-            #[inline(always)]
-            |a| {
-                let r = a.of(res);
-                let (dx, dy) = (a.of(dx), a.of(dy));
-                let (ex, ey) = (a.of(gx) * r, a.of(gy) * r);
-                [ex, ex * dx, ex * dy, ey, ey * dx, ey * dy, r * r]
-            },
-        );
+        let [b0, b1, b2, b3, b4, b5, r2] = lane_sums!(n, |a| {
+            let r = a.of(res);
+            let (dx, dy) = (a.of(dx), a.of(dy));
+            let (ex, ey) = (a.of(gx) * r, a.of(gy) * r);
+            [ex, ex * dx, ex * dy, ey, ey * dx, ey * dy, r * r]
+        },);
         let b6 = [b0, b1, b2, b3, b4, b5];
         residual2 = r2;
         zncc = 1.0 - 0.5 * residual2 / (rs.df * rs.df);

@@ -3,7 +3,7 @@
 //! and [`V`], the lane-wise operand of [`sums`]' terms.
 //!
 //! **Compiled where they are called.** Everything here is `#[inline(always)]`, and
-//! the closures given to [`sums`] must be too (`#[inline(always)] |a| ...`): the
+//! the closures given to [`sums`] must be too (call it through [`lane_sums!`]): the
 //! callers run inside a `pulp` dispatch (AVX2/FMA or AVX-512, chosen at run time),
 //! and a closure or function compiled apart from it is built for the baseline
 //! instruction set and called once per vector through memory (the field ran 25 %
@@ -49,6 +49,19 @@ pub(crate) fn sums<const M: usize>(n: usize, f: impl Fn(At) -> [V; M]) -> [f64; 
     }
     out
 }
+
+/// [`sums`] with its closure `#[inline(always)]`, as every call must have it (see
+/// the module's doc): `lane_sums!(n, |a| [a.of(g), a.of(g) * a.of(g)])`.
+macro_rules! lane_sums {
+    ($n:expr, |$a:ident| $body:expr $(,)?) => {
+        $crate::lanes::sums(
+            $n,
+            #[inline(always)]
+            |$a| $body,
+        )
+    };
+}
+pub(crate) use lane_sums;
 
 /// [`LANES`] consecutive pixels' values, the operand of [`sums`]' terms: plain
 /// lane-by-lane arithmetic the compiler keeps in vector registers.

@@ -86,7 +86,8 @@ pub fn search(
         }
     }
     let tm = t.iter().sum::<f64>() / t.len() as f64;
-    let t_energy = t.iter().map(|v| (v - tm).powi(2)).sum::<f64>().sqrt();
+    let tz: Vec<f64> = t.iter().map(|v| v - tm).collect();
+    let t_energy = tz.iter().map(|v| v * v).sum::<f64>().sqrt();
     if t_energy == 0.0 {
         return None;
     }
@@ -94,7 +95,6 @@ pub fn search(
     // candidate offset (i, j), row-major with `stride`: summed directly where that
     // costs less than three transforms of `size`², else through the FFT.
     let region = Region { x0, y0, sw, sh };
-    let tz: Vec<f64> = t.iter().map(|v| v - tm).collect();
     let candidates = ((sw - n + 1) * (sh - n + 1)) as usize;
     let nn = n as usize;
     let transforms = 3 * size * size * (2 * size.trailing_zeros() as usize).max(1) * 2;
