@@ -1,7 +1,8 @@
 //! DIC speed: one IC-GN refinement; the full field on 512 x 512 speckle with 33 x 33
 //! subsets at step 10 and at step 2, and the point mode on a 32 x 32 grid of points,
 //! each with the corrections and σ of every field point (each prints its points per
-//! second once, then criterion's figures); tracking one region in a VGA frame.
+//! second once, then criterion's figures); point mode's integer search at one point;
+//! tracking one region in a VGA frame.
 //! `cargo bench -p cellinject-dic`.
 
 #![allow(missing_docs, clippy::unwrap_used)]
@@ -11,6 +12,7 @@ use std::time::Instant;
 
 use cellinject_dic::field::{FieldOptions, field};
 use cellinject_dic::icgn::{IcgnOptions, refine};
+use cellinject_dic::search::{pyramid, search_pyramid};
 use cellinject_dic::synth::{Speckle, SpeckleParams};
 use cellinject_dic::track::{Roi, Tracker};
 use cellinject_dic::{BSpline, PointOptions, Reference, Shape, Subset, correlate_points};
@@ -35,6 +37,17 @@ fn point(c: &mut Criterion) {
             )
             .map(|p| black_box(p.u))
         })
+    });
+}
+
+fn integer_search(c: &mut Criterion) {
+    // What point mode does first at every point: a pyramid search for a 33 x 33
+    // subset within ±64 px (3 levels).
+    let sp = Speckle::new(&SpeckleParams::default_for(512, 512), 4);
+    let pr = pyramid(&sp.render_shifted(0.0, 0.0, 0.0, 1), 3);
+    let pc = pyramid(&sp.render_shifted(23.6, -11.35, 0.0, 2), 3);
+    c.bench_function("search: one 33x33 subset, radius 64, 3 levels", |b| {
+        b.iter(|| black_box(search_pyramid(&pr, &pc, 256, 240, 16, 64).map(|h| h.u)))
     });
 }
 
@@ -123,6 +136,6 @@ fn tracking(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30);
-    targets = point, full_field, point_mode, tracking
+    targets = point, integer_search, full_field, point_mode, tracking
 }
 criterion_main!(benches);

@@ -9,7 +9,7 @@ use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
 use crate::image::Image;
-use crate::lanes::dot;
+use crate::lanes::LANES;
 
 /// Best integer shift of a subset and its ZNCC.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -78,15 +78,93 @@ pub fn search(
         return None;
     }
     let size = (sw.max(sh) as usize).next_power_of_two();
-    // Zero-mean template.
-    let mut t = Vec::with_capacity((n * n) as usize);
-    for j in 0..n {
-        for i in 0..n {
-            t.push(reference.at((x - m + i) as usize, (y - m + j) as usize));
-        }
+    BUFFERS.with(|b| {
+        let b = &mut *b.borrow_mut();
+        pulp::Arch::new().dispatch(SearchIn {
+            reference,
+            current,
+            at: (x, y, m),
+            region: (x0, y0, sw, sh),
+            size,
+            b,
+        })
+    })
+}
+
+/// A search's buffers, kept per thread: point mode searches at every point, and
+/// nothing is allocated per point (the FFT path, for wide searches, aside).
+#[derive(Default)]
+struct Buffers {
+    /// The zero-mean template, row-major.
+    tz: Vec<f64>,
+    /// The cross-correlation at every candidate offset.
+    cross: Vec<f64>,
+    /// The search region with padded rows.
+    region: Vec<f64>,
+    /// The region's and its square's column sums over one row of candidates.
+    s1: Vec<f64>,
+    s2: Vec<f64>,
+}
+
+thread_local! {
+    static BUFFERS: std::cell::RefCell<Buffers> = std::cell::RefCell::new(Buffers::default());
+}
+
+/// [`search`] of the `n x n` template centred at (x, y) (`at` = (x, y, m), n = 2m + 1)
+/// over the region (x0, y0, sw, sh) of `current`, in `b`'s buffers, compiled for the
+/// machine's vector units.
+struct SearchIn<'a> {
+    reference: &'a Image,
+    current: &'a Image,
+    at: (i64, i64, i64),
+    region: (i64, i64, i64, i64),
+    size: usize,
+    b: &'a mut Buffers,
+}
+
+impl pulp::WithSimd for SearchIn<'_> {
+    type Output = Option<IntegerMatch>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let SearchIn {
+            reference,
+            current,
+            at,
+            region,
+            size,
+            b,
+        } = self;
+        search_in(reference, current, at, region, size, b)
     }
-    let tm = t.iter().sum::<f64>() / t.len() as f64;
-    let tz: Vec<f64> = t.iter().map(|v| v - tm).collect();
+}
+
+/// The body of [`SearchIn`].
+#[inline(always)]
+fn search_in(
+    reference: &Image,
+    current: &Image,
+    at: (i64, i64, i64),
+    region: (i64, i64, i64, i64),
+    size: usize,
+    b: &mut Buffers,
+) -> Option<IntegerMatch> {
+    let (x, y, m) = at;
+    let (x0, y0, sw, sh) = region;
+    let n = 2 * m + 1;
+    // Zero-mean template.
+    let nn = n as usize;
+    let tz = &mut b.tz;
+    tz.clear();
+    let (rd, rw) = (reference.data(), reference.width());
+    for j in 0..nn {
+        let start = (y - m) as usize * rw + j * rw + (x - m) as usize;
+        tz.extend_from_slice(&rd[start..start + nn]);
+    }
+    let tm = tz.iter().sum::<f64>() / tz.len() as f64;
+    for v in tz.iter_mut() {
+        *v -= tm;
+    }
     let t_energy = tz.iter().map(|v| v * v).sum::<f64>().sqrt();
     if t_energy == 0.0 {
         return None;
@@ -96,54 +174,65 @@ pub fn search(
     // costs less than three transforms of `size`², else through the FFT.
     let region = Region { x0, y0, sw, sh };
     let candidates = ((sw - n + 1) * (sh - n + 1)) as usize;
-    let nn = n as usize;
     let transforms = 3 * size * size * (2 * size.trailing_zeros() as usize).max(1) * 2;
-    let (cross, stride) = if candidates * nn * nn <= transforms {
-        cross_direct(current, &tz, nn, region)
+    let stride = if candidates * nn * nn <= transforms {
+        cross_direct(current, tz, nn, region, &mut b.cross, &mut b.region)
     } else {
-        cross_fft(current, &tz, nn, region, size)
+        let (c, stride) = cross_fft(current, tz, nn, region, size);
+        b.cross = c;
+        stride
     };
-    // Integral images of the region and its square.
-    let w1 = (sw + 1) as usize;
-    let mut s1 = vec![0.0; w1 * (sh + 1) as usize];
-    let mut s2 = s1.clone();
-    for j in 0..sh as usize {
-        for i in 0..sw as usize {
-            let v = current.at(x0 as usize + i, y0 as usize + j);
-            let k = (j + 1) * w1 + i + 1;
-            s1[k] = v + s1[k - 1] + s1[k - w1] - s1[k - w1 - 1];
-            s2[k] = v * v + s2[k - 1] + s2[k - w1] - s2[k - w1 - 1];
-        }
-    }
-    let box_sum = |s: &[f64], i: usize, j: usize| {
-        let (i1, j1) = (i + n as usize, j + n as usize);
-        s[j1 * w1 + i1] - s[j * w1 + i1] - s[j1 * w1 + i] + s[j * w1 + i]
-    };
+    let cross = &b.cross;
+    // The region's and its square's sums over every candidate window: for each row
+    // of candidates, the columns' sums over the window's n rows (side by side on the
+    // vector units), then n of those. Summed from the pixels, without the rounding of
+    // differences of running sums.
+    let (cols, rows) = ((sw - n + 1) as usize, (sh - n + 1) as usize);
+    let swu = sw as usize;
+    let (data, cw) = (current.data(), current.width());
+    let (c1, c2) = (&mut b.s1, &mut b.s2);
     let area = (n * n) as f64;
-    let mut best = IntegerMatch {
-        u: 0,
-        v: 0,
-        zncc: f64::NEG_INFINITY,
-    };
-    for j in 0..=(sh - n) as usize {
-        for i in 0..=(sw - n) as usize {
-            let sum = box_sum(&s1, i, j);
-            let var = box_sum(&s2, i, j) - sum * sum / area;
+    // The best candidate so far, by ZNCC = num / (|t|·√var), compared as num·|num|
+    // / var (the same order, without a root or a division per candidate): its
+    // offset, num and var.
+    let mut best: Option<(usize, usize, f64, f64)> = None;
+    for j in 0..rows {
+        for c in [&mut *c1, &mut *c2] {
+            c.clear();
+            c.resize(swu, 0.0);
+        }
+        for jj in 0..nn {
+            let start = (y0 as usize + j + jj) * cw + x0 as usize;
+            let row = &data[start..start + swu];
+            for ((a, a2), &v) in c1.iter_mut().zip(c2.iter_mut()).zip(row) {
+                *a += v;
+                *a2 += v * v;
+            }
+        }
+        for i in 0..cols {
+            let sum: f64 = c1[i..i + nn].iter().sum();
+            let sum2: f64 = c2[i..i + nn].iter().sum();
+            let var = sum2 - sum * sum / area;
             if var <= 0.0 {
                 continue;
             }
             let num = cross[j * stride + i];
-            let zncc = num / (t_energy * var.sqrt());
-            if zncc > best.zncc {
-                best = IntegerMatch {
-                    u: x0 + i as i64 + m - x,
-                    v: y0 + j as i64 + m - y,
-                    zncc,
-                };
+            let better = match best {
+                None => true,
+                Some((_, _, bn, bv)) => num * num.abs() * bv > bn * bn.abs() * var,
+            };
+            if better {
+                best = Some((i, j, num, var));
             }
         }
     }
-    best.zncc.is_finite().then_some(best)
+    let (i, j, num, var) = best?;
+    let zncc = num / (t_energy * var.sqrt());
+    zncc.is_finite().then_some(IntegerMatch {
+        u: x0 + i as i64 + m - x,
+        v: y0 + j as i64 + m - y,
+        zncc,
+    })
 }
 
 /// The search region in the current image: its top-left pixel and size.
@@ -156,12 +245,28 @@ struct Region {
 }
 
 /// `Σ tz_k c_{(i, j) + k}` of the zero-mean `n x n` template `tz` with the region of
-/// `current` at every candidate offset (i, j) (row-major, as many columns as the
-/// returned stride): summed directly, each row's products in interleaved partial
-/// sums on the machine's vector units (an in-order sum is one long chain of
-/// dependent additions).
-fn cross_direct(current: &Image, tz: &[f64], n: usize, r: Region) -> (Vec<f64>, usize) {
-    pulp::Arch::new().dispatch(CrossDirect { current, tz, n, r })
+/// `current` at every candidate offset (i, j), into `out` (row-major; returns the
+/// stride, the number of columns), summed directly on the machine's vector units:
+/// lanes over [`LANES`] neighbouring candidates of a row, four such groups at a time
+/// (each sum in order over the template). The region is first copied with its rows
+/// padded to whole vectors (`region`, a buffer), so that every load is a whole
+/// vector and the sums keep no index to check.
+fn cross_direct(
+    current: &Image,
+    tz: &[f64],
+    n: usize,
+    r: Region,
+    out: &mut Vec<f64>,
+    region: &mut Vec<f64>,
+) -> usize {
+    pulp::Arch::new().dispatch(CrossDirect {
+        current,
+        tz,
+        n,
+        r,
+        out,
+        region,
+    })
 }
 
 /// [`cross_direct`] compiled for the machine's vector units.
@@ -170,28 +275,77 @@ struct CrossDirect<'a> {
     tz: &'a [f64],
     n: usize,
     r: Region,
+    out: &'a mut Vec<f64>,
+    /// The region, its rows padded (a buffer).
+    region: &'a mut Vec<f64>,
 }
 
 impl pulp::WithSimd for CrossDirect<'_> {
-    type Output = (Vec<f64>, usize);
+    type Output = usize;
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
-        let CrossDirect { current, tz, n, r } = self;
+        let CrossDirect {
+            current,
+            tz,
+            n,
+            r,
+            out,
+            region,
+        } = self;
         let (cols, rows) = (r.sw as usize + 1 - n, r.sh as usize + 1 - n);
         let (data, cw) = (current.data(), current.width());
-        let mut out = vec![0.0; cols * rows];
-        for (j, row) in out.chunks_exact_mut(cols).enumerate() {
-            for (i, o) in row.iter_mut().enumerate() {
-                let mut acc = 0.0;
-                for (jj, trow) in tz.chunks_exact(n).enumerate() {
-                    let start = (r.y0 as usize + j + jj) * cw + r.x0 as usize + i;
-                    acc += dot(trow, &data[start..start + n]);
+        out.clear();
+        out.resize(cols * rows, 0.0);
+        // The region's rows, each padded with zeros to whole vectors of candidates.
+        let chunks = cols.div_ceil(LANES);
+        let stride = chunks * LANES + n - 1;
+        let sw = cols + n - 1;
+        region.clear();
+        region.resize(stride * (rows + n - 1), 0.0);
+        let region = &mut region[..];
+        for (y, dst) in region.chunks_exact_mut(stride).enumerate() {
+            let start = (r.y0 as usize + y) * cw + r.x0 as usize;
+            dst[..sw].copy_from_slice(&data[start..start + sw]);
+        }
+        // A unit is LANES candidates of one row (lanes over the candidates); BLOCK
+        // units are summed side by side, each template value times the region's
+        // pixels from its tap, so that BLOCK independent sums keep the vector units
+        // busy (one alone waits on each addition). A last, partial block repeats its
+        // last unit; lanes past a row's end are not kept.
+        const BLOCK: usize = 4;
+        let units = rows * chunks;
+        let origin = |u: usize| (u / chunks) * stride + (u % chunks) * LANES;
+        for u0 in (0..units).step_by(BLOCK) {
+            let base: [usize; BLOCK] = std::array::from_fn(|b| origin((u0 + b).min(units - 1)));
+            let mut acc = [[0.0; LANES]; BLOCK];
+            for (jj, trow) in tz.chunks_exact(n).enumerate() {
+                let line = |b: usize| {
+                    let start = base[b] + jj * stride;
+                    region[start..start + n + LANES - 1].windows(LANES)
+                };
+                let taps = trow
+                    .iter()
+                    .zip(line(0))
+                    .zip(line(1))
+                    .zip(line(2))
+                    .zip(line(3));
+                for ((((&t, v0), v1), v2), v3) in taps {
+                    for (b, v) in [v0, v1, v2, v3].into_iter().enumerate() {
+                        for l in 0..LANES {
+                            acc[b][l] += t * v[l];
+                        }
+                    }
                 }
-                *o = acc;
+            }
+            for (b, sums) in acc.iter().enumerate().take(units - u0) {
+                let u = u0 + b;
+                let (q, c) = (u / chunks, (u % chunks) * LANES);
+                let w = (cols - c).min(LANES);
+                out[q * cols + c..q * cols + c + w].copy_from_slice(&sums[..w]);
             }
         }
-        (out, cols)
+        cols
     }
 }
 
@@ -303,9 +457,17 @@ mod tests {
                 sw: 40,
                 sh: 23,
             },
+            // Fewer candidates in a row than a vector holds.
+            Region {
+                x0: 50,
+                y0: 30,
+                sw: 14,
+                sh: 13,
+            },
         ] {
             let size = (r.sw.max(r.sh) as usize).next_power_of_two();
-            let (d, ds) = cross_direct(&c, &tz, n, r);
+            let mut d = Vec::new();
+            let ds = cross_direct(&c, &tz, n, r, &mut d, &mut Vec::new());
             let (f, fs) = cross_fft(&c, &tz, n, r, size);
             for j in 0..=(r.sh as usize - n) {
                 for i in 0..=(r.sw as usize - n) {
