@@ -405,18 +405,18 @@ fn assert_point_6(runs: &[Run], pooled: bool) {
 /// --release --test real_images -- --include-ignored --nocapture`; `DIC_PREFILTER=0.7`
 /// in the environment runs every field with that Gaussian prefilter).
 ///
-/// Measured (release build, about 21 s on 2 cores, where this text said 370 s before
-/// issue 37's work): 161 237 points kept, none more than 0.1 px off (worst 0.094 px);
-/// textured points kept: median 100 %, lowest 91.2 % (camera_sky_coat, both frames
-/// exposed, (−1.13, 2.50), noise 2); the RMS of error / σ point by point 0.53-1.13 in
-/// every run, 1.3 % of a run's coordinates at most more than 3 σ off; RMS error / RMS
+/// Measured (release build, about 15 s on 2 cores, where this text said 370 s before
+/// issue 37's work): 161 679 points kept, none more than 0.1 px off (worst 0.095 px);
+/// textured points kept: median 100 %, lowest 91.6 % (camera_sky_coat, the
+/// photograph as reference, (0.37, −0.62), noise 2); the RMS of error / σ point by point 0.54-1.13 in
+/// every run, 1.4 % of a run's coordinates at most more than 3 σ off; RMS error / RMS
 /// σ 0.77-1.10 on the 48 runs with noise, 0.37-1.21 on the 48 without (15 of them
 /// under 0.5, σ conservative where the rounding sets it;
 /// see [`assert_point_6`]). The history of this figure (cubic spline, spectral bias
 /// model, square subsets: 4 points over 0.1 px, 81 % kept) is in the CHANGELOG and
 /// `accept::measure`'s documentation.
 #[test]
-#[ignore = "about 21 s in a release build (minutes in a debug one); the CI runs the coarse grid below"]
+#[ignore = "about 15 s in a release build (minutes in a debug one); the CI runs the coarse grid below"]
 fn photographs_shifted_by_known_amounts() {
     assert_point_6(&all_runs(5), false);
 }
