@@ -79,14 +79,13 @@ pub fn search(
     }
     let size = (sw.max(sh) as usize).next_power_of_two();
     BUFFERS.with(|b| {
-        let b = &mut *b.borrow_mut();
         pulp::Arch::new().dispatch(SearchIn {
             reference,
             current,
             at: (x, y, m),
-            region: (x0, y0, sw, sh),
+            r: Region { x0, y0, sw, sh },
             size,
-            b,
+            b: &mut b.borrow_mut(),
         })
     })
 }
@@ -111,13 +110,13 @@ thread_local! {
 }
 
 /// [`search`] of the `n x n` template centred at (x, y) (`at` = (x, y, m), n = 2m + 1)
-/// over the region (x0, y0, sw, sh) of `current`, in `b`'s buffers, compiled for the
-/// machine's vector units.
+/// over the region `r` of `current`, in `b`'s buffers, compiled for the machine's
+/// vector units.
 struct SearchIn<'a> {
     reference: &'a Image,
     current: &'a Image,
     at: (i64, i64, i64),
-    region: (i64, i64, i64, i64),
+    r: Region,
     size: usize,
     b: &'a mut Buffers,
 }
@@ -130,109 +129,94 @@ impl pulp::WithSimd for SearchIn<'_> {
         let SearchIn {
             reference,
             current,
-            at,
-            region,
+            at: (x, y, m),
+            r,
             size,
             b,
         } = self;
-        search_in(reference, current, at, region, size, b)
-    }
-}
-
-/// The body of [`SearchIn`].
-#[inline(always)]
-fn search_in(
-    reference: &Image,
-    current: &Image,
-    at: (i64, i64, i64),
-    region: (i64, i64, i64, i64),
-    size: usize,
-    b: &mut Buffers,
-) -> Option<IntegerMatch> {
-    let (x, y, m) = at;
-    let (x0, y0, sw, sh) = region;
-    let n = 2 * m + 1;
-    // Zero-mean template.
-    let nn = n as usize;
-    let tz = &mut b.tz;
-    tz.clear();
-    let (rd, rw) = (reference.data(), reference.width());
-    for j in 0..nn {
-        let start = (y - m) as usize * rw + j * rw + (x - m) as usize;
-        tz.extend_from_slice(&rd[start..start + nn]);
-    }
-    let tm = tz.iter().sum::<f64>() / tz.len() as f64;
-    for v in tz.iter_mut() {
-        *v -= tm;
-    }
-    let t_energy = tz.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if t_energy == 0.0 {
-        return None;
-    }
-    // The cross-correlation of the zero-mean template with the region at every
-    // candidate offset (i, j), row-major with `stride`: summed directly where that
-    // costs less than three transforms of `size`², else through the FFT.
-    let region = Region { x0, y0, sw, sh };
-    let candidates = ((sw - n + 1) * (sh - n + 1)) as usize;
-    let transforms = 3 * size * size * (2 * size.trailing_zeros() as usize).max(1) * 2;
-    let stride = if candidates * nn * nn <= transforms {
-        cross_direct(current, tz, nn, region, &mut b.cross, &mut b.region)
-    } else {
-        let (c, stride) = cross_fft(current, tz, nn, region, size);
-        b.cross = c;
-        stride
-    };
-    let cross = &b.cross;
-    // The region's and its square's sums over every candidate window: for each row
-    // of candidates, the columns' sums over the window's n rows (side by side on the
-    // vector units), then n of those. Summed from the pixels, without the rounding of
-    // differences of running sums.
-    let (cols, rows) = ((sw - n + 1) as usize, (sh - n + 1) as usize);
-    let swu = sw as usize;
-    let (data, cw) = (current.data(), current.width());
-    let (c1, c2) = (&mut b.s1, &mut b.s2);
-    let area = (n * n) as f64;
-    // The best candidate so far, by ZNCC = num / (|t|·√var), compared as num·|num|
-    // / var (the same order, without a root or a division per candidate): its
-    // offset, num and var.
-    let mut best: Option<(usize, usize, f64, f64)> = None;
-    for j in 0..rows {
-        for c in [&mut *c1, &mut *c2] {
-            c.clear();
-            c.resize(swu, 0.0);
+        let Region { x0, y0, sw, sh } = r;
+        let n = 2 * m + 1;
+        // Zero-mean template.
+        let nn = n as usize;
+        let tz = &mut b.tz;
+        tz.clear();
+        let (rd, rw) = (reference.data(), reference.width());
+        for j in 0..nn {
+            let start = (y - m) as usize * rw + j * rw + (x - m) as usize;
+            tz.extend_from_slice(&rd[start..start + nn]);
         }
-        for jj in 0..nn {
-            let start = (y0 as usize + j + jj) * cw + x0 as usize;
-            let row = &data[start..start + swu];
-            for ((a, a2), &v) in c1.iter_mut().zip(c2.iter_mut()).zip(row) {
-                *a += v;
-                *a2 += v * v;
+        let tm = tz.iter().sum::<f64>() / tz.len() as f64;
+        for v in tz.iter_mut() {
+            *v -= tm;
+        }
+        let t_energy = tz.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if t_energy == 0.0 {
+            return None;
+        }
+        // The cross-correlation of the zero-mean template with the region at every
+        // candidate offset (i, j), row-major with `stride`: summed directly where that
+        // costs less than three transforms of `size`², else through the FFT.
+        let candidates = ((sw - n + 1) * (sh - n + 1)) as usize;
+        let transforms = 3 * size * size * (2 * size.trailing_zeros() as usize).max(1) * 2;
+        let stride = if candidates * nn * nn <= transforms {
+            cross_direct(current, tz, nn, r, &mut b.cross, &mut b.region)
+        } else {
+            let (c, stride) = cross_fft(current, tz, nn, r, size);
+            b.cross = c;
+            stride
+        };
+        let cross = &b.cross;
+        // The region's and its square's sums over every candidate window: for each row
+        // of candidates, the columns' sums over the window's n rows (side by side on the
+        // vector units), then n of those. Summed from the pixels, without the rounding of
+        // differences of running sums.
+        let (cols, rows) = ((sw - n + 1) as usize, (sh - n + 1) as usize);
+        let swu = sw as usize;
+        let (data, cw) = (current.data(), current.width());
+        let (c1, c2) = (&mut b.s1, &mut b.s2);
+        let area = (n * n) as f64;
+        // The best candidate so far, by ZNCC = num / (|t|·√var), compared as num·|num|
+        // / var (the same order, without a root or a division per candidate): its
+        // offset, num and var.
+        let mut best: Option<(usize, usize, f64, f64)> = None;
+        for j in 0..rows {
+            for c in [&mut *c1, &mut *c2] {
+                c.clear();
+                c.resize(swu, 0.0);
+            }
+            for jj in 0..nn {
+                let start = (y0 as usize + j + jj) * cw + x0 as usize;
+                let row = &data[start..start + swu];
+                for ((a, a2), &v) in c1.iter_mut().zip(c2.iter_mut()).zip(row) {
+                    *a += v;
+                    *a2 += v * v;
+                }
+            }
+            for i in 0..cols {
+                let sum: f64 = c1[i..i + nn].iter().sum();
+                let sum2: f64 = c2[i..i + nn].iter().sum();
+                let var = sum2 - sum * sum / area;
+                if var <= 0.0 {
+                    continue;
+                }
+                let num = cross[j * stride + i];
+                let better = match best {
+                    None => true,
+                    Some((_, _, bn, bv)) => num * num.abs() * bv > bn * bn.abs() * var,
+                };
+                if better {
+                    best = Some((i, j, num, var));
+                }
             }
         }
-        for i in 0..cols {
-            let sum: f64 = c1[i..i + nn].iter().sum();
-            let sum2: f64 = c2[i..i + nn].iter().sum();
-            let var = sum2 - sum * sum / area;
-            if var <= 0.0 {
-                continue;
-            }
-            let num = cross[j * stride + i];
-            let better = match best {
-                None => true,
-                Some((_, _, bn, bv)) => num * num.abs() * bv > bn * bn.abs() * var,
-            };
-            if better {
-                best = Some((i, j, num, var));
-            }
-        }
+        let (i, j, num, var) = best?;
+        let zncc = num / (t_energy * var.sqrt());
+        zncc.is_finite().then_some(IntegerMatch {
+            u: x0 + i as i64 + m - x,
+            v: y0 + j as i64 + m - y,
+            zncc,
+        })
     }
-    let (i, j, num, var) = best?;
-    let zncc = num / (t_energy * var.sqrt());
-    zncc.is_finite().then_some(IntegerMatch {
-        u: x0 + i as i64 + m - x,
-        v: y0 + j as i64 + m - y,
-        zncc,
-    })
 }
 
 /// The search region in the current image: its top-left pixel and size.
@@ -246,11 +230,12 @@ struct Region {
 
 /// `Σ tz_k c_{(i, j) + k}` of the zero-mean `n x n` template `tz` with the region of
 /// `current` at every candidate offset (i, j), into `out` (row-major; returns the
-/// stride, the number of columns), summed directly on the machine's vector units:
-/// lanes over [`LANES`] neighbouring candidates of a row, four such groups at a time
-/// (each sum in order over the template). The region is first copied with its rows
+/// stride, the number of columns), summed directly (inlined into [`SearchIn`], so on
+/// the machine's vector units): lanes over [`LANES`] neighbouring candidates of a
+/// row, four such groups at a time (each sum in order over the template). The region is first copied with its rows
 /// padded to whole vectors (`region`, a buffer), so that every load is a whole
 /// vector and the sums keep no index to check.
+#[inline(always)]
 fn cross_direct(
     current: &Image,
     tz: &[f64],
@@ -259,94 +244,59 @@ fn cross_direct(
     out: &mut Vec<f64>,
     region: &mut Vec<f64>,
 ) -> usize {
-    pulp::Arch::new().dispatch(CrossDirect {
-        current,
-        tz,
-        n,
-        r,
-        out,
-        region,
-    })
-}
-
-/// [`cross_direct`] compiled for the machine's vector units.
-struct CrossDirect<'a> {
-    current: &'a Image,
-    tz: &'a [f64],
-    n: usize,
-    r: Region,
-    out: &'a mut Vec<f64>,
-    /// The region, its rows padded (a buffer).
-    region: &'a mut Vec<f64>,
-}
-
-impl pulp::WithSimd for CrossDirect<'_> {
-    type Output = usize;
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
-        let CrossDirect {
-            current,
-            tz,
-            n,
-            r,
-            out,
-            region,
-        } = self;
-        let (cols, rows) = (r.sw as usize + 1 - n, r.sh as usize + 1 - n);
-        let (data, cw) = (current.data(), current.width());
-        out.clear();
-        out.resize(cols * rows, 0.0);
-        // The region's rows, each padded with zeros to whole vectors of candidates.
-        let chunks = cols.div_ceil(LANES);
-        let stride = chunks * LANES + n - 1;
-        let sw = cols + n - 1;
-        region.clear();
-        region.resize(stride * (rows + n - 1), 0.0);
-        let region = &mut region[..];
-        for (y, dst) in region.chunks_exact_mut(stride).enumerate() {
-            let start = (r.y0 as usize + y) * cw + r.x0 as usize;
-            dst[..sw].copy_from_slice(&data[start..start + sw]);
-        }
-        // A unit is LANES candidates of one row (lanes over the candidates); BLOCK
-        // units are summed side by side, each template value times the region's
-        // pixels from its tap, so that BLOCK independent sums keep the vector units
-        // busy (one alone waits on each addition). A last, partial block repeats its
-        // last unit; lanes past a row's end are not kept.
-        const BLOCK: usize = 4;
-        let units = rows * chunks;
-        let origin = |u: usize| (u / chunks) * stride + (u % chunks) * LANES;
-        for u0 in (0..units).step_by(BLOCK) {
-            let base: [usize; BLOCK] = std::array::from_fn(|b| origin((u0 + b).min(units - 1)));
-            let mut acc = [[0.0; LANES]; BLOCK];
-            for (jj, trow) in tz.chunks_exact(n).enumerate() {
-                let line = |b: usize| {
-                    let start = base[b] + jj * stride;
-                    region[start..start + n + LANES - 1].windows(LANES)
-                };
-                let taps = trow
-                    .iter()
-                    .zip(line(0))
-                    .zip(line(1))
-                    .zip(line(2))
-                    .zip(line(3));
-                for ((((&t, v0), v1), v2), v3) in taps {
-                    for (b, v) in [v0, v1, v2, v3].into_iter().enumerate() {
-                        for l in 0..LANES {
-                            acc[b][l] += t * v[l];
-                        }
+    let (cols, rows) = (r.sw as usize + 1 - n, r.sh as usize + 1 - n);
+    let (data, cw) = (current.data(), current.width());
+    out.clear();
+    out.resize(cols * rows, 0.0);
+    // The region's rows, each padded with zeros to whole vectors of candidates.
+    let chunks = cols.div_ceil(LANES);
+    let stride = chunks * LANES + n - 1;
+    let sw = cols + n - 1;
+    region.clear();
+    region.resize(stride * (rows + n - 1), 0.0);
+    let region = &mut region[..];
+    for (y, dst) in region.chunks_exact_mut(stride).enumerate() {
+        let start = (r.y0 as usize + y) * cw + r.x0 as usize;
+        dst[..sw].copy_from_slice(&data[start..start + sw]);
+    }
+    // A unit is LANES candidates of one row (lanes over the candidates); BLOCK
+    // units are summed side by side, each template value times the region's
+    // pixels from its tap, so that BLOCK independent sums keep the vector units
+    // busy (one alone waits on each addition). A last, partial block repeats its
+    // last unit; lanes past a row's end are not kept.
+    const BLOCK: usize = 4;
+    let units = rows * chunks;
+    let origin = |u: usize| (u / chunks) * stride + (u % chunks) * LANES;
+    for u0 in (0..units).step_by(BLOCK) {
+        let base: [usize; BLOCK] = std::array::from_fn(|b| origin((u0 + b).min(units - 1)));
+        let mut acc = [[0.0; LANES]; BLOCK];
+        for (jj, trow) in tz.chunks_exact(n).enumerate() {
+            let line = |b: usize| {
+                let start = base[b] + jj * stride;
+                region[start..start + n + LANES - 1].windows(LANES)
+            };
+            let taps = trow
+                .iter()
+                .zip(line(0))
+                .zip(line(1))
+                .zip(line(2))
+                .zip(line(3));
+            for ((((&t, v0), v1), v2), v3) in taps {
+                for (b, v) in [v0, v1, v2, v3].into_iter().enumerate() {
+                    for l in 0..LANES {
+                        acc[b][l] += t * v[l];
                     }
                 }
             }
-            for (b, sums) in acc.iter().enumerate().take(units - u0) {
-                let u = u0 + b;
-                let (q, c) = (u / chunks, (u % chunks) * LANES);
-                let w = (cols - c).min(LANES);
-                out[q * cols + c..q * cols + c + w].copy_from_slice(&sums[..w]);
-            }
         }
-        cols
+        for (b, sums) in acc.iter().enumerate().take(units - u0) {
+            let u = u0 + b;
+            let (q, c) = (u / chunks, (u % chunks) * LANES);
+            let w = (cols - c).min(LANES);
+            out[q * cols + c..q * cols + c + w].copy_from_slice(&sums[..w]);
+        }
     }
+    cols
 }
 
 /// [`cross_direct`] through `size`² FFTs (the product of the transforms, transformed
