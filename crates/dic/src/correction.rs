@@ -246,10 +246,15 @@ fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
         for i in (0..pad).chain(pad + n..n + 2 * pad) {
             ext[i] = half_sample(i);
         }
+        // The first tap written, not added (see `bspline::Separable`: fresh zeroed
+        // memory read before its first write costs a TLB flush per page).
         for (j, wj) in sinc.iter().enumerate() {
             let from = pad - half + j;
-            for (s, e) in sim.iter_mut().zip(&ext[from..from + n]) {
-                *s += wj * e;
+            let taps = sim.iter_mut().zip(&ext[from..from + n]);
+            if j == 0 {
+                taps.for_each(|(s, e)| *s = wj * e);
+            } else {
+                taps.for_each(|(s, e)| *s += wj * e);
             }
         }
     }
