@@ -17,6 +17,7 @@ use thiserror::Error;
 
 pub mod overrides;
 pub mod plate;
+pub mod rigfile;
 mod section;
 mod structure;
 mod twin;
