@@ -368,7 +368,7 @@ struct Setup {
 }
 
 fn setup(d: &Description, args: &TwinArgs, backend: &BackendArgs) -> Result<Setup> {
-    let o = crate::backend::open(d, args, backend)?;
+    let o = crate::backend::open(d, args, &backend.rig()?)?;
     let (seed, zoom) = match &o.twin {
         Some(twin) => {
             let t = twin.lock().unwrap_or_else(|e| e.into_inner());

@@ -226,25 +226,6 @@ fn joint_store(c: &CacheArgs) -> Box<dyn JointStore + Send + Sync> {
     cellinject_fea::default_store(!c.no_cache)
 }
 
-/// J3's yield check for the safety envelope of a bench assembled with `approach`: the
-/// structural model on level-1 FEM joints (from the joint cache when it holds them),
-/// reduced to numbers the envelope evaluates without the FEM.
-pub(crate) fn j3_yield_check(
-    d: &Description,
-    approach: Approach,
-) -> Result<cellinject_rig::guard::YieldCheck> {
-    let store = cellinject_fea::default_store(true);
-    let _p =
-        crate::progress::spinner("J3's stresses for the safety envelope (joint FEM or its cache)");
-    cellinject_fea::j3_yield_check(&d.design, &d.structure, approach, store.as_ref()).map_err(
-        |e| {
-            anyhow::anyhow!(
-                "the safety envelope checks J3 against its yield strength with the structural model, which failed: {e}"
-            )
-        },
-    )
-}
-
 /// The structural model of a description on its FEM joints.
 fn model(d: &Description, mesh: &MeshArgs, cache: &CacheArgs) -> Result<FeaModel> {
     check_cost(d, &[mesh.level as usize], cache)?;

@@ -30,6 +30,7 @@ mod output;
 mod plate;
 mod progress;
 mod report;
+mod rigcheck;
 mod run;
 mod serve;
 mod sim;
@@ -174,6 +175,12 @@ enum Command {
         after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml"
     )]
     Emulate(emulate::EmulateCommand),
+    /// The bench as a rig file (one TOML naming each device's driver): check what it holds and whether each device answers.
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject rig check --rig bench.toml\n  cellinject run --rig bench.toml --plate plate.toml\n\nEvery command that drives hardware takes --rig FILE (docs/rig.md)."
+    )]
+    Rig(rigcheck::RigCommand),
     /// The live web dashboard of the bench: camera view, plots, plate map, run controls (loopback unless --allow-remote).
     #[command(
         after_help = "Examples:\n  cellinject serve                       # http://127.0.0.1:8080/ on the twin, paced to wall time\n  cellinject serve --fast --plate plate.toml\n  cellinject serve --bind 0.0.0.0:8080 --allow-remote --allowed-host bench.lab\n  cellinject serve --backend gcs://192.168.0.20:50000 --plate plate.toml\n\nAPI (docs/dashboard.md): GET /api/status, /api/events (live stream), /api/runs, /runs/ID; POST /api/run, /api/pause, /api/resume, /api/abort, /api/calibrate, /api/safe, /api/jog {\"axis\": \"A1\", \"by\": 1.0}. With --allow-remote every request carries `Authorization: Bearer TOKEN` (or the session cookie from POST /api/session)."
@@ -264,6 +271,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Some(Command::Run(args)) => run::run(&description()?, &args),
         Some(Command::Emulate(cmd)) => emulate::run(&description()?, &cmd),
+        Some(Command::Rig(cmd)) => rigcheck::run(&description()?, &cmd),
         Some(Command::Camera(cmd)) => {
             unused_config();
             camera::run(&cmd)

@@ -208,7 +208,8 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     options
         .check(&d.rig)
         .map_err(|e| InputError(e.to_string()))?;
-    if args.backend.check()?.is_some() {
+    let bench = args.backend.rig()?;
+    if !bench.is_twin() {
         if !faults.is_empty() {
             return Err(InputError(
                 "--fault injects faults into the twin: with a GCS backend give them to the emulator (`cellinject emulate gcs --fault`)".into(),
@@ -222,15 +223,12 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     let (hysteresis, not_used) = match &args.calibration {
         None => (None, None),
         Some(p) => {
-            let seed = args
-                .backend
-                .is_twin()
-                .then(|| args.seed.unwrap_or(d.sim.seed));
+            let seed = bench.is_twin().then(|| args.seed.unwrap_or(d.sim.seed));
             crate::experiment::read_hysteresis_for_run(
                 p,
                 &crate::experiment::RunBench {
                     d,
-                    backend: &args.backend.backend,
+                    backend: bench.backend(),
                     seed,
                 },
             )?
@@ -266,13 +264,13 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     };
     // A controller that cannot be reached leaves no run behind: it is opened before
     // the database.
-    let mut wire = if args.backend.is_twin() {
+    let mut wire = if bench.is_twin() {
         None
     } else {
         Some(crate::backend::open(
             d,
             &crate::sim::TwinArgs::new(None, None),
-            &args.backend,
+            &bench,
         )?)
     };
     let db_existed = args.db.exists();
@@ -299,10 +297,12 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             ))
             .into());
         }
-        if r.backend != args.backend.backend {
+        if r.backend != bench.backend() {
             return Err(InputError(format!(
                 "--backend {} is not run {}'s backend {} (resume on the same hardware)",
-                args.backend.backend, r.id, r.backend
+                bench.backend(),
+                r.id,
+                r.backend
             ))
             .into());
         }
@@ -346,8 +346,8 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         let id = new_run(
             &mut db,
             &text,
-            args.backend.is_twin().then_some(seed),
-            &args.backend.backend,
+            bench.is_twin().then_some(seed),
+            bench.backend(),
             &settings,
         )?;
         (id, text, seed, Vec::new(), (0.0, 0.0), resolved)
@@ -366,8 +366,8 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     plate
         .check()
         .map_err(|e| InputError(format!("plate: {e}")))?;
-    let (twin, mut rig) = if args.backend.is_twin() {
-        let o = crate::backend::open(d, &crate::sim::TwinArgs::with_seed(seed), &args.backend)?;
+    let (twin, mut rig) = if bench.is_twin() {
+        let o = crate::backend::open(d, &crate::sim::TwinArgs::with_seed(seed), &bench)?;
         let twin = o.twin.expect("the twin backend has a twin");
         cellinject_run_sim::prepare_twin(&twin, &plate, &faults, &options).map_err(run_error)?;
         (Some(twin), o.rig)
@@ -724,13 +724,7 @@ mod tests {
     /// is set (`obs` sets it), recorded in a fresh database.
     fn run_on_twin(name: &str, stop: Arc<AtomicBool>, obs: &mut dyn Observer) -> Ran {
         let d = cellinject_config::prototype();
-        let backend = crate::backend::BackendArgs {
-            backend: "twin".into(),
-            bench: None,
-            camera: None,
-            side_camera: None,
-            camera_fps: None,
-        };
+        let backend = cellinject_config::rigfile::RigFile::twin();
         let mut opened = crate::backend::open_with(
             &d,
             &crate::sim::TwinArgs::with_seed(1),
@@ -813,13 +807,7 @@ mod tests {
         cellinject_core::calibrate::HysteresisCalibration,
     )> {
         let d = cellinject_config::prototype();
-        let backend = crate::backend::BackendArgs {
-            backend: "twin".into(),
-            bench: None,
-            camera: None,
-            side_camera: None,
-            camera_fps: None,
-        };
+        let backend = cellinject_config::rigfile::RigFile::twin();
         let mut opened =
             crate::backend::open(&d, &crate::sim::TwinArgs::with_seed(seed), &backend).unwrap();
         let twin = opened.twin.clone().unwrap();

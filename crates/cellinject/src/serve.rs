@@ -310,7 +310,8 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
     options
         .check(&d.rig)
         .map_err(|e| InputError(e.to_string()))?;
-    let remote = a.backend.check()?.is_some();
+    let bench = a.backend.rig()?;
+    let remote = !bench.is_twin();
     if remote {
         crate::run::gcs_run_checks(a.plate.is_some(), a.seed.is_some())?;
         if a.fast {
@@ -334,7 +335,7 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
         } else {
             crate::sim::TwinArgs::with_seed(seed)
         },
-        &a.backend,
+        &bench,
         |devices| cellinject_dashboard::instrument(devices, &telemetry, &control, remote),
     )?;
     let mut opened = opened;

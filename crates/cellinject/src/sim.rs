@@ -12,7 +12,7 @@ use cellinject_model::Approach;
 use cellinject_plot::{Chart, Series, Style};
 use cellinject_rig::Rig;
 use cellinject_twin::devices::displacement_in;
-use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
+use cellinject_twin::{SharedTwin, Twin, TwinBackend};
 use clap::{Args, Subcommand};
 
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb, write_with_plots, wrote};
@@ -52,9 +52,9 @@ impl TwinArgs {
         }
     }
 
-    /// Whether `--seed` was given.
-    pub(crate) fn seed_given(&self) -> bool {
-        self.seed.is_some()
+    /// The seed `--seed` gave.
+    pub(crate) fn seed_value(&self) -> Option<u64> {
+        self.seed
     }
 
     /// The approach `--approach` asked for.
@@ -183,20 +183,13 @@ pub(crate) fn build(d: &Description, args: &TwinArgs) -> Result<(SharedTwin, Rig
 
 /// Builds the twin of the description (its J3 yield check from the FEA cache).
 pub(crate) fn twin(d: &Description, args: &TwinArgs) -> Result<SharedTwin> {
-    let mut p = TwinParams {
-        rig: d.rig,
-        sim: d.sim,
+    let _p =
+        crate::progress::spinner("J3's stresses for the safety envelope (joint FEM or its cache)");
+    let opts = cellinject_session::TwinOptions {
+        approach: args.approach_given(),
+        seed: args.seed,
     };
-    if let Some(a) = args.approach {
-        p.rig.approach = Approach::from_number(a).unwrap_or(p.rig.approach);
-    }
-    if let Some(s) = args.seed {
-        p.sim.seed = s;
-    }
-    p.rig.j3_yield = Some(crate::fea::j3_yield_check(d, p.rig.approach)?);
-    Ok(Twin::new(&d.design, p)
-        .map_err(|e| InputError(format!("cannot build the twin: {e}")))?
-        .into_shared())
+    cellinject_session::twin(d, opts).map_err(crate::backend::session_error)
 }
 
 /// Every refusal and every bad argument of a program is the user's to fix: exit code 2.

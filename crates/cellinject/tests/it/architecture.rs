@@ -73,10 +73,14 @@ const TWIN: &str = "cellinject-twin";
 /// The front ends: the binary and the Python bindings.
 const FRONT_ENDS: [&str; 2] = ["cellinject", "cellinject-python"];
 
-/// Crates allowed to depend on the twin: the front ends and those whose names say
-/// they simulate or emulate.
+/// Crates allowed to depend on the twin: the front ends, those whose names say they
+/// simulate or emulate, and the session library that opens whichever bench a rig
+/// names for the front ends (the twin one driver among the others).
 fn may_use_the_twin(name: &str) -> bool {
-    FRONT_ENDS.contains(&name) || name.contains("-sim") || name.contains("emul")
+    FRONT_ENDS.contains(&name)
+        || name.contains("-sim")
+        || name.contains("emul")
+        || name == "cellinject-session"
 }
 
 #[test]
@@ -295,7 +299,9 @@ fn the_wheel_and_the_genicam_build_reuse_the_test_builds_dependencies() {
             "--features",
             "cellinject/genicam,cellinject-genicam/aravis",
         ],
-        &["cellinject", "cellinject-genicam"],
+        // The crates whose own feature it is (the session opens the GenICam cameras a
+        // rig names); only the binary depends on them.
+        &["cellinject", "cellinject-genicam", "cellinject-session"],
     );
     assert!(
         genicam.is_empty(),

@@ -40,6 +40,8 @@ fn ok(o: &Output) -> Value {
 struct Emulator {
     child: Child,
     gcs: String,
+    /// The bench endpoint's address.
+    bench: String,
 }
 
 impl Emulator {
@@ -56,12 +58,17 @@ impl Emulator {
         BufReader::new(child.stdout.take().unwrap())
             .read_line(&mut line)
             .unwrap();
-        let gcs = line
+        let addrs: Vec<String> = line
             .split_whitespace()
-            .find(|w| w.starts_with("127.0.0.1:"))
-            .unwrap_or_else(|| panic!("no address in {line:?}"))
-            .to_string();
-        Emulator { child, gcs }
+            .filter(|w| w.starts_with("127.0.0.1:"))
+            .map(|w| {
+                w.trim_end_matches(|c: char| !c.is_ascii_digit())
+                    .to_string()
+            })
+            .collect();
+        let [gcs, bench] = <[String; 2]>::try_from(addrs)
+            .unwrap_or_else(|_| panic!("not two addresses in {line:?}"));
+        Emulator { child, gcs, bench }
     }
 }
 
@@ -197,9 +204,19 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
     drop(emu);
     // The injection workflow, on an emulator with the plate: the same cells injected (a blocked doublet may go
     // either way with the survey's noise), every injected cell alive with its dose.
+    // Its bench named by a rig file (the calibrations above took the shorthands).
     let emu = Emulator::start(&d, &["--plate", "p.toml"]);
     let backend = format!("gcs://{}", emu.gcs);
-    let o = run(&d, &injection("g.sqlite", &["--backend", &backend]));
+    let rig = rig_file(&backend, &emu.bench);
+    fs::write(d.join("bench.toml"), &rig).unwrap();
+    let check = ok(&run(
+        &d,
+        &["rig", "check", "--rig", "bench.toml", "--format", "json"],
+    ));
+    let devices = check["devices"].as_array().unwrap();
+    assert_eq!(devices.len(), 7, "{check}");
+    assert!(devices.iter().all(|x| x["answers"] == true), "{check}");
+    let o = run(&d, &injection("g.sqlite", &["--rig", "bench.toml"]));
     let g = ok(&o);
     let t = ok(&run_twin);
     assert_eq!(g["backend"], backend.as_str());
@@ -215,6 +232,23 @@ fn calibrations_experiments_and_a_run_over_gcs_match_the_twin() {
         }
     }
     drop(emu);
+}
+
+/// A rig file naming the controller at `backend` and every other device at the bench
+/// endpoint `bench`.
+fn rig_file(backend: &str, bench: &str) -> String {
+    let mut rig = format!("name = \"emulated\"\n[piezo]\ndriver = \"{backend}\"\n");
+    for section in [
+        "camera.top",
+        "camera.side",
+        "stage.macro",
+        "stage.feeder",
+        "injector",
+        "optics",
+    ] {
+        rig += &format!("[{section}]\ndriver = \"bench://{bench}\"\n");
+    }
+    rig
 }
 
 /// A TCP proxy that can cut every connection it carries (those opened later pass).

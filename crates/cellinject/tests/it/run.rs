@@ -174,6 +174,91 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
     }
 }
 
+/// A rig file naming the twin is the default bench: the same records, byte for byte
+/// (the wall-clock creation time aside), as the run without it.
+#[test]
+fn a_rig_file_naming_the_twin_records_what_the_default_run_records() {
+    let d = dir("rig-twin");
+    let o = run(
+        &d,
+        &[
+            "plate", "generate", "--rows", "1", "--cols", "2", "--seed", "3", "--out", "p.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    fs::write(d.join("twin.toml"), "[piezo]\ndriver = \"twin\"\n").unwrap();
+    let records = |db: &str, extra: &[&str]| {
+        let mut args = vec!["run", "--plate", "p.toml", "--db", db];
+        args.extend_from_slice(extra);
+        let o = run(&d, &args);
+        assert_eq!(o.status.code(), Some(0), "{extra:?}: {}", err(&o));
+        let mut show: Value =
+            serde_json::from_slice(&run(&d, &["runs", "show", "--db", db]).stdout).unwrap();
+        assert!(show["run"]["created"].as_i64().is_some(), "{show}");
+        show["run"]["created"] = Value::Null;
+        let export = run(&d, &["runs", "export", "--db", db]).stdout;
+        (show, export)
+    };
+    let (show, export) = records("plain.sqlite", &[]);
+    let (rig_show, rig_export) = records("rig.sqlite", &["--rig", "twin.toml"]);
+    assert_eq!(show, rig_show);
+    assert!(!export.is_empty());
+    assert_eq!(export, rig_export);
+}
+
+/// A rig file that is not valid is refused with exit 2, naming the file and the
+/// dotted key, before anything is opened or written.
+#[test]
+fn a_bad_rig_file_is_refused_naming_file_and_key_and_leaves_no_database() {
+    let d = dir("rig-bad");
+    let bench = "[camera.top]\ndriver = \"bench://127.0.0.1:1\"\n[camera.side]\ndriver = \"bench://127.0.0.1:1\"\n[stage.macro]\ndriver = \"bench://127.0.0.1:1\"\n[stage.feeder]\ndriver = \"bench://127.0.0.1:1\"\n[injector]\ndriver = \"bench://127.0.0.1:1\"\n";
+    let gcs = "[piezo]\ndriver = \"gcs://127.0.0.1:1\"\n";
+    for (name, text, key) in [
+        (
+            "driver.toml",
+            "[piezo]\ndriver = \"usb://3\"\n".to_string(),
+            "piezo.driver",
+        ),
+        // No [optics] on a real bench.
+        ("missing.toml", format!("{gcs}{bench}"), "optics.driver"),
+        (
+            "section.toml",
+            "[piezo]\ndriver = \"twin\"\n[laser]\npower = 1\n".to_string(),
+            "laser",
+        ),
+        // A camera's driver for the injector.
+        (
+            "kind.toml",
+            format!("{gcs}{bench}[optics]\ndriver = \"bench://127.0.0.1:1\"\n").replace(
+                "[injector]\ndriver = \"bench://127.0.0.1:1\"",
+                "[injector]\ndriver = \"dir:frames\"",
+            ),
+            "injector.driver",
+        ),
+    ] {
+        fs::write(d.join(name), text).unwrap();
+        let o = run(
+            &d,
+            &[
+                "run", "--rig", name, "--plate", "p.toml", "--db", "r.sqlite",
+            ],
+        );
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", err(&o));
+        assert!(
+            err(&o).contains(name) && err(&o).contains(key),
+            "{name}: {}",
+            err(&o)
+        );
+        assert!(
+            !d.join("r.sqlite").exists(),
+            "{name}: a database was created"
+        );
+        let o = run(&d, &["rig", "check", "--rig", name]);
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", err(&o));
+        assert!(err(&o).contains(key), "{name}: {}", err(&o));
+    }
+}
+
 /// A plate partly beyond the feeder stage's reach is refused before anything moves,
 /// naming the wells out of reach, by how much, and the move of the plate's origin that
 /// fixes it; it leaves no record: no database file when there was none, no run in one

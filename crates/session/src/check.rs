@@ -1,0 +1,189 @@
+//! Whether each device of a rig answers (`cellinject rig check`): each opened
+//! through its driver and asked one harmless question (a voltage, a frame, a
+//! position, a limit, the zoom). Nothing moves.
+
+use cellinject_config::Description;
+use cellinject_config::rigfile::{CameraDriver, DeviceDriver, PiezoDriver, RigFile};
+use cellinject_gcs_emulator::bench::{Bench, ViewName};
+use cellinject_hw::{Camera, Injector, Optics, PiezoChannel, Stage};
+
+use crate::{Endpoints, SessionError, TwinOptions};
+
+/// One device's answer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Answer {
+    /// The rig file's section (`piezo`, `camera.top`, ...).
+    pub section: &'static str,
+    /// Its driver, as the rig names it.
+    pub driver: String,
+    /// What it answered (`Ok`: a reading, in SI units), or why it did not.
+    pub result: Result<String, String>,
+}
+
+/// The sections, in the rig file's order.
+const SECTIONS: [&str; 7] = [
+    "piezo",
+    "camera.top",
+    "camera.side",
+    "stage.macro",
+    "stage.feeder",
+    "injector",
+    "optics",
+];
+
+fn driver_text(rig: &RigFile, section: &str) -> String {
+    let cam = |c: &CameraDriver| match c {
+        CameraDriver::Twin => "twin".to_string(),
+        CameraDriver::Bench(a) => format!("bench://{a}"),
+        CameraDriver::Aravis(id) => format!("aravis:{id}"),
+        CameraDriver::Dir { path, fps } => format!("dir:{path} ({fps} fps)"),
+    };
+    let dev = |d: &DeviceDriver| match d {
+        DeviceDriver::Twin => "twin".to_string(),
+        DeviceDriver::Bench(a) => format!("bench://{a}"),
+    };
+    match section {
+        "piezo" => match &rig.piezo {
+            PiezoDriver::Twin => "twin".into(),
+            PiezoDriver::Gcs { url, axes } => format!("{url} (axes {})", axes.join(", ")),
+        },
+        "camera.top" => cam(&rig.camera_top),
+        "camera.side" => cam(&rig.camera_side),
+        "stage.macro" => dev(&rig.stage_macro),
+        "stage.feeder" => dev(&rig.stage_feeder),
+        "injector" => dev(&rig.injector),
+        _ => dev(&rig.optics),
+    }
+}
+
+fn voltages(piezo: &mut [&mut dyn PiezoChannel]) -> Result<String, String> {
+    let mut out = Vec::new();
+    for p in piezo.iter_mut() {
+        let v = p.read_voltage().map_err(|e| e.to_string())?;
+        out.push(format!("{} {v:.2} V", p.name()));
+    }
+    Ok(out.join(", "))
+}
+
+fn frame(c: &mut dyn Camera) -> Result<String, String> {
+    let f = c.grab().map_err(|e| e.to_string())?;
+    Ok(format!(
+        "a {}x{} frame, {}-bit, {:.3} µm per pixel",
+        f.width,
+        f.height,
+        f.bit_depth,
+        f.pixel_size * 1e6
+    ))
+}
+
+fn position(s: &mut dyn Stage) -> Result<String, String> {
+    let mut out = Vec::new();
+    for axis in 0..s.axes() {
+        let x = s.position(axis).map_err(|e| e.to_string())?;
+        out.push(format!("{:.1}", x * 1e6));
+    }
+    Ok(format!("at ({}) µm", out.join(", ")))
+}
+
+fn pressure(i: &dyn Injector) -> Result<String, String> {
+    Ok(format!("up to {:.0} kPa", i.max_pressure() / 1e3))
+}
+
+fn zoom(o: &dyn Optics) -> Result<String, String> {
+    let (lo, hi) = o.zoom_range();
+    Ok(format!("zoom {:.2}x (range {lo}x to {hi}x)", o.zoom()))
+}
+
+/// Asks each device of `rig` whether it answers, in the rig file's order. A rig
+/// that is not valid is refused whole ([`crate::validate`]); a device that does not
+/// answer is reported and the others are still asked.
+pub fn check(d: &Description, rig: &RigFile) -> Result<Vec<Answer>, SessionError> {
+    crate::validate(rig)
+        .map_err(|(key, reason)| crate::refused(format!("the rig's `{key}`"), reason))?;
+    let results = if rig.is_twin() {
+        twin(d, rig)?
+    } else {
+        real(d, rig)
+    };
+    Ok(SECTIONS
+        .iter()
+        .zip(results)
+        .map(|(&section, result)| Answer {
+            section,
+            driver: driver_text(rig, section),
+            result,
+        })
+        .collect())
+}
+
+fn twin(d: &Description, rig: &RigFile) -> Result<Vec<Result<String, String>>, SessionError> {
+    let mut o = crate::open(d, rig, TwinOptions::default())?;
+    let r = &mut o.rig;
+    let [a, b, c] = &mut r.piezo;
+    Ok(vec![
+        voltages(&mut [a, b, c]),
+        frame(&mut r.camera),
+        frame(&mut r.side_camera),
+        position(&mut r.stage),
+        position(&mut r.feeder),
+        pressure(&r.injector),
+        zoom(&r.optics),
+    ])
+}
+
+fn real(d: &Description, rig: &RigFile) -> Vec<Result<String, String>> {
+    let mut endpoints = Endpoints(Vec::new());
+    let piezo = match &rig.piezo {
+        PiezoDriver::Gcs { url, axes } => crate::controller(url).and_then(|gcs| {
+            let ranges = [0, 1, 2].map(|k| (0.0, d.rig.amplifiers[k].v_max));
+            let axes = [axes[0].as_str(), axes[1].as_str(), axes[2].as_str()];
+            cellinject_gcs::devices::stacks(
+                &gcs,
+                axes,
+                cellinject_model::ACTUATOR_NAMES,
+                ranges,
+                [0.0; 3],
+            )
+            .map_err(|e| crate::device(url.clone(), e))
+        }),
+        PiezoDriver::Twin => Err(crate::refused("piezo", "the twin")),
+    };
+    let piezo = piezo.map_err(|e| e.to_string()).and_then(|(mut p, _)| {
+        let [a, b, c] = &mut p;
+        voltages(&mut [a, b, c])
+    });
+    let main = endpoints.first(rig).map_err(|e| e.to_string());
+    let mut camera = |key: &str, driver: &CameraDriver, view: ViewName| match driver {
+        CameraDriver::Bench(a) => endpoints
+            .get(a)
+            .map_err(|e| e.to_string())
+            .and_then(|b| b.camera(view).map_err(|e| e.to_string()))
+            .and_then(|mut c| frame(&mut c)),
+        other => main.clone().and_then(|m| {
+            crate::own_camera(key, other, &m, d.sim.camera.pixel_size)
+                .map_err(|e| e.to_string())
+                .and_then(|mut c| frame(c.as_mut()))
+        }),
+    };
+    let top = camera("camera.top", &rig.camera_top, ViewName::Top);
+    let side = camera("camera.side", &rig.camera_side, ViewName::Side);
+    let mut bench = |driver: &DeviceDriver| -> Result<Bench, String> {
+        match driver {
+            DeviceDriver::Bench(a) => endpoints.get(a).map_err(|e| e.to_string()),
+            DeviceDriver::Twin => Err("the twin's device on a real bench".into()),
+        }
+    };
+    let stage = bench(&rig.stage_macro)
+        .and_then(|b| b.stage().map_err(|e| e.to_string()))
+        .and_then(|mut s| position(&mut s));
+    let feeder = bench(&rig.stage_feeder)
+        .and_then(|b| b.feeder().map_err(|e| e.to_string()))
+        .and_then(|mut s| position(&mut s));
+    let injector = bench(&rig.injector)
+        .and_then(|b| b.injector().map_err(|e| e.to_string()))
+        .and_then(|i| pressure(&i));
+    let optics = bench(&rig.optics)
+        .and_then(|b| b.optics().map_err(|e| e.to_string()))
+        .and_then(|o| zoom(&o));
+    vec![piezo, top, side, stage, feeder, injector, optics]
+}
