@@ -309,3 +309,118 @@ fn the_wheel_and_the_genicam_build_reuse_the_test_builds_dependencies() {
         genicam.join("\n")
     );
 }
+
+/// The crates of the diagram in ARCHITECTURE.md's bird's-eye view: package name →
+/// (layer index from the top, the crates of ours it uses).
+fn diagram() -> BTreeMap<String, (usize, BTreeSet<String>)> {
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../ARCHITECTURE.md"),
+    )
+    .unwrap();
+    let view = &text[text
+        .find("## Bird's-eye view")
+        .expect("the bird's-eye view")..];
+    let start = view.find("```\n").expect("the diagram's block") + 4;
+    let block = &view[start..start + view[start..].find("```").expect("its end")];
+    let package = |short: &str| match short {
+        "cellinject" => "cellinject".to_string(),
+        other => format!("cellinject-{other}"),
+    };
+    // Parentheses are comments: `(binary)`, `(never the twin)`.
+    let uncommented = |line: &str| {
+        let mut out = String::new();
+        let mut depth = 0;
+        for c in line.chars() {
+            match c {
+                '(' => depth += 1,
+                ')' => depth -= 1,
+                _ if depth == 0 => out.push(c),
+                _ => {}
+            }
+        }
+        out
+    };
+    let mut out = BTreeMap::new();
+    let mut layer = 0;
+    let mut seen_layer = false;
+    for line in block.lines() {
+        let body = if line.starts_with(' ') {
+            line.trim()
+        } else {
+            // A layer's first line: its label, then two or more spaces.
+            if seen_layer {
+                layer += 1;
+            }
+            seen_layer = true;
+            line.split_once("  ").map_or("", |(_, rest)| rest).trim()
+        };
+        if body.is_empty() || body == "│" {
+            continue;
+        }
+        let leaves = body.contains("(no crates of ours)");
+        let body = uncommented(body);
+        let (nodes, deps): (Vec<&str>, BTreeSet<String>) = match body.split_once("─►") {
+            Some((node, deps)) => (
+                node.split_whitespace().collect(),
+                deps.split_whitespace().map(package).collect(),
+            ),
+            None => {
+                assert!(
+                    leaves,
+                    "a diagram line without ─► that is not `(no crates of ours)`: {line}"
+                );
+                (body.split_whitespace().collect(), BTreeSet::new())
+            }
+        };
+        assert!(leaves || nodes.len() == 1, "one crate before ─►: {line}");
+        for n in nodes {
+            let prev = out.insert(package(n), (layer, deps.clone()));
+            assert!(prev.is_none(), "{n} drawn twice in the diagram");
+        }
+    }
+    out
+}
+
+/// ARCHITECTURE.md's diagram is `cargo metadata`'s graph: every crate of the
+/// workspace, each with exactly the crates of ours it uses (normal and build
+/// dependencies), none of them in a layer above its own.
+#[test]
+fn the_architecture_diagram_is_the_dependency_graph() {
+    let all = packages();
+    let drawn = diagram();
+    let mut faults = Vec::new();
+    for name in all.keys() {
+        if !drawn.contains_key(name) {
+            faults.push(format!("{name} is not in the diagram"));
+        }
+    }
+    for (name, (layer, deps)) in &drawn {
+        let Some((_, real)) = all.get(name) else {
+            faults.push(format!("{name} is in the diagram but not in the workspace"));
+            continue;
+        };
+        let real: BTreeSet<String> = real
+            .iter()
+            .filter(|(d, kind)| kind != "dev" && all.contains_key(d))
+            .map(|(d, _)| d.clone())
+            .collect();
+        for d in real.difference(deps) {
+            faults.push(format!("{name} uses {d}: missing from its line"));
+        }
+        for d in deps.difference(&real) {
+            faults.push(format!("{name}'s line names {d}, which it does not use"));
+        }
+        for d in deps {
+            if let Some((dl, _)) = drawn.get(d)
+                && dl < layer
+            {
+                faults.push(format!("{name} uses {d}, a layer above it"));
+            }
+        }
+    }
+    assert!(
+        faults.is_empty(),
+        "ARCHITECTURE.md's diagram:\n{}",
+        faults.join("\n")
+    );
+}

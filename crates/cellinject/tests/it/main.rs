@@ -23,3 +23,4 @@ mod no_panic;
 mod plate;
 mod python;
 mod run;
+mod tidy;
