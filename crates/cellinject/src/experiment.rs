@@ -23,9 +23,12 @@ use cellinject_rig::{DynBackend, Rig};
 use cellinject_twin::SharedTwin;
 
 use crate::backend::BackendArgs;
+use cellinject_session::calibration::{
+    self, CalibrationFile, Made, RunBench, description_digest, utc_now,
+};
 use clap::{Args, Subcommand, ValueEnum};
+use serde::Serialize;
 use serde::de::DeserializeOwned;
-use serde::{Deserialize, Serialize};
 
 use crate::files::Staged;
 use crate::output::print_json;
@@ -222,142 +225,6 @@ pub enum CalibrateCommand {
     },
 }
 
-/// What a calibration file holds besides the calibration: what it was made on, when.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct Made {
-    /// UTC, ISO 8601.
-    created_utc: String,
-    /// `twin` or a driver's name.
-    backend: String,
-    /// The description's name.
-    design: String,
-    /// 1 or 2.
-    approach: u8,
-    /// The twin's seed.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    seed: Option<u64>,
-    /// The lens's magnification.
-    zoom: f64,
-    /// FNV-1a digest of the description the calibration was made with (files made
-    /// before 0.1 of this field have none: their design's name alone is checked).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    description_digest: Option<String>,
-}
-
-/// A digest of description `d`, every value it holds (not its file's text: comments
-/// and the order of keys do not change it): FNV-1a, 64 bits, of its debug form, as 16
-/// hex digits. It tells a calibration made on another description (a stack's travel,
-/// a lever's length) from one made on this, whatever their names.
-pub(crate) fn description_digest(d: &Description) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in format!("{d:?}").bytes() {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
-
-/// A calibration file.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct CalibrationFile<T> {
-    /// `pixels`, `jacobian` or `hysteresis`.
-    kind: String,
-    made: Made,
-    calibration: T,
-}
-
-/// The bench a run loads a calibration for: what its file must have been made on.
-pub(crate) struct RunBench<'a> {
-    /// The description the run uses.
-    pub d: &'a Description,
-    /// `twin` or the controller's address (`--backend`).
-    pub backend: &'a str,
-    /// The twin's seed (None on hardware).
-    pub seed: Option<u64>,
-}
-
-/// A hysteresis calibration file for `run`, checked against the bench it is to be used
-/// on: its kind (exit 2 when it is not one), then what it was made on (the approach,
-/// the backend, the twin's seed, the description's name and digest). `Ok((None,
-/// Some(why)))` when it was made on another bench: the run identifies the stacks
-/// again and records why; never used silently.
-pub(crate) fn read_hysteresis_for_run(
-    path: &Path,
-    bench: &RunBench<'_>,
-) -> Result<(Option<HysteresisCalibration>, Option<String>)> {
-    let f = read_file::<HysteresisCalibration>(path, "hysteresis")?;
-    let why = made_elsewhere(&f.made, bench);
-    Ok(match why {
-        None => (Some(f.calibration), None),
-        Some(w) => (None, Some(format!("`{}` {w}", path.display()))),
-    })
-}
-
-/// What makes a calibration made on `m` unfit for `bench`, if anything.
-fn made_elsewhere(m: &Made, bench: &RunBench<'_>) -> Option<String> {
-    let approach = bench.d.rig.approach.number();
-    if m.approach != approach {
-        return Some(format!(
-            "was made under approach {}, the bench is assembled with approach {approach}",
-            m.approach
-        ));
-    }
-    if m.backend != bench.backend {
-        return Some(format!(
-            "was made on backend {}, the run is on {}",
-            m.backend, bench.backend
-        ));
-    }
-    if let (Some(made), Some(now)) = (m.seed, bench.seed)
-        && made != now
-    {
-        return Some(format!(
-            "was made on the twin of seed {made}, the run's twin has seed {now}"
-        ));
-    }
-    if m.design != bench.d.name {
-        return Some(format!(
-            "was made for the description `{}`, the run uses `{}`",
-            m.design, bench.d.name
-        ));
-    }
-    let digest = description_digest(bench.d);
-    if let Some(made) = &m.description_digest
-        && *made != digest
-    {
-        return Some(format!(
-            "was made with another description of `{}` (digest {made}, this one's {digest}: a value differs)",
-            m.design
-        ));
-    }
-    None
-}
-
-/// Now as `YYYY-MM-DDTHH:MM:SSZ`.
-fn utc_now() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs() as i64)
-        .unwrap_or(0);
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem / 60 % 60,
-        rem % 60
-    )
-}
-
 /// The bench a command runs on.
 struct Setup {
     /// The twin, when it is the backend (its truth).
@@ -421,27 +288,20 @@ fn json_bytes<T: Serialize>(v: &T) -> Result<Vec<u8>> {
 /// A calibration file of `kind` at `path`: exit 2 naming the file when it cannot be
 /// read, is not a calibration file or holds another kind.
 fn read_file<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<CalibrationFile<T>> {
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        InputError(format!(
-            "--calibration: cannot read `{}`: {e}",
-            path.display()
-        ))
-    })?;
-    let f: CalibrationFile<T> = serde_json::from_str(&text).map_err(|e| {
-        InputError(format!(
-            "--calibration: `{}` is not a {kind} calibration file: {e}",
-            path.display()
-        ))
-    })?;
-    if f.kind != kind {
-        return Err(InputError(format!(
-            "--calibration: `{}` holds a {} calibration, not a {kind} one",
-            path.display(),
-            f.kind
-        ))
-        .into());
-    }
-    Ok(f)
+    calibration::read_file(path, kind).map_err(|e| calibration_error(e).into())
+}
+
+/// A calibration file that cannot be used: bad input, naming the option.
+fn calibration_error(e: calibration::CalibrationError) -> InputError {
+    InputError(format!("--calibration: {e}"))
+}
+
+/// [`calibration::read_hysteresis_for_run`], its refusals exit 2.
+pub(crate) fn read_hysteresis_for_run(
+    path: &Path,
+    bench: &RunBench<'_>,
+) -> Result<(Option<HysteresisCalibration>, Option<String>)> {
+    calibration::read_hysteresis_for_run(path, bench).map_err(|e| calibration_error(e).into())
 }
 
 /// Reads a calibration file of `kind`; `Ok(None)` with a message on standard error if
@@ -574,11 +434,7 @@ fn calibrations(
 }
 
 fn file_bytes<T: Serialize + Clone>(kind: &str, made: &Made, c: &T) -> Result<Vec<u8>> {
-    json_bytes(&CalibrationFile {
-        kind: kind.into(),
-        made: made.clone(),
-        calibration: c.clone(),
-    })
+    Ok(calibration::file_bytes(kind, made, c)?)
 }
 
 /// Creates `dir` (and its parents) or says why not.
@@ -1370,54 +1226,4 @@ fn plan_json(out: &Path, input: Option<(&str, &Path)>) -> Result<PathBuf> {
     let p = plan.output("--out", out, &[crate::files::Kind::Json])?;
     plan.check()?;
     Ok(p)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn made(d: &Description, seed: Option<u64>) -> Made {
-        Made {
-            created_utc: "2026-12-05T00:00:00Z".into(),
-            backend: "twin".into(),
-            design: d.name.clone(),
-            approach: d.rig.approach.number(),
-            seed,
-            zoom: 2.5,
-            description_digest: Some(description_digest(d)),
-        }
-    }
-
-    #[test]
-    fn a_calibration_from_another_bench_is_told_apart() {
-        let d = cellinject_config::prototype();
-        let bench = RunBench {
-            d: &d,
-            backend: "twin",
-            seed: Some(1),
-        };
-        assert_eq!(made_elsewhere(&made(&d, Some(1)), &bench), None);
-        let why = made_elsewhere(&made(&d, Some(2)), &bench).expect("another seed");
-        assert!(why.contains("seed 2") && why.contains("seed 1"), "{why}");
-        let gcs = RunBench {
-            backend: "gcs://127.0.0.1:50000",
-            seed: None,
-            ..bench
-        };
-        let why = made_elsewhere(&made(&d, Some(1)), &gcs).expect("another backend");
-        assert!(why.contains("backend twin"), "{why}");
-        // Same name, one value changed: the digest tells.
-        let mut other = d.clone();
-        other.sim.stage.settling_time *= 1.2;
-        let why = made_elsewhere(&made(&other, Some(1)), &bench).expect("another description");
-        assert!(why.contains("digest"), "{why}");
-        // A file from before the digest: the name alone is checked.
-        let mut old = made(&other, Some(1));
-        old.description_digest = None;
-        assert_eq!(made_elsewhere(&old, &bench), None);
-        let mut renamed = made(&d, Some(1));
-        renamed.design = "My bench".into();
-        let why = made_elsewhere(&renamed, &bench).expect("another name");
-        assert!(why.contains("My bench"), "{why}");
-    }
 }

@@ -226,7 +226,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             let seed = bench.is_twin().then(|| args.seed.unwrap_or(d.sim.seed));
             crate::experiment::read_hysteresis_for_run(
                 p,
-                &crate::experiment::RunBench {
+                &cellinject_session::calibration::RunBench {
                     d,
                     backend: bench.backend(),
                     seed,

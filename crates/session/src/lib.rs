@@ -27,6 +27,7 @@ use cellinject_rig::{Devices, DynBackend, Rig};
 use cellinject_twin::{SharedTwin, Twin, TwinParams};
 use thiserror::Error;
 
+pub mod calibration;
 mod check;
 
 pub use check::{Answer, check};

@@ -17,7 +17,7 @@ const FN_LINES: usize = 150;
 
 /// Files over [`FILE_LINES`] today, with their length (issue 38 splits them).
 const LONG_FILES: &[(&str, usize)] = &[
-    ("crates/cellinject/src/experiment.rs", 1374),
+    ("crates/cellinject/src/experiment.rs", 1229),
     ("crates/core/src/inject/mod.rs", 3923),
     ("crates/dic/src/icgn.rs", 1517),
     ("crates/fem/src/joint3d.rs", 1444),

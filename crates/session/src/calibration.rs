@@ -1,0 +1,297 @@
+//! The calibration files of a bench: their format (the calibration with what it was
+//! made on), reading one back with its kind checked, and telling a calibration made on
+//! another bench (approach, backend, the twin's seed, the description) from one made
+//! on this. Every front end reads and writes calibrations through this module.
+//!
+//! A file is JSON: `{"kind": "pixels" | "jacobian" | "hysteresis", "made": {...},
+//! "calibration": {...}}` (docs/json.md).
+
+use std::path::{Path, PathBuf};
+
+use cellinject_config::Description;
+use cellinject_core::calibrate::HysteresisCalibration;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// What a calibration file holds besides the calibration: what it was made on, when.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Made {
+    /// UTC, ISO 8601.
+    pub created_utc: String,
+    /// `twin` or a driver's name.
+    pub backend: String,
+    /// The description's name.
+    pub design: String,
+    /// 1 or 2.
+    pub approach: u8,
+    /// The twin's seed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// The lens's magnification.
+    pub zoom: f64,
+    /// FNV-1a digest of the description the calibration was made with (files made
+    /// before 0.1 of this field have none: their design's name alone is checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub description_digest: Option<String>,
+}
+
+/// A calibration file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CalibrationFile<T> {
+    /// `pixels`, `jacobian` or `hysteresis`.
+    pub kind: String,
+    /// What it was made on.
+    pub made: Made,
+    /// The calibration.
+    pub calibration: T,
+}
+
+/// Why a calibration file cannot be used at all (bad input: the caller names the
+/// option that gave it).
+#[derive(Debug, Error)]
+pub enum CalibrationError {
+    /// The file cannot be read.
+    #[error("cannot read `{}`: {reason}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The system's reason.
+        reason: String,
+    },
+    /// It is not a calibration file of the kind asked for.
+    #[error("`{}` is not a {kind} calibration file: {reason}", path.display())]
+    NotOne {
+        /// The file.
+        path: PathBuf,
+        /// The kind asked for.
+        kind: String,
+        /// The parser's reason.
+        reason: String,
+    },
+    /// It holds another kind of calibration.
+    #[error("`{}` holds a {found} calibration, not a {kind} one", path.display())]
+    OtherKind {
+        /// The file.
+        path: PathBuf,
+        /// The kind it holds.
+        found: String,
+        /// The kind asked for.
+        kind: String,
+    },
+}
+
+/// A digest of description `d`, every value it holds (not its file's text: comments
+/// and the order of keys do not change it): FNV-1a, 64 bits, of its debug form, as 16
+/// hex digits. It tells a calibration made on another description (a stack's travel,
+/// a lever's length) from one made on this, whatever their names.
+pub fn description_digest(d: &Description) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in format!("{d:?}").bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// The bench a run loads a calibration for: what its file must have been made on.
+pub struct RunBench<'a> {
+    /// The description the run uses.
+    pub d: &'a Description,
+    /// `twin` or the controller's address.
+    pub backend: &'a str,
+    /// The twin's seed (None on hardware).
+    pub seed: Option<u64>,
+}
+
+/// What makes a calibration made on `m` unfit for `bench`, if anything.
+pub fn made_elsewhere(m: &Made, bench: &RunBench<'_>) -> Option<String> {
+    let approach = bench.d.rig.approach.number();
+    if m.approach != approach {
+        return Some(format!(
+            "was made under approach {}, the bench is assembled with approach {approach}",
+            m.approach
+        ));
+    }
+    if m.backend != bench.backend {
+        return Some(format!(
+            "was made on backend {}, the run is on {}",
+            m.backend, bench.backend
+        ));
+    }
+    if let (Some(made), Some(now)) = (m.seed, bench.seed)
+        && made != now
+    {
+        return Some(format!(
+            "was made on the twin of seed {made}, the run's twin has seed {now}"
+        ));
+    }
+    if m.design != bench.d.name {
+        return Some(format!(
+            "was made for the description `{}`, the run uses `{}`",
+            m.design, bench.d.name
+        ));
+    }
+    let digest = description_digest(bench.d);
+    if let Some(made) = &m.description_digest
+        && *made != digest
+    {
+        return Some(format!(
+            "was made with another description of `{}` (digest {made}, this one's {digest}: a value differs)",
+            m.design
+        ));
+    }
+    None
+}
+
+/// Now as `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
+}
+
+/// The calibration file of `kind` at `path`.
+pub fn read_file<T: DeserializeOwned>(
+    path: &Path,
+    kind: &str,
+) -> Result<CalibrationFile<T>, CalibrationError> {
+    let text = std::fs::read_to_string(path).map_err(|e| CalibrationError::Read {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    let f: CalibrationFile<T> =
+        serde_json::from_str(&text).map_err(|e| CalibrationError::NotOne {
+            path: path.to_path_buf(),
+            kind: kind.to_string(),
+            reason: e.to_string(),
+        })?;
+    if f.kind != kind {
+        return Err(CalibrationError::OtherKind {
+            path: path.to_path_buf(),
+            found: f.kind,
+            kind: kind.to_string(),
+        });
+    }
+    Ok(f)
+}
+
+/// A hysteresis calibration file for a run, checked against the bench it is to be
+/// used on: its kind (an error when it is not one), then what it was made on (the
+/// approach, the backend, the twin's seed, the description's name and digest).
+/// `Ok((None, Some(why)))` when it was made on another bench: the run identifies the
+/// stacks again and records why; never used silently.
+pub fn read_hysteresis_for_run(
+    path: &Path,
+    bench: &RunBench<'_>,
+) -> Result<(Option<HysteresisCalibration>, Option<String>), CalibrationError> {
+    let f = read_file::<HysteresisCalibration>(path, "hysteresis")?;
+    Ok(match made_elsewhere(&f.made, bench) {
+        None => (Some(f.calibration), None),
+        Some(w) => (None, Some(format!("`{}` {w}", path.display()))),
+    })
+}
+
+/// The file of calibration `c` of `kind` made on `made`: pretty JSON, a final newline.
+pub fn file_bytes<T: Serialize + Clone>(
+    kind: &str,
+    made: &Made,
+    c: &T,
+) -> Result<Vec<u8>, serde_json::Error> {
+    let mut s = serde_json::to_string_pretty(&CalibrationFile {
+        kind: kind.into(),
+        made: made.clone(),
+        calibration: c.clone(),
+    })?;
+    s.push('\n');
+    Ok(s.into_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn made(d: &Description, seed: Option<u64>) -> Made {
+        Made {
+            created_utc: "2026-12-05T00:00:00Z".into(),
+            backend: "twin".into(),
+            design: d.name.clone(),
+            approach: d.rig.approach.number(),
+            seed,
+            zoom: 2.5,
+            description_digest: Some(description_digest(d)),
+        }
+    }
+
+    #[test]
+    fn a_calibration_from_another_bench_is_told_apart() {
+        let d = cellinject_config::prototype();
+        let bench = RunBench {
+            d: &d,
+            backend: "twin",
+            seed: Some(1),
+        };
+        assert_eq!(made_elsewhere(&made(&d, Some(1)), &bench), None);
+        let why = made_elsewhere(&made(&d, Some(2)), &bench).expect("another seed");
+        assert!(why.contains("seed 2") && why.contains("seed 1"), "{why}");
+        let gcs = RunBench {
+            backend: "gcs://127.0.0.1:50000",
+            seed: None,
+            ..bench
+        };
+        let why = made_elsewhere(&made(&d, Some(1)), &gcs).expect("another backend");
+        assert!(why.contains("backend twin"), "{why}");
+        // Same name, one value changed: the digest tells.
+        let mut other = d.clone();
+        other.sim.stage.settling_time *= 1.2;
+        let why = made_elsewhere(&made(&other, Some(1)), &bench).expect("another description");
+        assert!(why.contains("digest"), "{why}");
+        // A file from before the digest: the name alone is checked.
+        let mut old = made(&other, Some(1));
+        old.description_digest = None;
+        assert_eq!(made_elsewhere(&old, &bench), None);
+        let mut renamed = made(&d, Some(1));
+        renamed.design = "My bench".into();
+        let why = made_elsewhere(&renamed, &bench).expect("another name");
+        assert!(why.contains("My bench"), "{why}");
+    }
+
+    #[test]
+    fn a_file_reads_back_as_written_and_another_kind_is_refused() {
+        let d = cellinject_config::prototype();
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("x.json");
+        let m = made(&d, Some(1));
+        std::fs::write(&p, file_bytes("pixels", &m, &[1.5f64, 2.0]).expect("json")).expect("write");
+        let f: CalibrationFile<[f64; 2]> = read_file(&p, "pixels").expect("reads");
+        assert_eq!((f.made, f.calibration), (m, [1.5, 2.0]));
+        let e = read_file::<[f64; 2]>(&p, "jacobian").expect_err("another kind");
+        assert!(matches!(e, CalibrationError::OtherKind { .. }), "{e}");
+        let e = read_file::<[f64; 3]>(&p, "pixels").expect_err("not one");
+        assert!(
+            e.to_string().contains("is not a pixels calibration file"),
+            "{e}"
+        );
+        let e =
+            read_file::<[f64; 2]>(&dir.path().join("none.json"), "pixels").expect_err("no file");
+        assert!(e.to_string().contains("cannot read"), "{e}");
+    }
+}
