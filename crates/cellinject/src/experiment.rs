@@ -9,9 +9,7 @@ use anyhow::Result;
 use cellinject_config::Description;
 use cellinject_control::Kind;
 use cellinject_core::bench::{Bench, BenchError, FrameRecord, Timing};
-use cellinject_core::calibrate::{
-    self, HysteresisCalibration, JacobianCalibration, PixelCalibration,
-};
+use cellinject_core::calibrate::{self, HysteresisCalibration, PixelCalibration};
 use cellinject_core::experiment::{
     self, Calibrations, RangeReport, RepeatabilityOptions, RepeatabilityReport, TrackingOptions,
     TrackingReport,
@@ -23,12 +21,9 @@ use cellinject_rig::{DynBackend, Rig};
 use cellinject_twin::SharedTwin;
 
 use crate::backend::BackendArgs;
-use cellinject_session::calibration::{
-    self, CalibrationFile, Made, RunBench, description_digest, utc_now,
-};
+use cellinject_session::calibration::{self, Made, RunBench, description_digest, utc_now};
 use clap::{Args, Subcommand, ValueEnum};
 use serde::Serialize;
-use serde::de::DeserializeOwned;
 
 use crate::files::Staged;
 use crate::output::print_json;
@@ -285,12 +280,6 @@ fn json_bytes<T: Serialize>(v: &T) -> Result<Vec<u8>> {
     Ok(s.into_bytes())
 }
 
-/// A calibration file of `kind` at `path`: exit 2 naming the file when it cannot be
-/// read, is not a calibration file or holds another kind.
-fn read_file<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<CalibrationFile<T>> {
-    calibration::read_file(path, kind).map_err(|e| calibration_error(e).into())
-}
-
 /// A calibration file that cannot be used: bad input, naming the option.
 fn calibration_error(e: calibration::CalibrationError) -> InputError {
     InputError(format!("--calibration: {e}"))
@@ -304,133 +293,48 @@ pub(crate) fn read_hysteresis_for_run(
     calibration::read_hysteresis_for_run(path, bench).map_err(|e| calibration_error(e).into())
 }
 
-/// Reads a calibration file of `kind`; `Ok(None)` with a message on standard error if
-/// it was made for another bench (the caller redoes it).
-fn load<T: DeserializeOwned>(path: &Path, kind: &str, approach: u8) -> Result<Option<T>> {
-    let f = read_file::<T>(path, kind)?;
-    if kind != "pixels" && f.made.approach != approach {
-        eprintln!(
-            "note: `{}` was made under approach {}, the bench is assembled with approach {approach}: calibrating again",
-            path.display(),
-            f.made.approach
-        );
-        return Ok(None);
+/// A calibration step said on the terminal: a spinner while one is made, a note when
+/// a file is not used.
+fn show_step(spinner: &mut Option<crate::progress::Progress>, step: calibration::Step) {
+    match step {
+        calibration::Step::Making(what) => *spinner = Some(crate::progress::spinner(what)),
+        calibration::Step::Redo(note) => eprintln!("note: {note}"),
     }
-    Ok(Some(f.calibration))
 }
 
-fn redo(path: &Path, why: &str) {
-    eprintln!(
-        "note: `{}` fails its check ({why}): calibrating again",
-        path.display()
-    );
-}
-
-/// The calibration `kind` from `path` if given and its check passes; a failing one is
-/// said and dropped (to be made again), never used.
-fn load_checked<T: DeserializeOwned>(
-    path: Option<PathBuf>,
-    kind: &str,
-    setup: &Setup,
-    problem: impl Fn(&T) -> Option<String>,
-) -> Result<Option<T>> {
-    let Some(p) = path else {
-        return Ok(None);
-    };
-    Ok(
-        load::<T>(&p, kind, setup.made.approach)?.filter(|c| match problem(c) {
-            None => true,
-            Some(why) => {
-                redo(&p, &why);
-                false
-            }
-        }),
+/// The pixel calibration of `--pixels`, if given, of this bench and passing its check.
+fn given_pixels(path: Option<&Path>, s: &Setup) -> Result<Option<PixelCalibration>> {
+    let mut spinner = None;
+    let zoom = s.made.zoom;
+    calibration::load_checked(
+        path,
+        "pixels",
+        s.made.approach,
+        |c: &PixelCalibration| c.problem(zoom),
+        &mut |step| show_step(&mut spinner, step),
     )
+    .map_err(|e| calibration_error(e).into())
 }
-
-/// Calibration files made by a command: (name, bytes).
-type MadeFiles = Vec<(String, Vec<u8>)>;
 
 /// The calibrations an experiment needs: loaded from `dir` where valid, made otherwise;
-/// the ones made are returned for saving.
+/// the ones made are returned for saving ([`calibration::load_or_make`]).
 fn calibrations(
     setup: &mut Setup,
     dir: Option<&Path>,
-) -> Result<(PixelCalibration, Calibrations, MadeFiles)> {
-    let mut made = Vec::new();
-    let zoom = setup.made.zoom;
-    let marker = setup.description.rig.optics.marker;
-    let file = |name: &str| dir.map(|d| d.join(format!("{name}.json")));
-    let pixels: Option<PixelCalibration> =
-        load_checked(file("pixels"), "pixels", setup, |c: &PixelCalibration| {
-            c.problem(zoom)
-        })?;
-    let pixels = match pixels {
-        Some(p) => p,
-        None => {
-            let _p = crate::progress::spinner("calibrating the cameras' pixels (stage moves)");
-            let c = calibrate::pixels(&mut setup.rig, marker, 4e-6).map_err(bench_error)?;
-            made.push(("pixels".into(), file_bytes("pixels", &setup.made, &c)?));
-            c
-        }
-    };
-    let hysteresis: Option<HysteresisCalibration> = load_checked(
-        file("hysteresis"),
-        "hysteresis",
-        setup,
-        |c: &HysteresisCalibration| c.problem(),
-    )?;
-    let hysteresis = match hysteresis {
-        Some(h) => h,
-        None => {
-            let _p = crate::progress::spinner("identifying the stacks' hysteresis and creep");
-            let c = calibrate::hysteresis(&mut setup.rig, 4000, 20).map_err(bench_error)?;
-            made.push((
-                "hysteresis".into(),
-                file_bytes("hysteresis", &setup.made, &c)?,
-            ));
-            c
-        }
-    };
-    let jacobian: Option<JacobianCalibration> = load_checked(
-        file("jacobian"),
-        "jacobian",
-        setup,
-        |c: &JacobianCalibration| c.problem(),
-    )?;
-    let jacobian = match jacobian {
-        Some(j) => j,
-        None => {
-            let _p = crate::progress::spinner("measuring the stacks-to-tip Jacobian");
-            let mut bench = Bench::new(
-                &mut setup.rig,
-                Acquisition::Marker,
-                marker,
-                pixels.maps,
-                None,
-                Timing::default(),
-            )
-            .map_err(bench_error)?;
-            let c = calibrate::jacobian(
-                &mut bench,
-                &setup.description.design,
-                setup.description.rig.approach,
-                15.0,
-                3,
-            )
-            .map_err(bench_error)?;
-            made.push(("jacobian".into(), file_bytes("jacobian", &setup.made, &c)?));
-            c
-        }
-    };
-    Ok((
-        pixels,
-        Calibrations {
-            jacobian,
-            hysteresis,
-        },
-        made,
-    ))
+) -> Result<(PixelCalibration, Calibrations, calibration::MadeFiles)> {
+    let mut spinner = None;
+    calibration::load_or_make(
+        &mut setup.rig,
+        &setup.made,
+        &setup.description,
+        dir,
+        &mut |s| show_step(&mut spinner, s),
+    )
+    .map_err(|e| match e {
+        calibration::LoadError::File(e) => calibration_error(e).into(),
+        calibration::LoadError::Bench(e) => bench_error(e),
+        e @ calibration::LoadError::Json(_) => anyhow::anyhow!("{e}"),
+    })
 }
 
 fn file_bytes<T: Serialize + Clone>(kind: &str, made: &Made, c: &T) -> Result<Vec<u8>> {
@@ -495,7 +399,7 @@ impl Outputs {
         Ok(())
     }
 
-    fn calibrations(&mut self, out: &Path, made: MadeFiles) -> Result<()> {
+    fn calibrations(&mut self, out: &Path, made: calibration::MadeFiles) -> Result<()> {
         if made.is_empty() {
             return Ok(());
         }
@@ -1108,19 +1012,12 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             }
             let path = plan_json(out, pixels.as_deref().map(|p| ("--pixels", p)))?;
             let mut s = setup(d, twin, backend)?;
-            let zoom = s.made.zoom;
-            let px = match pixels {
-                Some(p) => load::<PixelCalibration>(p, "pixels", s.made.approach)?.and_then(|c| {
-                    c.problem(zoom)
-                        .map(|why| redo(p, &why))
-                        .map_or(Some(c), |()| None)
-                }),
-                None => None,
-            };
+            let px = given_pixels(pixels.as_deref(), &s)?;
             let marker = s.description.rig.optics.marker;
             let px = match px {
                 Some(c) => c,
-                None => calibrate::pixels(&mut s.rig, marker, 4e-6).map_err(bench_error)?,
+                None => calibrate::pixels(&mut s.rig, marker, calibration::PIXEL_STEP)
+                    .map_err(bench_error)?,
             };
             let c = {
                 let _p = crate::progress::spinner("stepping A1 and A2");

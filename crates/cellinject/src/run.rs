@@ -299,7 +299,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         }
         if r.backend != bench.backend() {
             return Err(InputError(format!(
-                "--backend {} is not run {}'s backend {} (resume on the same hardware)",
+                "this bench ({}, from --rig or --backend) is not run {}'s ({}): resume on the same hardware",
                 bench.backend(),
                 r.id,
                 r.backend

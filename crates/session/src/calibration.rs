@@ -9,7 +9,13 @@
 use std::path::{Path, PathBuf};
 
 use cellinject_config::Description;
-use cellinject_core::calibrate::HysteresisCalibration;
+use cellinject_core::bench::{Bench, BenchError, Timing};
+use cellinject_core::calibrate::{
+    self, HysteresisCalibration, JacobianCalibration, PixelCalibration,
+};
+use cellinject_core::experiment::Calibrations;
+use cellinject_core::vision::Acquisition;
+use cellinject_rig::{Backend, Rig};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -223,6 +229,179 @@ pub fn file_bytes<T: Serialize + Clone>(
     })?;
     s.push('\n');
     Ok(s.into_bytes())
+}
+
+/// What [`load_or_make`] is doing, for a front end to show.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Step {
+    /// A calibration is being made (what, for a spinner).
+    Making(&'static str),
+    /// A file was not used and the calibration is made again (why, for a note).
+    Redo(String),
+}
+
+/// Calibration files made by [`load_or_make`]: (kind, the file's bytes).
+pub type MadeFiles = Vec<(String, Vec<u8>)>;
+
+/// Why [`load_or_make`] failed.
+#[derive(Debug, Error)]
+pub enum LoadError {
+    /// A file given is not a calibration of its kind (bad input).
+    #[error(transparent)]
+    File(#[from] CalibrationError),
+    /// A calibration could not be made.
+    #[error(transparent)]
+    Bench(#[from] BenchError),
+    /// A calibration could not be written as JSON.
+    #[error("cannot write a calibration as JSON: {0}")]
+    Json(#[from] serde_json::Error),
+}
+
+/// The stage step of the pixel calibration, m.
+pub const PIXEL_STEP: f64 = 4e-6;
+/// Excitation samples per stack of the hysteresis identification (1 ms apart).
+pub const HYSTERESIS_SAMPLES: usize = 4000;
+/// Relays per axis of the Preisach plane of the hysteresis identification.
+pub const HYSTERESIS_SIZE: usize = 20;
+/// The Jacobian calibration's voltage step, V.
+pub const JACOBIAN_STEP: f64 = 15.0;
+/// The Jacobian calibration's repeats of each step.
+pub const JACOBIAN_REPEATS: usize = 3;
+
+/// The calibration of `kind` from `path`, or `None` (said through `step`) when it was
+/// made under another approach: the caller makes it again. Pixels do not depend on the
+/// approach.
+pub fn load<T: DeserializeOwned>(
+    path: &Path,
+    kind: &str,
+    approach: u8,
+    step: &mut dyn FnMut(Step),
+) -> Result<Option<T>, CalibrationError> {
+    let f = read_file::<T>(path, kind)?;
+    if kind != "pixels" && f.made.approach != approach {
+        step(Step::Redo(format!(
+            "`{}` was made under approach {}, the bench is assembled with approach {approach}: calibrating again",
+            path.display(),
+            f.made.approach
+        )));
+        return Ok(None);
+    }
+    Ok(Some(f.calibration))
+}
+
+/// [`load`], then the calibration's own check (`problem`): a failing one is said and
+/// dropped (to be made again), never used.
+pub fn load_checked<T: DeserializeOwned>(
+    path: Option<&Path>,
+    kind: &str,
+    approach: u8,
+    problem: impl Fn(&T) -> Option<String>,
+    step: &mut dyn FnMut(Step),
+) -> Result<Option<T>, CalibrationError> {
+    let Some(p) = path else {
+        return Ok(None);
+    };
+    let Some(c) = load::<T>(p, kind, approach, step)? else {
+        return Ok(None);
+    };
+    Ok(match problem(&c) {
+        None => Some(c),
+        Some(why) => {
+            step(Step::Redo(format!(
+                "`{}` fails its check ({why}): calibrating again",
+                p.display()
+            )));
+            None
+        }
+    })
+}
+
+/// The calibrations an experiment needs on `rig` (made on `made`, for `description`):
+/// each loaded from `dir` (`pixels.json`, `hysteresis.json`, `jacobian.json`) where it
+/// is there, of this approach and passes its check, made otherwise with this module's
+/// parameters; the ones made are returned as files for saving.
+pub fn load_or_make<B: Backend>(
+    rig: &mut Rig<B>,
+    made: &Made,
+    description: &Description,
+    dir: Option<&Path>,
+    step: &mut dyn FnMut(Step),
+) -> Result<(PixelCalibration, Calibrations, MadeFiles), LoadError> {
+    let mut files = Vec::new();
+    let marker = description.rig.optics.marker;
+    let file = |name: &str| dir.map(|d| d.join(format!("{name}.json")));
+    let pixels = load_checked(
+        file("pixels").as_deref(),
+        "pixels",
+        made.approach,
+        |c: &PixelCalibration| c.problem(made.zoom),
+        step,
+    )?;
+    let pixels = match pixels {
+        Some(p) => p,
+        None => {
+            step(Step::Making(
+                "calibrating the cameras' pixels (stage moves)",
+            ));
+            let c = calibrate::pixels(rig, marker, PIXEL_STEP)?;
+            files.push(("pixels".into(), file_bytes("pixels", made, &c)?));
+            c
+        }
+    };
+    let hysteresis = load_checked(
+        file("hysteresis").as_deref(),
+        "hysteresis",
+        made.approach,
+        |c: &HysteresisCalibration| c.problem(),
+        step,
+    )?;
+    let hysteresis = match hysteresis {
+        Some(h) => h,
+        None => {
+            step(Step::Making("identifying the stacks' hysteresis and creep"));
+            let c = calibrate::hysteresis(rig, HYSTERESIS_SAMPLES, HYSTERESIS_SIZE)?;
+            files.push(("hysteresis".into(), file_bytes("hysteresis", made, &c)?));
+            c
+        }
+    };
+    let jacobian = load_checked(
+        file("jacobian").as_deref(),
+        "jacobian",
+        made.approach,
+        |c: &JacobianCalibration| c.problem(),
+        step,
+    )?;
+    let jacobian = match jacobian {
+        Some(j) => j,
+        None => {
+            step(Step::Making("measuring the stacks-to-tip Jacobian"));
+            let mut bench = Bench::new(
+                rig,
+                Acquisition::Marker,
+                marker,
+                pixels.maps,
+                None,
+                Timing::default(),
+            )?;
+            let c = calibrate::jacobian(
+                &mut bench,
+                &description.design,
+                description.rig.approach,
+                JACOBIAN_STEP,
+                JACOBIAN_REPEATS,
+            )?;
+            files.push(("jacobian".into(), file_bytes("jacobian", made, &c)?));
+            c
+        }
+    };
+    Ok((
+        pixels,
+        Calibrations {
+            jacobian,
+            hysteresis,
+        },
+        files,
+    ))
 }
 
 #[cfg(test)]

@@ -16,6 +16,10 @@ use cellinject_core::experiment::{self, Calibrations, RepeatabilityOptions, Repe
 use cellinject_core::vision::Acquisition;
 use cellinject_model::{Approach, prototype};
 use cellinject_rig::RigParams;
+// The calibrations' parameters, as every front end makes them.
+use cellinject_session::calibration::{
+    HYSTERESIS_SAMPLES, HYSTERESIS_SIZE, JACOBIAN_REPEATS, JACOBIAN_STEP, PIXEL_STEP,
+};
 use cellinject_twin::{SharedTwin, Twin, TwinParams};
 
 fn params(approach: Approach) -> TwinParams {
@@ -63,8 +67,8 @@ fn j3_check(approach: Approach, yield_strength: f64) -> cellinject_rig::guard::Y
 fn calibrated(tw: &SharedTwin, approach: Approach) -> (PixelCalibration, Calibrations) {
     let mut rig = cellinject_twin::rig(tw).unwrap();
     let marker = RigParams::default().optics.marker;
-    let px = calibrate::pixels(&mut rig, marker, 4e-6).unwrap();
-    let hy = calibrate::hysteresis(&mut rig, 4000, 20).unwrap();
+    let px = calibrate::pixels(&mut rig, marker, PIXEL_STEP).unwrap();
+    let hy = calibrate::hysteresis(&mut rig, HYSTERESIS_SAMPLES, HYSTERESIS_SIZE).unwrap();
     let (jac, _) = jacobian(&mut rig, &px, approach).unwrap();
     (
         px,
@@ -91,7 +95,13 @@ fn jacobian<B: cellinject_rig::Backend>(
         None,
         Timing::default(),
     )?;
-    let jac = calibrate::jacobian(&mut bench, &prototype(), approach, 15.0, 3)?;
+    let jac = calibrate::jacobian(
+        &mut bench,
+        &prototype(),
+        approach,
+        JACOBIAN_STEP,
+        JACOBIAN_REPEATS,
+    )?;
     Ok((jac, bench.defocused()))
 }
 
@@ -285,7 +295,7 @@ fn the_range_of_motion_is_the_models_under_approach_2_and_torque_limited_under_a
         let tw = twin(approach);
         let mut rig = cellinject_twin::rig(&tw).unwrap();
         let marker = RigParams::default().optics.marker;
-        let px = calibrate::pixels(&mut rig, marker, 4e-6).unwrap();
+        let px = calibrate::pixels(&mut rig, marker, PIXEL_STEP).unwrap();
         let mut bench = Bench::new(
             &mut rig,
             Acquisition::Wide,
@@ -490,7 +500,7 @@ fn calibrations_hold_on_seeds_where_the_marker_went_out_of_focus() {
         let tw = Twin::new(&prototype(), p).unwrap().into_shared();
         let mut rig = cellinject_twin::rig(&tw).unwrap();
         let marker = RigParams::default().optics.marker;
-        let px = calibrate::pixels(&mut rig, marker, 4e-6).unwrap();
+        let px = calibrate::pixels(&mut rig, marker, PIXEL_STEP).unwrap();
         assert!(px.problem(px.maps[0].zoom).is_none());
         let (jac, defocused) = jacobian(&mut rig, &px, approach)
             .unwrap_or_else(|e| panic!("approach {approach:?}, seed {seed}: {e}"));
