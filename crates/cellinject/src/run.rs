@@ -8,9 +8,9 @@ use cellinject_config::Description;
 use cellinject_core::inject::Options;
 use cellinject_plate::Plate;
 use cellinject_records::{Records, RecordsError};
-use cellinject_run_sim::{FocusRow, RunError, RunProgress, Summary, summary};
-pub(crate) use cellinject_run_sim::{Job, execute};
-use cellinject_twin::{Fault, FaultAt};
+use cellinject_run_sim::{FocusRow, RunProgress, Summary};
+use cellinject_session::run::{self as session_run, Begin, RunFailure};
+use cellinject_twin::FaultAt;
 use clap::{Args, Subcommand};
 use serde::Serialize;
 
@@ -119,45 +119,14 @@ pub(crate) fn resolve_faults(
     specs: &[String],
     faults: &[FaultAt],
     plate: &Plate,
-) -> Result<Vec<Fault>> {
-    specs
-        .iter()
-        .zip(faults)
-        .map(|(s, f)| {
-            f.resolve(plate).map_err(|e| {
-                InputError(format!(
-                    "--fault `{s}`: {}",
-                    e.to_string().trim_start_matches("key `fault`: ")
-                ))
-                .into()
-            })
-        })
-        .collect()
+) -> Result<Vec<cellinject_twin::Fault>> {
+    let pairs: Vec<(String, FaultAt)> = specs.iter().cloned().zip(faults.iter().copied()).collect();
+    session_run::resolve_faults(&pairs, plate).map_err(|e| InputError(format!("--{e}")).into())
 }
 
 /// `run`'s default plate for `seed` and its text as the run records keep it.
 pub(crate) fn default_plate_text(seed: u64) -> Result<(Plate, String)> {
     cellinject_run_sim::default_plate_text(seed).map_err(|e| anyhow!("default plate: {e}"))
-}
-
-/// A new run record for `plate_text`, created now.
-pub(crate) fn new_run(
-    db: &mut Records,
-    plate_text: &str,
-    seed: Option<u64>,
-    backend: &str,
-    settings: &serde_json::Value,
-) -> Result<i64> {
-    cellinject_run_sim::new_run(db, plate_text, seed, backend, settings).map_err(records_error)
-}
-
-/// A run's failure outside its workflow as the user's error (exit 2) or not.
-pub(crate) fn run_error(e: RunError) -> anyhow::Error {
-    match e {
-        RunError::Input(s) => InputError(s).into(),
-        RunError::Fault(s) => InputError(format!("--fault: {s}")).into(),
-        RunError::Records(e) => records_error(e),
-    }
 }
 
 /// The progress bar of `run`: the cells left after the survey, one tick per attempt.
@@ -251,16 +220,32 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     };
     // So are the faults on a new run's plate: a fault naming a well or cell the plate
     // does not have leaves no run behind.
-    let fresh = if args.resume {
-        None
+    let fault_specs: Vec<(String, FaultAt)> = args.fault.iter().cloned().zip(faults).collect();
+    let begin = if args.resume {
+        Begin::Resume {
+            plate: given_plate.as_ref().map(|(_, text)| text.clone()),
+            seed: args.seed,
+            faults: fault_specs,
+        }
     } else {
         let seed = args.seed.unwrap_or(d.sim.seed);
-        let (plate, text) = match &given_plate {
-            Some(p) => p.clone(),
+        let (plate, text) = match given_plate {
+            Some(p) => p,
             None => default_plate_text(seed)?,
         };
-        let resolved = resolve_faults(&args.fault, &faults, &plate)?;
-        Some((plate, text, seed, resolved))
+        let faults =
+            session_run::resolve_faults(&fault_specs, &plate).map_err(|e| failure(e, args))?;
+        Begin::New {
+            plate,
+            text,
+            seed,
+            faults,
+            settings: serde_json::json!({
+                "options": options,
+                "faults": args.fault,
+                "calibration": calibration_note,
+            }),
+        }
     };
     // A controller that cannot be reached leaves no run behind: it is opened before
     // the database.
@@ -273,153 +258,103 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
             &bench,
         )?)
     };
-    let db_existed = args.db.exists();
-    let mut db = Records::open(&args.db).map_err(records_error)?;
-    let (run_id, plate_text, seed, previous, base, faults) = if args.resume {
-        let r = db.run(None).map_err(records_error)?;
-        if let (Some(p), Some((_, text))) = (&args.plate, &given_plate) {
-            if *text != r.plate {
-                return Err(InputError(format!(
-                    "--plate `{}` is not the plate of run {} (resume takes the plate from the database: leave --plate out)",
-                    p.display(),
-                    r.id
-                ))
-                .into());
-            }
-        }
-        if let Some(s) = args.seed
-            && Some(s) != r.seed
-        {
-            return Err(InputError(format!(
-                "--seed {s} is not run {}'s seed {} (resume takes it from the database: leave --seed out)",
-                r.id,
-                r.seed.map_or("(none)".to_string(), |s| s.to_string())
-            ))
-            .into());
-        }
-        if r.backend != bench.backend() {
-            return Err(InputError(format!(
-                "this bench ({}, from --rig or --backend) is not run {}'s ({}): resume on the same hardware",
-                bench.backend(),
-                r.id,
-                r.backend
-            ))
-            .into());
-        }
-        if r.status == "finished" {
-            let attempts = db.attempts(r.id).map_err(records_error)?;
-            if args.format == Format::Json {
-                let events = db.events(r.id).map_err(records_error)?;
-                return print_json(summary(&r, attempts, events), &[]);
-            }
-            outln!("run {} is finished: nothing to resume", r.id);
-            return Ok(());
-        }
-        // The faults act on the run's own plate (checked before the records change).
-        let resolved = match cellinject_config::plate::parse(&r.plate) {
-            Ok(p) => resolve_faults(&args.fault, &faults, &p)?,
-            Err(_) => Vec::new(), // refused below, naming the run's plate
-        };
-        let (dropped, interrupted) = db.prepare_resume(r.id).map_err(records_error)?;
-        if dropped + interrupted > 0 {
-            eprintln!(
-                "resuming run {}: {dropped} attempt(s) that had not reached their cell will be retried, {interrupted} recorded interrupted",
-                r.id
-            );
-        }
-        let previous = db.attempts(r.id).map_err(records_error)?;
-        (
-            r.id,
-            r.plate.clone(),
-            r.seed.unwrap_or(d.sim.seed),
-            previous,
-            (r.sim_time_s, r.cell_time_s),
-            resolved,
+    let open_twin = |seed: u64| {
+        let _p = crate::progress::spinner(
+            "J3's stresses for the safety envelope (joint FEM or its cache)",
+        );
+        cellinject_session::open(
+            d,
+            &bench,
+            cellinject_session::TwinOptions {
+                approach: None,
+                seed: Some(seed),
+            },
         )
-    } else {
-        let (_, text, seed, resolved) = fresh.expect("a new run's plate is read first");
-        let settings = serde_json::json!({
-            "options": options,
-            "faults": args.fault,
-            "calibration": calibration_note,
-        });
-        let id = new_run(
-            &mut db,
-            &text,
-            bench.is_twin().then_some(seed),
-            bench.backend(),
-            &settings,
-        )?;
-        (id, text, seed, Vec::new(), (0.0, 0.0), resolved)
     };
-    let plate = cellinject_config::plate::parse(&plate_text).map_err(|e| {
-        InputError(format!(
-            "{}: {e}",
-            args.plate
-                .as_ref()
-                .map_or("the run's plate".to_string(), |p| format!(
-                    "--plate `{}`",
-                    p.display()
-                ))
-        ))
-    })?;
-    plate
-        .check()
-        .map_err(|e| InputError(format!("plate: {e}")))?;
-    let (twin, mut rig) = if bench.is_twin() {
-        let o = crate::backend::open(d, &crate::sim::TwinArgs::with_seed(seed), &bench)?;
-        let twin = o.twin.expect("the twin backend has a twin");
-        cellinject_run_sim::prepare_twin(&twin, &plate, &faults, &options).map_err(run_error)?;
-        (Some(twin), o.rig)
-    } else {
-        // The emulator (or the real bench) holds the plate and the stage's start.
-        let o = wire.take().expect("opened before the database");
-        (None, o.rig)
+    let target = match &mut wire {
+        Some(o) => session_run::Bench::Opened(o),
+        None => session_run::Bench::Twin(Some(&open_twin)),
     };
-    let truth = twin.clone();
     let mut bar = Bar::default();
-    let job = Job {
+    let resumed = |run: i64, dropped: usize, interrupted: usize| {
+        eprintln!(
+            "resuming run {run}: {dropped} attempt(s) that had not reached their cell will be retried, {interrupted} recorded interrupted"
+        );
+    };
+    let request = session_run::Request {
         d,
+        db: &args.db,
         options,
         hysteresis,
         session: None,
-        twin,
-        plate: plate.clone(),
-        run_id,
-        previous,
-        base,
-        progress: Some(&mut bar),
+        begin,
         debug: debug(),
     };
-    let (result, stopped) = execute(job, &mut db, &mut rig, None, &|| false).map_err(run_error)?;
-    let r = db.run(Some(run_id)).map_err(records_error)?;
-    let mut s = summary(
-        &r,
-        db.attempts(run_id).map_err(records_error)?,
-        db.events(run_id).map_err(records_error)?,
-    );
-    if let Ok((report, _)) = &result {
-        s = cellinject_run_sim::with_report(s, report, truth.as_ref(), &plate);
-    }
-    if let Err(e) = &result
-        && cellinject_run_sim::refused_input(e)
-    {
-        // Bad input leaves no record: a new run refused before any cell goes, and so
-        // does the database file if this command created it.
-        if !args.resume {
-            cellinject_run_sim::discard(db, run_id, &args.db, db_existed).map_err(records_error)?;
+    let hooks = session_run::Hooks {
+        progress: Some(&mut bar),
+        resumed: Some(&resumed),
+        ..session_run::Hooks::default()
+    };
+    let ended = session_run::run(request, target, hooks).map_err(|e| failure(e, args))?;
+    let (run_id, s, outcome, stopped) = match ended {
+        session_run::Ended::AlreadyFinished { run_id, summary } => {
+            if args.format == Format::Json {
+                return print_json(summary, &[]);
+            }
+            outln!("run {run_id} is finished: nothing to resume");
+            return Ok(());
         }
-        return Err(InputError(e.to_string()).into());
-    }
+        session_run::Ended::Ran {
+            run_id,
+            summary,
+            outcome,
+            stopped,
+        } => (run_id, summary, outcome, stopped),
+    };
     if args.format == Format::Json {
         print_json(&s, &[])?;
     } else {
         print_text(&s);
     }
-    match (result, stopped) {
+    match (*outcome, stopped) {
         (Err(e), _) => Err(anyhow!("run {run_id} stopped: {e}")),
         (Ok(_), Some(why)) => Err(anyhow!("run {run_id} stopped: {why}")),
         _ => Ok(()),
+    }
+}
+
+/// A run that could not start or be recorded, as the user's error (exit 2, naming
+/// the option) or not.
+fn failure(e: RunFailure, args: &RunArgs) -> anyhow::Error {
+    match e {
+        RunFailure::Input(s) => InputError(s).into(),
+        RunFailure::ResumePlate { run } => InputError(format!(
+            "--plate `{}` is not the plate of run {run} (resume takes the plate from the database: leave --plate out)",
+            args.plate.as_deref().unwrap_or(Path::new("")).display(),
+        ))
+        .into(),
+        RunFailure::ResumeSeed {
+            given,
+            run,
+            recorded,
+        } => InputError(format!(
+            "--seed {given} is not run {run}'s seed {} (resume takes it from the database: leave --seed out)",
+            recorded.map_or("(none)".to_string(), |s| s.to_string())
+        ))
+        .into(),
+        RunFailure::ResumeBench {
+            bench,
+            run,
+            recorded,
+        } => InputError(format!(
+            "this bench ({bench}, from --rig or --backend) is not run {run}'s ({recorded}): resume on the same hardware"
+        ))
+        .into(),
+        RunFailure::Fault { spec, reason } => InputError(format!("--fault `{spec}`: {reason}")).into(),
+        RunFailure::TwinFault(s) => InputError(format!("--fault: {s}")).into(),
+        RunFailure::RecordedPlate(s) => InputError(format!("the run's plate: {s}")).into(),
+        RunFailure::Bench(e) => crate::backend::session_error(e),
+        RunFailure::Records(e) => records_error(e),
     }
 }
 
@@ -678,6 +613,7 @@ mod tests {
     use cellinject_core::inject::{Attempt, Event, ImageMap, Observer, Target, Transition};
     use cellinject_hw::{Camera, CameraSettings, Clock, HwError, PiezoChannel, Roi};
     use cellinject_run_sim::nearest_cell;
+    use cellinject_run_sim::{Job, execute, new_run};
 
     use super::*;
     use crate::backend::Opened;

@@ -22,7 +22,9 @@ use cellinject_twin::{Microscope, SharedTwin};
 use clap::Args;
 
 use crate::InputError;
-use crate::run::{Job, default_plate_text, execute, new_run, records_error};
+use crate::run::{default_plate_text, records_error};
+use cellinject_session::Opened;
+use cellinject_session::run::{self as session_run, Begin, Ended};
 
 /// `cellinject serve`.
 #[derive(Debug, Args)]
@@ -71,13 +73,12 @@ pub struct ServeArgs {
 /// The bench as the dashboard drives it.
 struct BenchStation {
     d: Description,
-    rig: Rig<DynBackend>,
-    twin: Option<SharedTwin>,
+    /// The bench, its twin kept from run to run.
+    opened: Opened,
     plate: Plate,
     plate_text: String,
     seed: u64,
     db: PathBuf,
-    backend: String,
     options: Options,
     /// Bumped when the twin gets a fresh plate (the viewer renews its camera).
     generation: Arc<AtomicU64>,
@@ -89,7 +90,7 @@ struct BenchStation {
 
 impl Station for BenchStation {
     fn backend(&self) -> String {
-        self.backend.clone()
+        self.opened.name.clone()
     }
     fn plate(&self) -> PlateView {
         PlateView {
@@ -100,7 +101,7 @@ impl Station for BenchStation {
         }
     }
     fn rig(&mut self) -> &mut Rig<DynBackend> {
-        &mut self.rig
+        &mut self.opened.rig
     }
     fn run(
         &mut self,
@@ -108,43 +109,49 @@ impl Station for BenchStation {
         hysteresis: Option<HysteresisCalibration>,
         aborted: &dyn Fn() -> bool,
     ) -> std::result::Result<RunEnd, String> {
-        let mut db = Records::open(&self.db).map_err(|e| records_error(e).to_string())?;
-        let settings =
-            serde_json::json!({ "options": self.options, "faults": [], "front_end": "dashboard" });
-        let id = new_run(
-            &mut db,
-            &self.plate_text,
-            self.twin.is_some().then_some(self.seed),
-            &self.backend,
-            &settings,
-        )
-        .map_err(|e| e.to_string())?;
-        if let Some(twin) = &self.twin {
-            // A fresh plate under the microscope, the pipette lifted above it.
-            let mut t = twin.lock().unwrap_or_else(|e| e.into_inner());
-            t.load_plate(&self.plate);
-            t.world
-                .stage
-                .place(1, self.options.focus + self.options.lift);
-            self.generation.fetch_add(1, Ordering::SeqCst);
-        }
-        let job = Job {
+        // The same lifecycle as `cellinject run`'s (cellinject-session): a fresh
+        // plate under the microscope, the pipette lifted above it.
+        let generation = self.generation.clone();
+        let renew = move || {
+            generation.fetch_add(1, Ordering::SeqCst);
+        };
+        let request = session_run::Request {
             d: &self.d,
+            db: &self.db,
             options: self.options,
             hysteresis,
             session: self.session.clone(),
-            twin: self.twin.clone(),
-            plate: self.plate.clone(),
-            run_id: id,
-            previous: Vec::new(),
-            base: (0.0, 0.0),
-            progress: None,
+            begin: Begin::New {
+                plate: self.plate.clone(),
+                text: self.plate_text.clone(),
+                seed: self.seed,
+                faults: Vec::new(),
+                settings: serde_json::json!({
+                    "options": self.options,
+                    "faults": [],
+                    "front_end": "dashboard",
+                }),
+            },
             debug: crate::run::debug(),
         };
-        let (result, stopped) = execute(job, &mut db, &mut self.rig, Some(watch), aborted)
-            .map_err(|e| crate::run::run_error(e).to_string())?;
-        let r = db.run(Some(id)).map_err(|e| records_error(e).to_string())?;
-        let (cells_per_min, calibration) = match result {
+        let hooks = session_run::Hooks {
+            watch: Some(watch),
+            aborted,
+            plate_loaded: Some(&renew),
+            ..session_run::Hooks::default()
+        };
+        let ended = session_run::run(request, session_run::Bench::Opened(&mut self.opened), hooks)
+            .map_err(|e| e.to_string())?;
+        let Ended::Ran {
+            run_id,
+            summary,
+            outcome,
+            stopped,
+        } = ended
+        else {
+            return Err("a new run cannot be finished before it starts".into());
+        };
+        let (cells_per_min, calibration) = match *outcome {
             Ok((report, cal)) => {
                 self.session.get_or_insert(report.session);
                 (report.cells_per_min, Some(cal))
@@ -152,8 +159,8 @@ impl Station for BenchStation {
             Err(_) => (0.0, None),
         };
         Ok(RunEnd {
-            id,
-            status: r.status,
+            id: run_id,
+            status: summary.status,
             stopped,
             cells_per_min,
             calibration,
@@ -339,11 +346,27 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
         |devices| cellinject_dashboard::instrument(devices, &telemetry, &control, remote),
     )?;
     let mut opened = opened;
-    // A plate the feeder cannot present is refused now, not at the first run.
-    if let Err(e) =
-        cellinject_core::inject::Workflow::new(&mut opened.rig, &d.design, &d.rig, &plate, options)
+    // A plate the feeder cannot present is refused now, not at the first run. On the
+    // twin, a copy of it is asked: the check grabs a frame, which would move the
+    // twin's clock, and the first run would not start where `cellinject run` does.
+    let check = |rig: &mut Rig<DynBackend>| {
+        cellinject_core::inject::Workflow::new(rig, &d.design, &d.rig, &plate, options)
             .and_then(|mut w| w.fields())
-    {
+    };
+    let verdict = match &opened.twin {
+        Some(twin) => {
+            let copy = twin
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .clone()
+                .into_shared();
+            let mut rig = cellinject_twin::guarded(&copy, cellinject_twin::devices(&copy).boxed())
+                .map_err(|e| anyhow::anyhow!("cannot build the twin: {e}"))?;
+            check(&mut rig)
+        }
+        None => check(&mut opened.rig),
+    };
+    if let Err(e) = verdict {
         return Err(match e {
             cellinject_core::inject::WorkflowError::Plan(_)
             | cellinject_core::inject::WorkflowError::PitchTooLarge { .. }
@@ -374,13 +397,11 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
     };
     let station = BenchStation {
         d: d.clone(),
-        rig: opened.rig,
-        twin: opened.twin,
+        opened,
         plate,
         plate_text,
         seed,
         db: a.db.clone(),
-        backend: opened.name,
         options,
         generation,
         session: None,

@@ -296,64 +296,49 @@ fn twin_run(
     db: PathBuf,
     config: Option<PathBuf>,
 ) -> PyResult<Py<PyAny>> {
-    use cellinject_run_sim as run;
+    use cellinject_session::run::{self as session_run, Begin, Ended, RunFailure};
     let d = description(config.as_deref())?;
     let options = cellinject_core::inject::Options::default();
     options.check(&d.rig).map_err(|e| input(e.to_string()))?;
     let seed = seed.unwrap_or(d.sim.seed);
     let (plate, text) = match &plate {
         Some(p) => crate::runs::read_plate(p)?,
-        None => run::default_plate_text(seed)
+        None => cellinject_run_sim::default_plate_text(seed)
             .map_err(|e| err(Kind::Other, format!("default plate: {e}")))?,
     };
-    let twin = build(py, None, Some(seed), config.as_deref())?;
-    let mut rig = cellinject_twin::guarded(&twin, cellinject_twin::devices(&twin).boxed())
-        .map_err(|e| input(format!("cannot build the twin: {e}")))?;
-    let existed = db.exists();
-    let mut records = cellinject_records::Records::open(&db).map_err(crate::runs::records_error)?;
-    let settings = serde_json::json!({ "options": options, "faults": Vec::<String>::new() });
-    let run_id = run::new_run(&mut records, &text, Some(seed), "twin", &settings)
-        .map_err(crate::runs::records_error)?;
-    run::prepare_twin(&twin, &plate, &[], &options).map_err(|e| input(e.to_string()))?;
-    let (result, records) = py.detach(|| {
-        let job = run::Job {
-            d: &d,
-            options,
-            hysteresis: None,
-            session: None,
-            twin: Some(twin.clone()),
-            plate: plate.clone(),
-            run_id,
-            previous: Vec::new(),
-            base: (0.0, 0.0),
-            progress: None,
-            debug: false,
-        };
-        let r = run::execute(job, &mut records, &mut rig, None, &|| false);
-        (r, records)
+    // The same lifecycle as `cellinject run`'s (cellinject-session).
+    let request = session_run::Request {
+        d: &d,
+        db: &db,
+        options,
+        hysteresis: None,
+        session: None,
+        begin: Begin::New {
+            plate,
+            text,
+            seed,
+            faults: Vec::new(),
+            settings: serde_json::json!({ "options": options, "faults": Vec::<String>::new() }),
+        },
+        debug: false,
+    };
+    let ended = py.detach(|| {
+        session_run::run(
+            request,
+            session_run::Bench::Twin(None),
+            session_run::Hooks::default(),
+        )
     });
-    let (result, _stopped) = result.map_err(|e| match e {
-        run::RunError::Records(e) => crate::runs::records_error(e),
-        e => input(e.to_string()),
-    })?;
-    if let Err(e) = &result
-        && run::refused_input(e)
-    {
-        run::discard(records, run_id, &db, existed).map_err(crate::runs::records_error)?;
-        return Err(input(format!("plate: {e}")));
-    }
-    let r = records
-        .run(Some(run_id))
-        .map_err(crate::runs::records_error)?;
-    let attempts = records
-        .attempts(run_id)
-        .map_err(crate::runs::records_error)?;
-    let events = records.events(run_id).map_err(crate::runs::records_error)?;
-    let mut s = run::summary(&r, attempts, events);
-    if let Ok((report, _)) = &result {
-        s = run::with_report(s, report, Some(&twin), &plate);
-    }
-    crate::to_py(py, &s)
+    let summary = match ended {
+        Ok(Ended::Ran { summary, .. } | Ended::AlreadyFinished { summary, .. }) => summary,
+        Err(RunFailure::Records(e)) => return Err(crate::runs::records_error(e)),
+        Err(RunFailure::Bench(e)) if !e.is_refusal() => {
+            return Err(err(Kind::NotConverged, format!("the twin: {e}")));
+        }
+        Err(RunFailure::Input(e)) => return Err(input(format!("plate: {e}"))),
+        Err(e) => return Err(input(e.to_string())),
+    };
+    crate::to_py(py, &summary)
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

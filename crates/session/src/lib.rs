@@ -29,6 +29,8 @@ use thiserror::Error;
 
 pub mod calibration;
 mod check;
+pub mod report;
+pub mod run;
 
 pub use check::{Answer, check};
 

@@ -388,3 +388,84 @@ fn the_dashboard_in_headless_chromium_shows_frames_and_aborts_a_run() {
         "only the cell in progress is interrupted"
     );
 }
+
+#[test]
+fn a_dashboard_run_records_what_the_cli_records_on_the_same_seed_and_plate() {
+    // Both front ends start their runs through cellinject-session's one lifecycle:
+    // on the same seed and plate, the same run (attempts, outcomes, events).
+    let d = dir("serve", "same");
+    let o = run(
+        &d,
+        &[
+            "plate",
+            "generate",
+            "--rows",
+            "1",
+            "--cols",
+            "2",
+            "--origin=-75e-6,-40e-6",
+            "--seed",
+            "3",
+            "--out",
+            "p.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let common = ["--plate", "p.toml", "--seed", "2"];
+    let o = run(
+        &d,
+        &[&["run", "--db", "cli.sqlite"][..], &common[..]].concat(),
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let s = Server::start(
+        &d,
+        &[
+            &["--fast", "--serve-for", "600", "--db", "dash.sqlite"][..],
+            &common[..],
+        ]
+        .concat(),
+    );
+    let (c, b) = s.http("POST", "/api/run", &[]);
+    assert_eq!(c, 202, "{b}");
+    let t0 = Instant::now();
+    loop {
+        let st = s.status();
+        if st["state"] != "running" {
+            assert_eq!(st["state"], "finished", "{st}");
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(300),
+            "the run did not end: {st}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    drop(s);
+    let show = |db: &str| -> serde_json::Value {
+        let o = run(&d, &["runs", "show", "--db", db]);
+        assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+        let mut v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v.as_object_mut().unwrap().remove("files");
+        v
+    };
+    let (mut cli, mut dash) = (show("cli.sqlite"), show("dash.sqlite"));
+    let injected = |v: &serde_json::Value| {
+        v["attempts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|a| a["outcome"] == "injected")
+            .count()
+    };
+    assert!(injected(&cli) >= 1, "{cli}");
+    // What differs by design: when each was created, and the settings' note of the
+    // front end (the dashboard's) and of a calibration file (the CLI's).
+    for v in [&mut cli, &mut dash] {
+        let r = v["run"].as_object_mut().unwrap();
+        r.remove("created");
+        let s = r["settings"].as_object_mut().unwrap();
+        s.remove("front_end");
+        s.remove("calibration");
+    }
+    assert_eq!(cli, dash);
+}
