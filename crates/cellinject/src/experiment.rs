@@ -193,11 +193,11 @@ pub enum CalibrateCommand {
     /// The tilt stacks' hysteresis (Preisach) and creep from their position sensors.
     #[command(after_help = "Examples:\n  cellinject calibrate hysteresis --out hysteresis.json")]
     Hysteresis {
-        /// Excitation samples per stack, 1 ms apart.
-        #[arg(long, default_value_t = 4000, value_parser = clap::value_parser!(u64).range(2000..=200_000))]
+        /// Excitation samples per stack, 1 ms apart (by default a run's own number).
+        #[arg(long, default_value_t = cellinject_session::calibration::HYSTERESIS_SAMPLES as u64, value_parser = clap::value_parser!(u64).range(2000..=200_000))]
         samples: u64,
         /// Preisach cells per axis.
-        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(2..=60))]
+        #[arg(long, default_value_t = cellinject_session::calibration::HYSTERESIS_SIZE as u64, value_parser = clap::value_parser!(u64).range(2..=60))]
         size: u64,
         /// The calibration file (JSON).
         #[arg(long, default_value = "hysteresis.json")]

@@ -571,6 +571,15 @@ pub fn check_response<B: Backend>(
     Ok(c)
 }
 
+/// Excitation samples per stack of the hysteresis identification (1 ms apart): the
+/// one value every front end uses (a run identifying its stacks, `cellinject
+/// calibrate`, the experiments, the dashboard's calibration), so that a calibration
+/// file made once is the one a run would have made.
+pub const HYSTERESIS_SAMPLES: usize = 20_000;
+
+/// Relays per axis of the Preisach plane of the hysteresis identification.
+pub const HYSTERESIS_SIZE: usize = 20;
+
 /// Identifies the tilt stacks' hysteresis (Preisach on `size` cells, `samples`
 /// excitation samples 1 ms apart, read by the stack sensors) and creep.
 pub fn hysteresis<B: Backend>(

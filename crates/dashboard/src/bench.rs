@@ -7,7 +7,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, channel};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use cellinject_core::calibrate::HysteresisCalibration;
+use cellinject_core::calibrate::{self, HysteresisCalibration};
 use cellinject_core::inject::{Attempt, Event, ImageMap, Observer, State, Target, Transition};
 use cellinject_hw::{CameraSettings, Frame, PiezoChannel, Stage};
 use cellinject_rig::{DynBackend, Rig};
@@ -669,7 +669,8 @@ fn execute(
                 b.task = Some("calibrate");
                 b.message = None;
             });
-            let r = cellinject_core::calibrate::hysteresis(station.rig(), 20_000, 20);
+            let (n, size) = (calibrate::HYSTERESIS_SAMPLES, calibrate::HYSTERESIS_SIZE);
+            let r = calibrate::hysteresis(station.rig(), n, size);
             let safe = safe_state(station.rig());
             shared.update(|b| match (r, safe) {
                 (Ok(c), Ok(())) => {

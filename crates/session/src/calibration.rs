@@ -259,10 +259,9 @@ pub enum LoadError {
 
 /// The stage step of the pixel calibration, m.
 pub const PIXEL_STEP: f64 = 4e-6;
-/// Excitation samples per stack of the hysteresis identification (1 ms apart).
-pub const HYSTERESIS_SAMPLES: usize = 4000;
-/// Relays per axis of the Preisach plane of the hysteresis identification.
-pub const HYSTERESIS_SIZE: usize = 20;
+/// The hysteresis identification's excitation and Preisach plane: the run's own
+/// (`cellinject_core::calibrate`), one set for every front end.
+pub use cellinject_core::calibrate::{HYSTERESIS_SAMPLES, HYSTERESIS_SIZE};
 /// The Jacobian calibration's voltage step, V.
 pub const JACOBIAN_STEP: f64 = 15.0;
 /// The Jacobian calibration's repeats of each step.

@@ -33,7 +33,7 @@ use cellinject_rig::{Backend, Rig, RigParams};
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::calibrate::HysteresisCalibration;
+use crate::calibrate::{HYSTERESIS_SIZE, HysteresisCalibration};
 pub use height::{Height, SideReference};
 pub use machine::{Event, State, Transition};
 
@@ -185,7 +185,7 @@ impl Default for Options {
             depth_limit: 0.25,
             align_tolerance: 0.15e-6,
             stage_deadline: 2.0,
-            hysteresis_samples: 20_000,
+            hysteresis_samples: crate::calibrate::HYSTERESIS_SAMPLES,
             max_off_centre: 0.3,
             recheck_every: 300.0,
         }
@@ -1823,21 +1823,21 @@ impl<'r, B: Backend> Workflow<'r, B> {
             Some(c) => c,
             None => {
                 self.raise_to(lift + drop)?;
-                let c = crate::calibrate::hysteresis(self.rig, self.options.hysteresis_samples, 20)
-                    .map_err(|e| match e {
-                        // Not the calibration's fault: the operator stopped it.
-                        crate::bench::BenchError::Device {
-                            source: source @ HwError::Interrupted { .. },
-                            ..
-                        } => WorkflowError::Device {
-                            what: "hysteresis calibration",
-                            source,
-                        },
-                        e => WorkflowError::Calibration {
-                            what: "hysteresis",
-                            reason: e.to_string(),
-                        },
-                    })?;
+                let (n, size) = (self.options.hysteresis_samples, HYSTERESIS_SIZE);
+                let c = crate::calibrate::hysteresis(self.rig, n, size).map_err(|e| match e {
+                    // Not the calibration's fault: the operator stopped it.
+                    crate::bench::BenchError::Device {
+                        source: source @ HwError::Interrupted { .. },
+                        ..
+                    } => WorkflowError::Device {
+                        what: "hysteresis calibration",
+                        source,
+                    },
+                    e => WorkflowError::Calibration {
+                        what: "hysteresis",
+                        reason: e.to_string(),
+                    },
+                })?;
                 self.rig.piezo[2].set_voltage(0.0).map_err(dev("A3"))?;
                 self.rig.clock.sleep(0.1).map_err(dev("clock"))?;
                 self.raise_to(lift)?;
