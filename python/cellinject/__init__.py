@@ -9,6 +9,7 @@ The modules (each a thin layer over the Rust library crates, all imported here):
 - ``cellinject.fea``: the whole manipulator on FEM joints;
 - ``cellinject.hysteresis``: hysteresis models, fitted, applied and inverted;
 - ``cellinject.twin``: the digital twin of the bench, and the injection workflow;
+- ``cellinject.rig``: a bench opened from a rig file, its devices checked, runs on it;
 - ``cellinject.runs``: the run database read back.
 
 Results are dicts with the CLI's JSON field names and SI units (docs/json.md).
@@ -18,7 +19,7 @@ named; ``NotConverged`` (also ``RuntimeError``) when nothing usable came out.
 
 from ._errors import Error, InputError, NotConverged
 from ._cellinject import __version__
-from . import design, dic, fea, flexure, hysteresis, model, runs, twin
+from . import design, dic, fea, flexure, hysteresis, model, rig, runs, twin
 
 __all__ = [
     "Error",
@@ -31,6 +32,7 @@ __all__ = [
     "flexure",
     "hysteresis",
     "model",
+    "rig",
     "runs",
     "twin",
 ]

@@ -4,6 +4,7 @@ from . import fea as fea
 from . import flexure as flexure
 from . import hysteresis as hysteresis
 from . import model as model
+from . import rig as rig
 from . import runs as runs
 from . import twin as twin
 from ._errors import Error as Error

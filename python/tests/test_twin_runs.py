@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import cellinject
-from cellinject import runs, twin
+from cellinject import rig, runs, twin
 
 
 @pytest.fixture(scope="module")
@@ -106,3 +106,37 @@ def test_runs_errors(tmp_path):
     with pytest.raises(cellinject.InputError, match="plate `.*`: cannot read"):
         twin.run(plate=tmp_path / "none.toml", db=tmp_path / "r.sqlite")
     assert not (tmp_path / "r.sqlite").exists()
+
+
+def test_a_run_on_a_bench_opened_from_a_rig_file_equals_the_clis(cli, small_plate):
+    """cellinject.rig: the same bench and the same run lifecycle as `cellinject run --rig`."""
+    d = small_plate
+    (d / "bench.toml").write_text('name = "the twin"\n[piezo]\ndriver = "twin"\n')
+    b = rig.open(d / "bench.toml", seed=2)
+    assert b.backend == "twin" and "twin" in repr(b)
+    s = b.run(plate=d / "p.toml", db=d / "rig.sqlite")
+    c = cli("run", "--rig", "bench.toml", "--plate", "p.toml", "--seed", 2, "--db", "cli-rig.sqlite", "--format", "json", cwd=d)
+    assert c.pop("files") == []
+    s["run"] = c["run"]
+    assert s == c
+    checked = rig.check(d / "bench.toml")
+    c_checked = cli("rig", "check", "--rig", "bench.toml", "--format", "json", cwd=d)
+    assert c_checked.pop("files") == []
+    assert checked == c_checked
+    assert checked["name"] == "the twin" and len(checked["devices"]) == 7
+    assert all(x["answers"] for x in checked["devices"])
+
+
+def test_a_bad_rig_file_names_the_file_and_the_key_and_opens_nothing(tmp_path):
+    (tmp_path / "bad.toml").write_text('[piezo]\ndriver = "warp://x"\n')
+    with pytest.raises(cellinject.InputError, match=r"bad\.toml.*piezo\.driver"):
+        rig.open(tmp_path / "bad.toml")
+    with pytest.raises(cellinject.InputError, match=r"bad\.toml.*piezo\.driver"):
+        rig.check(tmp_path / "bad.toml")
+    with pytest.raises(cellinject.InputError, match="cannot read"):
+        rig.open(tmp_path / "missing.toml")
+    bench = "".join(f'[{k}]\ndriver = "bench://127.0.0.1:2"\n' for k in ["camera.top", "camera.side", "stage.macro", "stage.feeder", "injector", "optics"])
+    (tmp_path / "gcs.toml").write_text('[piezo]\ndriver = "gcs://127.0.0.1:1"\n' + bench)
+    with pytest.raises(cellinject.InputError, match="seed seeds the twin"):
+        rig.open(tmp_path / "gcs.toml", seed=3)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml", "gcs.toml"]

@@ -31,16 +31,6 @@ pub struct CheckArgs {
     format: Format,
 }
 
-/// The JSON of one device.
-#[derive(serde::Serialize)]
-struct Device<'a> {
-    section: &'a str,
-    driver: &'a str,
-    answers: bool,
-    /// What it answered, or why it did not.
-    detail: &'a str,
-}
-
 /// Runs a `rig` command.
 pub fn run(d: &Description, cmd: &RigCommand) -> Result<()> {
     let RigCommand::Check(a) = cmd;
@@ -51,25 +41,7 @@ pub fn run(d: &Description, cmd: &RigCommand) -> Result<()> {
     };
     let silent = answers.iter().filter(|a| a.result.is_err()).count();
     if a.format == Format::Json {
-        let devices: Vec<Device> = answers
-            .iter()
-            .map(|x| Device {
-                section: x.section,
-                driver: &x.driver,
-                answers: x.result.is_ok(),
-                detail: match &x.result {
-                    Ok(s) | Err(s) => s,
-                },
-            })
-            .collect();
-        print_json(
-            serde_json::json!({
-                "name": rig.name,
-                "backend": rig.backend(),
-                "devices": devices,
-            }),
-            &[],
-        )?;
+        print_json(cellinject_session::CheckReport::new(&rig, &answers), &[])?;
     } else {
         let title = match (&rig.name, &a.backend.rig) {
             (Some(n), _) => format!("rig `{n}` ({})", rig.backend()),

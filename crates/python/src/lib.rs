@@ -23,6 +23,7 @@ mod fea;
 mod flexure;
 mod hysteresis;
 mod model;
+mod rig;
 mod runs;
 mod twin;
 
@@ -187,5 +188,6 @@ fn _cellinject(m: &Bound<'_, PyModule>) -> PyResult<()> {
     hysteresis::register(m)?;
     twin::register(m)?;
     runs::register(m)?;
+    rig::register(m)?;
     Ok(())
 }

@@ -116,6 +116,52 @@ pub fn check(d: &Description, rig: &RigFile) -> Result<Vec<Answer>, SessionError
         .collect())
 }
 
+/// What `cellinject rig check --format json` prints and Python's `rig.check`
+/// returns: the rig's name and bench, and each device's answer.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CheckReport {
+    /// The rig file's `name`, if it has one.
+    pub name: Option<String>,
+    /// The bench as the run records name it (`twin`, `gcs://HOST:PORT`).
+    pub backend: String,
+    /// Each device, in the rig file's order.
+    pub devices: Vec<DeviceReport>,
+}
+
+/// One device of a [`CheckReport`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DeviceReport {
+    /// The rig file's section.
+    pub section: &'static str,
+    /// Its driver.
+    pub driver: String,
+    /// Whether it answered.
+    pub answers: bool,
+    /// What it answered, or why it did not.
+    pub detail: String,
+}
+
+impl CheckReport {
+    /// The report of `answers` ([`check`]) on `rig`.
+    pub fn new(rig: &RigFile, answers: &[Answer]) -> Self {
+        CheckReport {
+            name: rig.name.clone(),
+            backend: rig.backend().to_string(),
+            devices: answers
+                .iter()
+                .map(|x| DeviceReport {
+                    section: x.section,
+                    driver: x.driver.clone(),
+                    answers: x.result.is_ok(),
+                    detail: match &x.result {
+                        Ok(s) | Err(s) => s.clone(),
+                    },
+                })
+                .collect(),
+        }
+    }
+}
+
 fn twin(d: &Description, rig: &RigFile) -> Result<Vec<Result<String, String>>, SessionError> {
     let mut o = crate::open(d, rig, TwinOptions::default())?;
     let r = &mut o.rig;

@@ -32,7 +32,7 @@ mod check;
 pub mod report;
 pub mod run;
 
-pub use check::{Answer, check};
+pub use check::{Answer, CheckReport, DeviceReport, check};
 
 /// Why a bench could not be opened.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -82,7 +82,8 @@ fn device(device: impl Into<String>, reason: impl ToString) -> SessionError {
 /// file's folder. Every error names the file and the dotted key.
 pub fn load_rig(path: &Path) -> Result<RigFile, SessionError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| refused(file.clone(), e))?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| refused(file.clone(), format!("cannot read the rig file: {e}")))?;
     let mut rig = rigfile::parse(&text).map_err(|e| refused(file.clone(), e))?;
     let base = path.parent().unwrap_or(Path::new(""));
     for cam in [&mut rig.camera_top, &mut rig.camera_side] {
@@ -248,11 +249,17 @@ pub fn open_with(
 /// The GCS controller of `url`, its servos off (SVA needs them off).
 fn controller(url: &str) -> Result<SharedGcs, SessionError> {
     let endpoint = Endpoint::parse(url).map_err(|e| refused("the rig's `piezo.driver`", e))?;
+    // The driver's errors may name the controller already: named once.
+    let named = |e: &dyn std::fmt::Display| {
+        let s = e.to_string();
+        let reason = s.strip_prefix(&format!("{url}: ")).unwrap_or(&s);
+        device(url, reason)
+    };
     let mut gcs = endpoint
         .open(Duration::from_secs(2))
-        .map_err(|e| device(url, e))?;
+        .map_err(|e| named(&e))?;
     gcs.set_servo(&[("1", false), ("2", false), ("3", false)])
-        .map_err(|e| device(url, e))?;
+        .map_err(|e| named(&e))?;
     Ok(std::sync::Arc::new(std::sync::Mutex::new(gcs)))
 }
 
