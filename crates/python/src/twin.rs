@@ -6,7 +6,7 @@ use std::sync::{Mutex, MutexGuard};
 
 use cellinject_hw::{Camera as _, Clock as _, HwError, PiezoChannel as _, PositionSensor as _};
 use cellinject_rig::Rig;
-use cellinject_twin::{SharedTwin, Twin, TwinBackend, TwinParams};
+use cellinject_twin::{SharedTwin, TwinBackend};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -72,31 +72,17 @@ pub(crate) fn build(
     config: Option<&std::path::Path>,
 ) -> PyResult<SharedTwin> {
     let d = description(config)?;
-    let mut p = TwinParams {
-        rig: d.rig,
-        sim: d.sim,
+    let opts = cellinject_session::TwinOptions {
+        approach: approach
+            .map(|a| crate::approach("approach", a))
+            .transpose()?,
+        seed,
     };
-    if let Some(a) = approach {
-        p.rig.approach = crate::approach("approach", a)?;
-    }
-    if let Some(s) = seed {
-        p.sim.seed = s;
-    }
-    let store = cellinject_fea::default_store(true);
-    let check = py
-        .detach(|| {
-            cellinject_fea::j3_yield_check(&d.design, &d.structure, p.rig.approach, store.as_ref())
+    py.detach(|| cellinject_session::twin(&d, opts))
+        .map_err(|e| match e {
+            e if e.is_refusal() => input(e.to_string()),
+            e => err(Kind::NotConverged, e.to_string()),
         })
-        .map_err(|e| {
-            err(
-                Kind::NotConverged,
-                format!("the safety envelope checks J3 against its yield strength with the structural model, which failed: {e}"),
-            )
-        })?;
-    p.rig.j3_yield = Some(check);
-    Ok(Twin::new(&d.design, p)
-        .map_err(|e| input(format!("cannot build the twin: {e}")))?
-        .into_shared())
 }
 
 #[pymethods]
