@@ -18,7 +18,7 @@ const FN_LINES: usize = 150;
 /// Files over [`FILE_LINES`] today, with their length (issue 38 splits them).
 const LONG_FILES: &[(&str, usize)] = &[
     ("crates/cellinject/src/experiment.rs", 1126),
-    ("crates/core/src/inject/mod.rs", 3299),
+    ("crates/core/src/inject/mod.rs", 3043),
     ("crates/dic/src/icgn.rs", 1517),
     ("crates/fem/src/joint3d.rs", 1444),
     ("crates/structure/src/lib.rs", 1076),
@@ -28,7 +28,6 @@ const LONG_FILES: &[(&str, usize)] = &[
 const LONG_FNS: &[(&str, &str, usize)] = &[
     ("crates/fem/src/joint3d.rs", "solve", 337),
     ("crates/cellinject/src/hysteresis.rs", "run", 277),
-    ("crates/core/src/inject/mod.rs", "calibrate", 256),
     ("crates/config/src/twin.rs", "bench", 251),
     ("crates/design/src/evaluate.rs", "evaluate", 215),
     ("crates/fem/src/hinge2d.rs", "solve", 214),
