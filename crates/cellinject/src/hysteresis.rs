@@ -213,45 +213,7 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             samples,
             out,
             twin,
-        } => {
-            let mut plan = Plan::new();
-            let files =
-                plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
-            plan.check()?;
-            let d = d()?;
-            let ch = cellinject_core::sim::channel(actuator).ok_or_else(|| {
-                InputError(format!("--actuator must be A1, A2 or A3, got `{actuator}`"))
-            })?;
-            let (tw, mut rig) = crate::sim::build(&d, twin)?;
-            let progress = crate::progress::spinner("the twin runs the excitation");
-            let r = core::identify(&mut rig, ch, *samples as usize, 1e-3, || {
-                tw.lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .actuator_displacement(ch)
-            })
-            .map_err(|e| InputError(e.to_string()))?;
-            drop(progress);
-            let csv = crate::sim::voltage_displacement_csv(&r.samples);
-            let chart = Chart {
-                title: format!("{}: identification excitation", r.actuator),
-                x_label: "amplifier command [V]".into(),
-                y_label: "stack displacement [µm]".into(),
-                series: vec![Series {
-                    name: r.actuator.into(),
-                    points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
-                    style: Style::Line,
-                }],
-            };
-            write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
-            outln!(
-                "{}: {} samples up to {:.1} V (the safety envelope's limit), 1 ms apart",
-                r.actuator,
-                r.samples.len(),
-                r.v_max
-            );
-            outln!("{}", wrote(&files));
-            Ok(())
-        }
+        } => identify(d, actuator, *samples, out, twin),
         HysteresisCommand::Fit {
             data,
             model,
@@ -259,222 +221,14 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             v_max,
             out,
             format,
-        } => {
-            let mut plan = Plan::new();
-            plan.input("--data", data);
-            let files = plan.companions(
-                "--out",
-                out,
-                &[FileKind::Json, FileKind::Svg, FileKind::Png],
-            )?;
-            plan.check()?;
-            let t = read_table(
-                data,
-                "--data",
-                &["voltage_v", "displacement_m"],
-                &["time_s"],
-            )?;
-            if t.is_empty() {
-                return Err(InputError(format!(
-                    "--data `{}`: no rows under the header",
-                    data.display()
-                ))
-                .into());
-            }
-            let volts = column(&t, "voltage_v").to_vec();
-            let disp = column(&t, "displacement_m").to_vec();
-            let range = core::fit_range(&volts, *v_max).map_err(|e| match e {
-                core::RangeError::NoPositiveVoltage => InputError(format!(
-                    "--data `{}`, column `voltage_v`: no voltage above 0 V (and no --v-max)",
-                    data.display()
-                )),
-                core::RangeError::Outside { index, value, top } => InputError(format!(
-                    "--data `{}`, line {}, column `voltage_v`: {value} V lies outside the model's range [0, {top}] V (--v-max)",
-                    data.display(),
-                    t.line(index),
-                )),
-            })?;
-            let kind = match model {
-                ModelArg::Preisach => Kind::Preisach,
-                ModelArg::Pi => Kind::Pi,
-                ModelArg::PiAsym => Kind::PiAsymmetric,
-            };
-            let r = {
-                let _p = crate::progress::spinner("fitting");
-                core::fit(kind, *size as usize, range, &volts, &disp)
-                    .map_err(|e| hysteresis_error("--data", data, e))?
-            };
-            let d = &r.data;
-            if d.merged > 0 {
-                eprintln!(
-                    "warning: --data `{}`: {} of {} rows repeat the voltage before them (dwells at the turning points, DAC steps slower than the logger): each held voltage fitted once, at its mean displacement",
-                    data.display(),
-                    d.merged,
-                    d.rows
-                );
-            }
-            if d.flattened > 0 {
-                eprintln!(
-                    "warning: --data `{}`: {} voltages turned back by less than {:.4} V ({} times the voltage's noise level {:.4} V): taken as holds, not reversals",
-                    data.display(),
-                    d.flattened,
-                    d.reversal_threshold,
-                    cellinject_hysteresis::data::REVERSAL_FACTOR,
-                    d.input_noise
-                );
-            }
-            // Measured and modelled loops.
-            let mut m = r.model.clone();
-            m.reset();
-            let modelled: Vec<(f64, f64)> = volts.iter().map(|v| (*v, m.apply(*v) * 1e6)).collect();
-            let chart = Chart {
-                title: format!(
-                    "{:?} fit: RMS {:.1} nm ({:.2} % of the span)",
-                    model,
-                    r.rms * 1e9,
-                    100.0 * r.rms_relative
-                ),
-                x_label: "voltage [V]".into(),
-                y_label: "displacement [µm]".into(),
-                series: vec![
-                    Series {
-                        name: "measured".into(),
-                        points: volts
-                            .iter()
-                            .zip(&disp)
-                            .map(|(v, y)| (*v, y * 1e6))
-                            .collect(),
-                        style: Style::Line,
-                    },
-                    Series {
-                        name: "model".into(),
-                        points: modelled,
-                        style: Style::Line,
-                    },
-                ],
-            };
-            let json = serde_json::to_string_pretty(&r.model)?;
-            write_with_plots(&files, json.as_bytes(), &[chart], 1)?;
-            if *format == Format::Json {
-                let o = FitOutput {
-                    report: &r,
-                    ignored_columns: &t.ignored,
-                };
-                return print_json(&o, &[&files[0], &files[1], &files[2]]);
-            }
-            outln!(
-                "{:?} model fitted to {} samples ({} reversals): RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
-                model,
-                r.samples,
-                r.data.reversals,
-                r.rms * 1e9,
-                100.0 * r.rms_relative,
-                r.max * 1e9
-            );
-            outln!("{}", wrote(&files));
-            Ok(())
-        }
+        } => fit(data, *model, *size, *v_max, out, *format),
         HysteresisCommand::Invert {
             model,
             trajectory,
             out,
             clip,
             format,
-        } => {
-            let mut plan = Plan::new();
-            plan.input("--model", model)
-                .input("--trajectory", trajectory);
-            let files =
-                plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
-            plan.check()?;
-            let m = read_model(model)?;
-            let tab = read_table(
-                trajectory,
-                "--trajectory",
-                &["time_s", "displacement_m"],
-                &[],
-            )?;
-            if tab.is_empty() {
-                return Err(InputError(format!(
-                    "--trajectory `{}`: no rows",
-                    trajectory.display()
-                ))
-                .into());
-            }
-            let targets = column(&tab, "displacement_m").to_vec();
-            let r = core::invert(&m, &targets, *clip).map_err(|e| match e {
-                e @ cellinject_hysteresis::HysteresisError::OutOfReach { index, .. } => {
-                    InputError(format!(
-                        "--trajectory `{}`, line {}: {e} (--clip takes such targets as the nearest the model reaches)",
-                        trajectory.display(),
-                        tab.line(index)
-                    ))
-                    .into()
-                }
-                e => hysteresis_error("--trajectory", trajectory, e),
-            })?;
-            if let Some(k) = r.largest_clip_sample {
-                eprintln!(
-                    "warning: --trajectory `{}`: {} of {} targets lie outside the model's reach and were clipped to it (the farthest {:.4} µm away, line {})",
-                    trajectory.display(),
-                    r.clipped,
-                    r.samples,
-                    r.largest_clip * 1e6,
-                    tab.line(k)
-                );
-            }
-            let t = column(&tab, "time_s").to_vec();
-            let mut csv = String::from("time_s,voltage_v\n");
-            for (time, v) in t.iter().zip(&r.volts) {
-                let _ = writeln!(csv, "{time:.6},{v:.6}");
-            }
-            let charts = [
-                Chart {
-                    title: "desired and predicted displacement".into(),
-                    x_label: "time [s]".into(),
-                    y_label: "displacement [µm]".into(),
-                    series: vec![
-                        Series {
-                            name: "desired".into(),
-                            points: t.iter().zip(&targets).map(|(t, y)| (*t, y * 1e6)).collect(),
-                            style: Style::Line,
-                        },
-                        Series {
-                            name: "model's prediction".into(),
-                            points: t
-                                .iter()
-                                .zip(&r.predicted)
-                                .map(|(t, y)| (*t, y * 1e6))
-                                .collect(),
-                            style: Style::Line,
-                        },
-                    ],
-                },
-                Chart {
-                    title: "command".into(),
-                    x_label: "time [s]".into(),
-                    y_label: "voltage [V]".into(),
-                    series: vec![Series {
-                        name: "command".into(),
-                        points: t.iter().zip(&r.volts).map(|(t, v)| (*t, *v)).collect(),
-                        style: Style::Line,
-                    }],
-                },
-            ];
-            write_with_plots(&files, csv.as_bytes(), &charts, 2)?;
-            if *format == Format::Json {
-                return print_json(&r, &[&files[0], &files[1], &files[2]]);
-            }
-            outln!(
-                "{} samples: voltages from {:.3} to {:.3} V; largest model residual {:.2e} m",
-                r.samples,
-                r.voltage_range[0],
-                r.voltage_range[1],
-                r.residual
-            );
-            outln!("{}", wrote(&files));
-            Ok(())
-        }
+        } => invert(model, trajectory, out, *clip, *format),
         HysteresisCommand::Validate {
             model,
             recording,
@@ -482,6 +236,267 @@ pub fn run(d: impl FnOnce() -> Result<Description>, cmd: &HysteresisCommand) -> 
             format,
         } => validate(model, recording, out, *format),
     }
+}
+
+/// `hysteresis identify`.
+fn identify(
+    d: impl FnOnce() -> Result<Description>,
+    actuator: &str,
+    samples: u64,
+    out: &Path,
+    twin: &crate::sim::TwinArgs,
+) -> Result<()> {
+    let mut plan = Plan::new();
+    let files = plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
+    plan.check()?;
+    let d = d()?;
+    let ch = cellinject_core::sim::channel(actuator)
+        .ok_or_else(|| InputError(format!("--actuator must be A1, A2 or A3, got `{actuator}`")))?;
+    let (tw, mut rig) = crate::sim::build(&d, twin)?;
+    let progress = crate::progress::spinner("the twin runs the excitation");
+    let r = core::identify(&mut rig, ch, samples as usize, 1e-3, || {
+        tw.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .actuator_displacement(ch)
+    })
+    .map_err(|e| InputError(e.to_string()))?;
+    drop(progress);
+    let csv = crate::sim::voltage_displacement_csv(&r.samples);
+    let chart = Chart {
+        title: format!("{}: identification excitation", r.actuator),
+        x_label: "amplifier command [V]".into(),
+        y_label: "stack displacement [µm]".into(),
+        series: vec![Series {
+            name: r.actuator.into(),
+            points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
+            style: Style::Line,
+        }],
+    };
+    write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
+    outln!(
+        "{}: {} samples up to {:.1} V (the safety envelope's limit), 1 ms apart",
+        r.actuator,
+        r.samples.len(),
+        r.v_max
+    );
+    outln!("{}", wrote(&files));
+    Ok(())
+}
+
+/// `hysteresis fit`.
+fn fit(
+    data: &Path,
+    model: ModelArg,
+    size: u64,
+    v_max: Option<f64>,
+    out: &Path,
+    format: Format,
+) -> Result<()> {
+    let mut plan = Plan::new();
+    plan.input("--data", data);
+    let files = plan.companions(
+        "--out",
+        out,
+        &[FileKind::Json, FileKind::Svg, FileKind::Png],
+    )?;
+    plan.check()?;
+    let t = read_table(
+        data,
+        "--data",
+        &["voltage_v", "displacement_m"],
+        &["time_s"],
+    )?;
+    if t.is_empty() {
+        return Err(InputError(format!(
+            "--data `{}`: no rows under the header",
+            data.display()
+        ))
+        .into());
+    }
+    let volts = column(&t, "voltage_v").to_vec();
+    let disp = column(&t, "displacement_m").to_vec();
+    let range = core::fit_range(&volts, v_max).map_err(|e| match e {
+        core::RangeError::NoPositiveVoltage => InputError(format!(
+            "--data `{}`, column `voltage_v`: no voltage above 0 V (and no --v-max)",
+            data.display()
+        )),
+        core::RangeError::Outside { index, value, top } => InputError(format!(
+            "--data `{}`, line {}, column `voltage_v`: {value} V lies outside the model's range [0, {top}] V (--v-max)",
+            data.display(),
+            t.line(index),
+        )),
+    })?;
+    let kind = match model {
+        ModelArg::Preisach => Kind::Preisach,
+        ModelArg::Pi => Kind::Pi,
+        ModelArg::PiAsym => Kind::PiAsymmetric,
+    };
+    let r = {
+        let _p = crate::progress::spinner("fitting");
+        core::fit(kind, size as usize, range, &volts, &disp)
+            .map_err(|e| hysteresis_error("--data", data, e))?
+    };
+    let d = &r.data;
+    if d.merged > 0 {
+        eprintln!(
+            "warning: --data `{}`: {} of {} rows repeat the voltage before them (dwells at the turning points, DAC steps slower than the logger): each held voltage fitted once, at its mean displacement",
+            data.display(),
+            d.merged,
+            d.rows
+        );
+    }
+    if d.flattened > 0 {
+        eprintln!(
+            "warning: --data `{}`: {} voltages turned back by less than {:.4} V ({} times the voltage's noise level {:.4} V): taken as holds, not reversals",
+            data.display(),
+            d.flattened,
+            d.reversal_threshold,
+            cellinject_hysteresis::data::REVERSAL_FACTOR,
+            d.input_noise
+        );
+    }
+    // Measured and modelled loops.
+    let mut m = r.model.clone();
+    m.reset();
+    let modelled: Vec<(f64, f64)> = volts.iter().map(|v| (*v, m.apply(*v) * 1e6)).collect();
+    let chart = Chart {
+        title: format!(
+            "{:?} fit: RMS {:.1} nm ({:.2} % of the span)",
+            model,
+            r.rms * 1e9,
+            100.0 * r.rms_relative
+        ),
+        x_label: "voltage [V]".into(),
+        y_label: "displacement [µm]".into(),
+        series: vec![
+            Series {
+                name: "measured".into(),
+                points: volts
+                    .iter()
+                    .zip(&disp)
+                    .map(|(v, y)| (*v, y * 1e6))
+                    .collect(),
+                style: Style::Line,
+            },
+            Series {
+                name: "model".into(),
+                points: modelled,
+                style: Style::Line,
+            },
+        ],
+    };
+    let json = serde_json::to_string_pretty(&r.model)?;
+    write_with_plots(&files, json.as_bytes(), &[chart], 1)?;
+    if format == Format::Json {
+        let o = FitOutput {
+            report: &r,
+            ignored_columns: &t.ignored,
+        };
+        return print_json(&o, &[&files[0], &files[1], &files[2]]);
+    }
+    outln!(
+        "{:?} model fitted to {} samples ({} reversals): RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
+        model,
+        r.samples,
+        r.data.reversals,
+        r.rms * 1e9,
+        100.0 * r.rms_relative,
+        r.max * 1e9
+    );
+    outln!("{}", wrote(&files));
+    Ok(())
+}
+
+/// `hysteresis invert`.
+fn invert(model: &Path, trajectory: &Path, out: &Path, clip: bool, format: Format) -> Result<()> {
+    let mut plan = Plan::new();
+    plan.input("--model", model)
+        .input("--trajectory", trajectory);
+    let files = plan.companions("--out", out, &[FileKind::Csv, FileKind::Svg, FileKind::Png])?;
+    plan.check()?;
+    let m = read_model(model)?;
+    let tab = read_table(
+        trajectory,
+        "--trajectory",
+        &["time_s", "displacement_m"],
+        &[],
+    )?;
+    if tab.is_empty() {
+        return Err(InputError(format!("--trajectory `{}`: no rows", trajectory.display())).into());
+    }
+    let targets = column(&tab, "displacement_m").to_vec();
+    let r = core::invert(&m, &targets, clip).map_err(|e| match e {
+        e @ cellinject_hysteresis::HysteresisError::OutOfReach { index, .. } => {
+            InputError(format!(
+                "--trajectory `{}`, line {}: {e} (--clip takes such targets as the nearest the model reaches)",
+                trajectory.display(),
+                tab.line(index)
+            ))
+            .into()
+        }
+        e => hysteresis_error("--trajectory", trajectory, e),
+    })?;
+    if let Some(k) = r.largest_clip_sample {
+        eprintln!(
+            "warning: --trajectory `{}`: {} of {} targets lie outside the model's reach and were clipped to it (the farthest {:.4} µm away, line {})",
+            trajectory.display(),
+            r.clipped,
+            r.samples,
+            r.largest_clip * 1e6,
+            tab.line(k)
+        );
+    }
+    let t = column(&tab, "time_s").to_vec();
+    let mut csv = String::from("time_s,voltage_v\n");
+    for (time, v) in t.iter().zip(&r.volts) {
+        let _ = writeln!(csv, "{time:.6},{v:.6}");
+    }
+    let charts = [
+        Chart {
+            title: "desired and predicted displacement".into(),
+            x_label: "time [s]".into(),
+            y_label: "displacement [µm]".into(),
+            series: vec![
+                Series {
+                    name: "desired".into(),
+                    points: t.iter().zip(&targets).map(|(t, y)| (*t, y * 1e6)).collect(),
+                    style: Style::Line,
+                },
+                Series {
+                    name: "model's prediction".into(),
+                    points: t
+                        .iter()
+                        .zip(&r.predicted)
+                        .map(|(t, y)| (*t, y * 1e6))
+                        .collect(),
+                    style: Style::Line,
+                },
+            ],
+        },
+        Chart {
+            title: "command".into(),
+            x_label: "time [s]".into(),
+            y_label: "voltage [V]".into(),
+            series: vec![Series {
+                name: "command".into(),
+                points: t.iter().zip(&r.volts).map(|(t, v)| (*t, *v)).collect(),
+                style: Style::Line,
+            }],
+        },
+    ];
+    write_with_plots(&files, csv.as_bytes(), &charts, 2)?;
+    if format == Format::Json {
+        return print_json(&r, &[&files[0], &files[1], &files[2]]);
+    }
+    outln!(
+        "{} samples: voltages from {:.3} to {:.3} V; largest model residual {:.2e} m",
+        r.samples,
+        r.voltage_range[0],
+        r.voltage_range[1],
+        r.residual
+    );
+    outln!("{}", wrote(&files));
+    Ok(())
 }
 
 /// `hysteresis validate`.
