@@ -16,6 +16,7 @@ macro_rules! outln {
 }
 
 mod backend;
+mod calibrate;
 mod camera;
 mod commands;
 mod design;
@@ -139,7 +140,7 @@ enum Command {
         subcommand,
         after_help = "Examples:\n  cellinject calibrate all --out calibration\n  cellinject calibrate pixels --out pixels.json\n  cellinject calibrate jacobian --pixels pixels.json --out jacobian.json"
     )]
-    Calibrate(experiment::CalibrateCommand),
+    Calibrate(calibrate::CalibrateCommand),
     /// The paper's bench experiments through the cameras: range, repeatability, tracking.
     #[command(
         subcommand,
@@ -253,7 +254,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Fea(args)) => fea::run(&description()?, &args),
         Some(Command::Design(cmd)) => design::run(cli.config.as_deref(), &cmd),
         Some(Command::Hysteresis(cmd)) => hysteresis::run(description, &cmd),
-        Some(Command::Calibrate(cmd)) => experiment::calibrate(&description()?, &cmd),
+        Some(Command::Calibrate(cmd)) => calibrate::calibrate(&description()?, &cmd),
         Some(Command::Experiment(cmd)) => experiment::run(&description()?, &cmd),
         Some(Command::Plate(cmd)) => {
             if !plate::uses_description(&cmd) {

@@ -17,6 +17,41 @@ use serde::Serialize;
 use crate::output::print_json;
 use crate::{Format, InputError};
 
+/// `--calibration` for a run on `bench`: the hysteresis calibration to use, and the
+/// note the run's settings keep of the file. One made on another bench (backend,
+/// seed, description) is not used: the stacks are identified again, and the note
+/// says why.
+fn calibration_for_run(
+    d: &Description,
+    args: &RunArgs,
+    bench: &cellinject_config::rigfile::RigFile,
+) -> Result<(
+    Option<cellinject_core::calibrate::HysteresisCalibration>,
+    Option<serde_json::Value>,
+)> {
+    let Some(p) = &args.calibration else {
+        return Ok((None, None));
+    };
+    let seed = bench.is_twin().then(|| args.seed.unwrap_or(d.sim.seed));
+    let (hysteresis, not_used) = crate::experiment::read_hysteresis_for_run(
+        p,
+        &cellinject_session::calibration::RunBench {
+            d,
+            backend: bench.backend(),
+            seed,
+        },
+    )?;
+    if let Some(why) = &not_used {
+        eprintln!("note: {why}: the stacks are identified again");
+    }
+    let note = serde_json::json!({
+        "file": p.display().to_string(),
+        "used": not_used.is_none(),
+        "why_not": not_used,
+    });
+    Ok((hysteresis, Some(note)))
+}
+
 /// `cellinject run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -187,32 +222,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         }
         gcs_run_checks(args.plate.is_some() || args.resume, args.seed.is_some())?;
     }
-    // A calibration made on another bench (backend, seed, description) is not used:
-    // the stacks are identified again, and the run's record says why.
-    let (hysteresis, not_used) = match &args.calibration {
-        None => (None, None),
-        Some(p) => {
-            let seed = bench.is_twin().then(|| args.seed.unwrap_or(d.sim.seed));
-            crate::experiment::read_hysteresis_for_run(
-                p,
-                &cellinject_session::calibration::RunBench {
-                    d,
-                    backend: bench.backend(),
-                    seed,
-                },
-            )?
-        }
-    };
-    if let Some(why) = &not_used {
-        eprintln!("note: {why}: the stacks are identified again");
-    }
-    let calibration_note = args.calibration.as_ref().map(|p| {
-        serde_json::json!({
-            "file": p.display().to_string(),
-            "used": not_used.is_none(),
-            "why_not": not_used,
-        })
-    });
+    let (hysteresis, calibration_note) = calibration_for_run(d, args, &bench)?;
     // The plate is read and checked before the database is touched.
     let given_plate = match &args.plate {
         None => None,

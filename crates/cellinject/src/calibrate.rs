@@ -1,0 +1,267 @@
+//! `cellinject calibrate`: the cameras' pixels, the stacks-to-tip Jacobian and the
+//! stacks' hysteresis, each written as a calibration file with what it was made on
+//! (`cellinject_session::calibration`), or all three into one directory.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use cellinject_config::Description;
+use cellinject_core::bench::{Bench, Timing};
+use cellinject_core::calibrate;
+use cellinject_core::vision::Acquisition;
+use cellinject_session::calibration;
+use clap::Subcommand;
+
+use crate::backend::BackendArgs;
+use crate::experiment::{
+    Outputs, bench_error, calibrations, check_dir, file_bytes, given_pixels, setup,
+};
+use crate::output::print_json;
+use crate::sim::TwinArgs;
+use crate::{Format, InputError};
+
+/// The calibrations.
+#[derive(Debug, Subcommand)]
+pub enum CalibrateCommand {
+    /// Both cameras' pixel size, rotation and shear from stage moves.
+    #[command(after_help = "Examples:\n  cellinject calibrate pixels --out pixels.json")]
+    Pixels {
+        /// Stage step, m (moves of ±1 and ±2 steps along each axis).
+        #[arg(long, default_value_t = 4e-6, allow_negative_numbers = true)]
+        step: f64,
+        /// The calibration file (JSON).
+        #[arg(long, default_value = "pixels.json")]
+        out: PathBuf,
+        #[command(flatten)]
+        twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// How each tilt stack moves the tip: the 2x2 Jacobian, checked against the model.
+    #[command(
+        after_help = "Examples:\n  cellinject calibrate jacobian --pixels pixels.json --out jacobian.json"
+    )]
+    Jacobian {
+        /// The cameras' pixel calibration (default: made first).
+        #[arg(long, value_name = "FILE.json")]
+        pixels: Option<PathBuf>,
+        /// Step of each stack, V.
+        #[arg(long, default_value_t = 15.0, allow_negative_numbers = true)]
+        volts: f64,
+        /// Steps per stack.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=50))]
+        repeats: u64,
+        /// The calibration file (JSON).
+        #[arg(long, default_value = "jacobian.json")]
+        out: PathBuf,
+        #[command(flatten)]
+        twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// The tilt stacks' hysteresis (Preisach) and creep from their position sensors.
+    #[command(after_help = "Examples:\n  cellinject calibrate hysteresis --out hysteresis.json")]
+    Hysteresis {
+        /// Excitation samples per stack, 1 ms apart (by default a run's own number).
+        #[arg(long, default_value_t = cellinject_session::calibration::HYSTERESIS_SAMPLES as u64, value_parser = clap::value_parser!(u64).range(2000..=200_000))]
+        samples: u64,
+        /// Preisach cells per axis.
+        #[arg(long, default_value_t = cellinject_session::calibration::HYSTERESIS_SIZE as u64, value_parser = clap::value_parser!(u64).range(2..=60))]
+        size: u64,
+        /// The calibration file (JSON).
+        #[arg(long, default_value = "hysteresis.json")]
+        out: PathBuf,
+        #[command(flatten)]
+        twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// All three, into one directory (what `experiment --calibration DIR` reads).
+    #[command(after_help = "Examples:\n  cellinject calibrate all --out calibration")]
+    All {
+        /// Directory (created if needed).
+        #[arg(long, value_name = "DIR", default_value = "calibration")]
+        out: PathBuf,
+        #[command(flatten)]
+        twin: TwinArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+}
+
+/// Runs a `calibrate` command.
+pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
+    match cmd {
+        CalibrateCommand::Pixels {
+            step,
+            out,
+            twin,
+            backend,
+        } => {
+            let path = plan_json(out, None)?;
+            let mut s = setup(d, twin, backend)?;
+            let marker = s.description.rig.optics.marker;
+            let c = {
+                let _p = crate::progress::spinner("calibrating the cameras' pixels");
+                calibrate::pixels(&mut s.rig, marker, *step).map_err(bench_error)?
+            };
+            crate::files::write_one(&path, &file_bytes("pixels", &s.made, &c)?)?;
+            if twin.format() == Format::Json {
+                return print_json(c, &[&path]);
+            }
+            for m in &c.maps {
+                outln!(
+                    "{} camera: {:.5} x {:.5} µm per pixel (nominal {:.5}), rotation {:.3} mrad, shear {:.3} mrad, residual {:.3} px over {} positions",
+                    m.camera.name(),
+                    m.metres_per_pixel[0] * 1e6,
+                    m.metres_per_pixel[1] * 1e6,
+                    m.nominal_pixel * 1e6,
+                    m.rotation * 1e3,
+                    m.skew * 1e3,
+                    m.rms_px,
+                    m.moves
+                );
+            }
+            outln!("wrote {}", path.display());
+            Ok(())
+        }
+        CalibrateCommand::Jacobian {
+            pixels,
+            volts,
+            repeats,
+            out,
+            twin,
+            backend,
+        } => calibrate_jacobian(d, pixels.as_deref(), *volts, *repeats, out, twin, backend),
+        CalibrateCommand::Hysteresis {
+            samples,
+            size,
+            out,
+            twin,
+            backend,
+        } => {
+            let path = plan_json(out, None)?;
+            let mut s = setup(d, twin, backend)?;
+            let c = {
+                let _p = crate::progress::spinner("exciting A1 and A2");
+                calibrate::hysteresis(&mut s.rig, *samples as usize, *size as usize)
+                    .map_err(bench_error)?
+            };
+            crate::files::write_one(&path, &file_bytes("hysteresis", &s.made, &c)?)?;
+            if twin.format() == Format::Json {
+                return print_json(&c, &[&path]);
+            }
+            for i in 0..2 {
+                outln!(
+                    "A{}: Preisach fit RMS {:.1} nm ({:.2} % of the span) up to {:.1} V; creep {:.2} % per decade",
+                    i + 1,
+                    c.fit_rms[i] * 1e9,
+                    c.fit_rms_relative[i] * 100.0,
+                    c.v_max[i],
+                    c.creep[i].gamma * 100.0
+                );
+            }
+            outln!("wrote {}", path.display());
+            Ok(())
+        }
+        CalibrateCommand::All { out, twin, backend } => {
+            check_dir("--out", out)?;
+            let mut s = setup(d, twin, backend)?;
+            let (_, _, made) = calibrations(&mut s, None)?;
+            let mut o = Outputs::new();
+            for (name, bytes) in made {
+                o.add(out.join(format!("{name}.json")), &bytes)?;
+            }
+            let files = o.commit()?;
+            if twin.format() == Format::Json {
+                let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
+                return print_json(serde_json::json!({ "approach": s.made.approach }), &f);
+            }
+            outln!("{}", crate::files::wrote(&files));
+            Ok(())
+        }
+    }
+}
+
+/// `calibrate jacobian`.
+fn calibrate_jacobian(
+    d: &Description,
+    pixels: Option<&Path>,
+    volts: f64,
+    repeats: u64,
+    out: &Path,
+    twin: &TwinArgs,
+    backend: &BackendArgs,
+) -> Result<()> {
+    if !(volts.is_finite() && volts > 0.0 && volts <= 30.0) {
+        return Err(InputError(format!(
+            "--volts must lie in (0, 30] V (the cameras follow ±30 µm of tip), got {volts}"
+        ))
+        .into());
+    }
+    let path = plan_json(out, pixels.map(|p| ("--pixels", p)))?;
+    let mut s = setup(d, twin, backend)?;
+    let px = given_pixels(pixels, &s)?;
+    let marker = s.description.rig.optics.marker;
+    let px = match px {
+        Some(c) => c,
+        None => {
+            calibrate::pixels(&mut s.rig, marker, calibration::PIXEL_STEP).map_err(bench_error)?
+        }
+    };
+    let c = {
+        let _p = crate::progress::spinner("stepping A1 and A2");
+        let mut bench = Bench::new(
+            &mut s.rig,
+            Acquisition::Marker,
+            marker,
+            px.maps,
+            None,
+            Timing::default(),
+        )
+        .map_err(bench_error)?;
+        calibrate::jacobian(
+            &mut bench,
+            &s.description.design,
+            s.description.rig.approach,
+            volts,
+            repeats as usize,
+        )
+        .map_err(bench_error)?
+    };
+    crate::files::write_one(&path, &file_bytes("jacobian", &s.made, &c)?)?;
+    if twin.format() == Format::Json {
+        return print_json(c, &[&path]);
+    }
+    let j = c.jacobian;
+    outln!(
+        "tip per stack extension (m/m): [[{:.4}, {:.4}], [{:.4}, {:.4}]]; model [[{:.4}, {:.4}], [{:.4}, {:.4}]]",
+        j[0][0],
+        j[0][1],
+        j[1][0],
+        j[1][1],
+        c.model[0][0],
+        c.model[0][1],
+        c.model[1][0],
+        c.model[1][1]
+    );
+    outln!(
+        "deviation from the model {:.2} %, spread over {} steps {:.2} %",
+        c.deviation * 100.0,
+        c.repeats,
+        c.spread * 100.0
+    );
+    outln!("wrote {}", path.display());
+    Ok(())
+}
+
+/// Checks a JSON output path (and that it is not the input) before the bench runs.
+fn plan_json(out: &Path, input: Option<(&str, &Path)>) -> Result<PathBuf> {
+    let mut plan = crate::files::Plan::new();
+    if let Some((arg, p)) = input {
+        plan.input(arg, p);
+    }
+    let p = plan.output("--out", out, &[crate::files::Kind::Json])?;
+    plan.check()?;
+    Ok(p)
+}
