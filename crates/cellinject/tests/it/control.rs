@@ -42,8 +42,23 @@ fn truth(t: &SharedTwin) -> Box<dyn FnMut() -> [f64; 3] + '_> {
     })
 }
 
-/// J3's yield check as the front end builds it (`fea::j3_yield_check`).
+/// J3's yield check as the front end builds it (`fea::j3_yield_check`), built once
+/// per approach and yield strength and shared by the tests (the joint FEM, without a
+/// cache here, takes seconds in a test build, and each twin and bench asks for it).
 fn j3_check(approach: Approach, yield_strength: f64) -> cellinject_rig::guard::YieldCheck {
+    use cellinject_rig::guard::YieldCheck;
+    type Built = Vec<((Approach, u64), YieldCheck)>;
+    static BUILT: std::sync::Mutex<Built> = std::sync::Mutex::new(Vec::new());
+    let key = (approach, yield_strength.to_bits());
+    if let Some((_, c)) = BUILT.lock().unwrap().iter().find(|(k, _)| *k == key) {
+        return *c;
+    }
+    let c = j3_check_built(approach, yield_strength);
+    BUILT.lock().unwrap().push((key, c));
+    c
+}
+
+fn j3_check_built(approach: Approach, yield_strength: f64) -> cellinject_rig::guard::YieldCheck {
     use cellinject_fea::{FeaModel, FeaOptions, NoCache, StructureParams};
     use cellinject_rig::guard::{StressPoint, YIELD_POINTS, YieldCheck};
     let params = StructureParams {
@@ -61,6 +76,23 @@ fn j3_check(approach: Approach, yield_strength: f64) -> cellinject_rig::guard::Y
             per_newton: a.per_newton,
         }),
     )
+}
+
+/// A fresh twin of `approach` as its calibrations leave it, with them: calibrated
+/// once per approach and copied for each test (the twin is deterministic, so a copy
+/// is the twin each test would have calibrated itself).
+fn calibrated_twin(approach: Approach) -> (SharedTwin, PixelCalibration, Calibrations) {
+    type Done = Vec<(Approach, Twin, PixelCalibration, Calibrations)>;
+    static DONE: std::sync::Mutex<Done> = std::sync::Mutex::new(Vec::new());
+    let copy = |t: &Twin| t.clone().into_shared();
+    if let Some((_, t, px, cal)) = DONE.lock().unwrap().iter().find(|x| x.0 == approach) {
+        return (copy(t), *px, cal.clone());
+    }
+    let tw = twin(approach);
+    let (px, cal) = calibrated(&tw, approach);
+    let t = tw.lock().unwrap().clone();
+    DONE.lock().unwrap().push((approach, t, px, cal.clone()));
+    (tw, px, cal)
 }
 
 /// The calibrations of a fresh twin, each checked by its own `problem()`.
@@ -156,8 +188,7 @@ fn run(
 }
 
 fn repeatability_on(approach: Approach) -> Vec<(Kind, RepeatabilityReport)> {
-    let tw = twin(approach);
-    let (px, cal) = calibrated(&tw, approach);
+    let (tw, px, cal) = calibrated_twin(approach);
     // The calibrations agree with the twin they were made on.
     for m in &px.maps {
         assert!(
@@ -237,8 +268,7 @@ fn approach_2_open_loop_stays_under_1_um_and_the_cascade_under_100_nm() {
 fn the_cascade_tracks_steps_and_a_circle_where_open_loop_misses_by_microns() {
     use cellinject_core::experiment::TrackingOptions;
     let approach = Approach::JointDeflection;
-    let tw = twin(approach);
-    let (px, cal) = calibrated(&tw, approach);
+    let (tw, px, cal) = calibrated_twin(approach);
     let rp = params(approach).rig;
     let mut rig = cellinject_twin::rig(&tw).unwrap();
     let stacks = experiment::stacks(&prototype(), &rp, &cal.hysteresis);
@@ -439,8 +469,7 @@ fn lost_frames_are_rejected_and_hold_the_command_instead_of_steering_it() {
     use std::sync::Arc;
     use std::sync::atomic::{AtomicU64, Ordering};
     let approach = Approach::JointDeflection;
-    let tw = twin(approach);
-    let (px, cal) = calibrated(&tw, approach);
+    let (tw, px, cal) = calibrated_twin(approach);
     let d = cellinject_twin::devices(&tw);
     let lost = Arc::new(AtomicU64::new(0));
     let lossy = |inner| Lossy {
