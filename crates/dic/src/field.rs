@@ -289,6 +289,162 @@ impl Tile {
     }
 }
 
+/// Per tile: (grid index, measurement) pairs and the tile's dropped points.
+type TileResult = (Vec<(usize, Option<PointResult>)>, Dropped);
+
+/// What every tile of a field shares: the images' splines and pyramids, the grid,
+/// the options, and the count of grid points done (for the progress callback).
+struct TileJob<'a> {
+    r: &'a crate::icgn::Reference,
+    s: &'a crate::bspline::BSpline,
+    pr: &'a [Image],
+    pc: &'a [Image],
+    /// Half the subset, pixels.
+    m: usize,
+    x0: usize,
+    y0: usize,
+    step: usize,
+    nx: usize,
+    ny: usize,
+    tile: usize,
+    opts: &'a FieldOptions,
+    icgn: &'a IcgnOptions,
+    corrections: &'a Corrections<'a>,
+    finished: std::sync::atomic::AtomicUsize,
+    progress: &'a (dyn Fn(usize, usize) + Sync),
+}
+
+impl TileJob<'_> {
+    /// Grid point (gx, gy) in pixels.
+    fn grid(&self, gx: usize, gy: usize) -> (usize, usize) {
+        (self.x0 + gx * self.step, self.y0 + gy * self.step)
+    }
+
+    /// One point measured from `init` ([`measure`]).
+    fn refine(
+        &self,
+        px: usize,
+        py: usize,
+        init: [f64; 6],
+        scratch: &mut Scratch,
+    ) -> Option<PointResult> {
+        let opts = self.opts;
+        measure(
+            self.r,
+            self.s,
+            px,
+            py,
+            opts.subset,
+            opts.adaptive_subset,
+            opts.shape,
+            init,
+            self.icgn,
+            &opts.acceptance,
+            self.corrections,
+            scratch,
+        )
+    }
+
+    /// Tile (tx, ty): seeded, then grown from neighbour to neighbour.
+    fn grow(&self, tx: usize, ty: usize) -> TileResult {
+        let (nx, ny, tile) = (self.nx, self.ny, self.tile);
+        let opts = self.opts;
+        let (gx0, gy0) = (tx * tile, ty * tile);
+        let (gx1, gy1) = ((gx0 + tile).min(nx), (gy0 + tile).min(ny));
+        let (tw, th) = (gx1 - gx0, gy1 - gy0);
+        let mut work = Tile::new(tw * th);
+        let mut scratch = Scratch::default();
+        let mut done = vec![false; tw * th];
+        // Seed: the tile centre, then spiralling candidates until one the rule
+        // accepts. A match rejected only for its σ hands its guess on to its
+        // neighbours, but as a seed it may be anywhere: on a featureless patch
+        // (sky) a wrong integer peak converges to a ZNCC of 0.999 with an infinite
+        // σ, and the whole tile follows it. Such a seed is used only when none of
+        // the candidates is accepted; the others are left for the propagation.
+        let order = seed_candidates(tw, th);
+        let mut fallback = None;
+        let mut seeded = false;
+        for &(i, j) in &order {
+            let (px, py) = self.grid(gx0 + i, gy0 + j);
+            let hit = search::search_pyramid(
+                self.pr,
+                self.pc,
+                px as i64,
+                py as i64,
+                self.m as i64,
+                opts.search_radius as i64,
+            );
+            let Some(hit) = hit else { continue };
+            let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
+            let k = j * tw + i;
+            match self.refine(px, py, init, &mut scratch) {
+                Some(p) if judge(&p, &opts.acceptance).is_ok() => {
+                    done[k] = true;
+                    work.keep(k, p, &opts.acceptance);
+                    seeded = true;
+                    break;
+                }
+                Some(p) if fallback.is_none() && propagates(judge(&p, &opts.acceptance)) => {
+                    fallback = Some((k, p));
+                }
+                _ => {}
+            }
+        }
+        if !seeded && let Some((k, p)) = fallback {
+            done[k] = true;
+            work.keep(k, p, &opts.acceptance);
+        }
+        while let Some(Candidate { index, .. }) = work.heap.pop() {
+            let Some(parent) = work.guess[index] else {
+                continue;
+            };
+            let (i, j) = (index % tw, index / tw);
+            let neighbours = [
+                (i as i64 - 1, j as i64),
+                (i as i64 + 1, j as i64),
+                (i as i64, j as i64 - 1),
+                (i as i64, j as i64 + 1),
+            ];
+            for (ni, nj) in neighbours {
+                if ni < 0 || nj < 0 || ni >= tw as i64 || nj >= th as i64 {
+                    continue;
+                }
+                let k = nj as usize * tw + ni as usize;
+                if done[k] {
+                    continue;
+                }
+                done[k] = true;
+                let (px, py) = self.grid(gx0 + ni as usize, gy0 + nj as usize);
+                let (dx, dy) = (px as f64 - parent.x, py as f64 - parent.y);
+                let [ux, uy, vx, vy] = parent.gradients;
+                let init = [
+                    parent.u + ux * dx + uy * dy,
+                    ux,
+                    uy,
+                    parent.v + vx * dx + vy * dy,
+                    vx,
+                    vy,
+                ];
+                if let Some(p) = self.refine(px, py, init, &mut scratch) {
+                    work.keep(k, p, &opts.acceptance);
+                }
+            }
+        }
+        let total = self
+            .finished
+            .fetch_add(tw * th, std::sync::atomic::Ordering::Relaxed)
+            + tw * th;
+        (self.progress)(total, nx * ny);
+        let points = (0..tw * th)
+            .map(|k| {
+                let (i, j) = (k % tw, k / tw);
+                ((gy0 + j) * nx + gx0 + i, work.out[k])
+            })
+            .collect();
+        (points, work.dropped)
+    }
+}
+
 /// Computes the displacement field between two images.
 pub fn field(reference: &Image, current: &Image, opts: &FieldOptions) -> Result<Field, DicError> {
     field_with_progress(reference, current, opts, &|_, _| {})
@@ -361,125 +517,28 @@ pub fn field_with_progress(
         ..opts.icgn
     };
     let corrections = Corrections::new(&r, opts.spline, icgn_opts.quantisation_step);
-    let refine = |px: usize, py: usize, init: [f64; 6], scratch: &mut Scratch| {
-        measure(
-            &r,
-            &s,
-            px,
-            py,
-            opts.subset,
-            opts.adaptive_subset,
-            opts.shape,
-            init,
-            &icgn_opts,
-            &opts.acceptance,
-            &corrections,
-            scratch,
-        )
+    let job = TileJob {
+        r: &r,
+        s: &s,
+        pr: &pr,
+        pc: &pc,
+        m,
+        x0,
+        y0,
+        step,
+        nx,
+        ny,
+        tile: opts.tile.max(4),
+        opts,
+        icgn: &icgn_opts,
+        corrections: &corrections,
+        finished: std::sync::atomic::AtomicUsize::new(0),
+        progress,
     };
-    let tile = opts.tile.max(4);
-    let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(tile))
-        .flat_map(|ty| (0..nx.div_ceil(tile)).map(move |tx| (tx, ty)))
+    let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(job.tile))
+        .flat_map(|ty| (0..nx.div_ceil(job.tile)).map(move |tx| (tx, ty)))
         .collect();
-    let grid = |gx: usize, gy: usize| (x0 + gx * step, y0 + gy * step);
-    let finished = std::sync::atomic::AtomicUsize::new(0);
-    // Per tile: (grid index, measurement) pairs and the tile's dropped points.
-    type TileResult = (Vec<(usize, Option<PointResult>)>, Dropped);
-    let results: Vec<TileResult> = tiles
-        .par_iter()
-        .map(|&(tx, ty)| {
-            let (gx0, gy0) = (tx * tile, ty * tile);
-            let (gx1, gy1) = ((gx0 + tile).min(nx), (gy0 + tile).min(ny));
-            let (tw, th) = (gx1 - gx0, gy1 - gy0);
-            let mut work = Tile::new(tw * th);
-            let mut scratch = Scratch::default();
-            let mut done = vec![false; tw * th];
-            // Seed: the tile centre, then spiralling candidates until one the rule
-            // accepts. A match rejected only for its σ hands its guess on to its
-            // neighbours, but as a seed it may be anywhere: on a featureless patch
-            // (sky) a wrong integer peak converges to a ZNCC of 0.999 with an infinite
-            // σ, and the whole tile follows it. Such a seed is used only when none of
-            // the candidates is accepted; the others are left for the propagation.
-            let order = seed_candidates(tw, th);
-            let mut fallback = None;
-            let mut seeded = false;
-            for &(i, j) in &order {
-                let (px, py) = grid(gx0 + i, gy0 + j);
-                let hit = search::search_pyramid(
-                    &pr,
-                    &pc,
-                    px as i64,
-                    py as i64,
-                    m as i64,
-                    opts.search_radius as i64,
-                );
-                let Some(hit) = hit else { continue };
-                let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
-                let k = j * tw + i;
-                match refine(px, py, init, &mut scratch) {
-                    Some(p) if judge(&p, &opts.acceptance).is_ok() => {
-                        done[k] = true;
-                        work.keep(k, p, &opts.acceptance);
-                        seeded = true;
-                        break;
-                    }
-                    Some(p) if fallback.is_none() && propagates(judge(&p, &opts.acceptance)) => {
-                        fallback = Some((k, p));
-                    }
-                    _ => {}
-                }
-            }
-            if !seeded && let Some((k, p)) = fallback {
-                done[k] = true;
-                work.keep(k, p, &opts.acceptance);
-            }
-            while let Some(Candidate { index, .. }) = work.heap.pop() {
-                let Some(parent) = work.guess[index] else {
-                    continue;
-                };
-                let (i, j) = (index % tw, index / tw);
-                let neighbours = [
-                    (i as i64 - 1, j as i64),
-                    (i as i64 + 1, j as i64),
-                    (i as i64, j as i64 - 1),
-                    (i as i64, j as i64 + 1),
-                ];
-                for (ni, nj) in neighbours {
-                    if ni < 0 || nj < 0 || ni >= tw as i64 || nj >= th as i64 {
-                        continue;
-                    }
-                    let k = nj as usize * tw + ni as usize;
-                    if done[k] {
-                        continue;
-                    }
-                    done[k] = true;
-                    let (px, py) = grid(gx0 + ni as usize, gy0 + nj as usize);
-                    let (dx, dy) = (px as f64 - parent.x, py as f64 - parent.y);
-                    let [ux, uy, vx, vy] = parent.gradients;
-                    let init = [
-                        parent.u + ux * dx + uy * dy,
-                        ux,
-                        uy,
-                        parent.v + vx * dx + vy * dy,
-                        vx,
-                        vy,
-                    ];
-                    if let Some(p) = refine(px, py, init, &mut scratch) {
-                        work.keep(k, p, &opts.acceptance);
-                    }
-                }
-            }
-            let total = finished.fetch_add(tw * th, std::sync::atomic::Ordering::Relaxed) + tw * th;
-            progress(total, nx * ny);
-            let points = (0..tw * th)
-                .map(|k| {
-                    let (i, j) = (k % tw, k / tw);
-                    ((gy0 + j) * nx + gx0 + i, work.out[k])
-                })
-                .collect();
-            (points, work.dropped)
-        })
-        .collect();
+    let results: Vec<TileResult> = tiles.par_iter().map(|&(tx, ty)| job.grow(tx, ty)).collect();
     let mut points = vec![None; nx * ny];
     let mut dropped = Dropped::default();
     for (tile, d) in results {

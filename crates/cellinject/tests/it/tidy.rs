@@ -29,7 +29,6 @@ const LONG_FNS: &[(&str, &str, usize)] = &[
     ("crates/config/src/twin.rs", "bench", 251),
     ("crates/design/src/evaluate.rs", "evaluate", 215),
     ("crates/fem/src/hinge2d.rs", "solve", 214),
-    ("crates/dic/src/field.rs", "field_with_progress", 208),
     ("crates/cellinject/src/dic.rs", "run_field", 167),
     ("crates/cells/src/tip.rs", "locate_tapered", 164),
     ("crates/plate/src/fields.rs", "plan_near", 163),
