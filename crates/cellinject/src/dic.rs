@@ -437,36 +437,8 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
     let elapsed = t0.elapsed().as_secs_f64();
     drop(bar);
     let f = &report.field;
-    let mut csv = String::from(
-        "x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v,subset\n",
-    );
+    let csv = field_csv(&report);
     let found = report.found;
-    for (k, p) in f.points.iter().enumerate() {
-        let (x, y) = report.position(k);
-        match p {
-            Some(p) => {
-                let _ = writeln!(
-                    csv,
-                    "{x},{y},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{:.6},{},{},{:.6},{:.6},{}",
-                    p.u,
-                    p.v,
-                    p.gradients[0],
-                    p.gradients[1],
-                    p.gradients[2],
-                    p.gradients[3],
-                    p.zncc,
-                    p.iterations,
-                    p.converged,
-                    p.sigma_u,
-                    p.sigma_v,
-                    p.subset
-                );
-            }
-            None => {
-                let _ = writeln!(csv, "{x},{y},,,,,,,,0,false,,,");
-            }
-        }
-    }
     let dropped = report.dropped;
     let (Some(ru), Some(rv)) = (report.u_range, report.v_range) else {
         anyhow::bail!(
@@ -475,30 +447,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
             dropped.total()
         );
     };
-    // Displacement maps: u and v side by side, each on its own colour scale.
-    let (scale, unit) = match um_per_px {
-        Some(s) => (s, "µm"),
-        None => (1.0, "px"),
-    };
-    let map = |name: &str, sel: fn(&cellinject_dic::PointResult) -> f64| GridMap {
-        title: format!(
-            "{name}: displacement along {}",
-            if name == "u" { "x" } else { "y" }
-        ),
-        x_label: format!("x [{unit}]"),
-        y_label: format!("y [{unit}]"),
-        value_label: format!("{name} [{unit}]"),
-        x: (f.x0 as f64 * scale, f.step as f64 * scale),
-        y: (f.y0 as f64 * scale, f.step as f64 * scale),
-        nx: f.nx,
-        ny: f.ny,
-        values: f
-            .points
-            .iter()
-            .map(|p| p.as_ref().map(|p| sel(p) * scale))
-            .collect(),
-    };
-    let maps = [map("u", |p| p.u), map("v", |p| p.v)];
+    let maps = field_maps(f, um_per_px);
     // Panels as wide as the image's aspect allows, at least 480 px tall.
     let aspect = f.nx as f64 / f.ny.max(1) as f64;
     let height = 520u32;
@@ -543,6 +492,68 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         svg_path.display()
     );
     Ok(())
+}
+
+/// The displacement maps, u and v side by side, each on its own colour scale (µm
+/// when the pixel size is given, else px).
+fn field_maps(f: &cellinject_dic::field::Field, um_per_px: Option<f64>) -> [GridMap; 2] {
+    let (scale, unit) = match um_per_px {
+        Some(s) => (s, "µm"),
+        None => (1.0, "px"),
+    };
+    let map = |name: &str, sel: fn(&cellinject_dic::PointResult) -> f64| GridMap {
+        title: format!(
+            "{name}: displacement along {}",
+            if name == "u" { "x" } else { "y" }
+        ),
+        x_label: format!("x [{unit}]"),
+        y_label: format!("y [{unit}]"),
+        value_label: format!("{name} [{unit}]"),
+        x: (f.x0 as f64 * scale, f.step as f64 * scale),
+        y: (f.y0 as f64 * scale, f.step as f64 * scale),
+        nx: f.nx,
+        ny: f.ny,
+        values: f
+            .points
+            .iter()
+            .map(|p| p.as_ref().map(|p| sel(p) * scale))
+            .collect(),
+    };
+    [map("u", |p| p.u), map("v", |p| p.v)]
+}
+
+/// The field's CSV: one row a grid point, empty where none was kept.
+fn field_csv(report: &cellinject_core::dic::FieldReport) -> String {
+    let mut csv = String::from(
+        "x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v,subset\n",
+    );
+    for (k, p) in report.field.points.iter().enumerate() {
+        let (x, y) = report.position(k);
+        match p {
+            Some(p) => {
+                let _ = writeln!(
+                    csv,
+                    "{x},{y},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{:.6},{},{},{:.6},{:.6},{}",
+                    p.u,
+                    p.v,
+                    p.gradients[0],
+                    p.gradients[1],
+                    p.gradients[2],
+                    p.gradients[3],
+                    p.zncc,
+                    p.iterations,
+                    p.converged,
+                    p.sigma_u,
+                    p.sigma_v,
+                    p.subset
+                );
+            }
+            None => {
+                let _ = writeln!(csv, "{x},{y},,,,,,,,0,false,,,");
+            }
+        }
+    }
+    csv
 }
 
 /// Files of a directory (PNG/TIFF, sorted) or of a `dir/pattern` with `*` and `?`.

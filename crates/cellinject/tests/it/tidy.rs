@@ -28,7 +28,6 @@ const LONG_FNS: &[(&str, &str, usize)] = &[
     ("crates/fem/src/joint3d.rs", "solve", 337),
     ("crates/design/src/evaluate.rs", "evaluate", 215),
     ("crates/fem/src/hinge2d.rs", "solve", 214),
-    ("crates/cellinject/src/dic.rs", "run_field", 167),
     ("crates/cells/src/tip.rs", "locate_tapered", 164),
     ("crates/plate/src/fields.rs", "plan_near", 163),
     ("crates/dic/src/icgn.rs", "prepare", 151),
