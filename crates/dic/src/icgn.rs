@@ -586,6 +586,27 @@ fn padded_scores(buf: &mut Vec<f64>, nw: usize, nh: usize) -> usize {
     stride
 }
 
+/// The information matrix: `h` bordered by Σ J, Σ J·(f − f̄), n, 0 and Σ(f − f̄)².
+fn augment<const M: usize, const N: usize>(
+    h: &SMatrix<f64, M, M>,
+    s1: [f64; M],
+    sf: [f64; M],
+    n: f64,
+    ff: f64,
+) -> SMatrix<f64, N, N> {
+    let mut a = SMatrix::<f64, N, N>::zeros();
+    a.fixed_view_mut::<M, M>(0, 0).copy_from(h);
+    for i in 0..M {
+        a[(i, M)] = s1[i];
+        a[(M, i)] = s1[i];
+        a[(i, M + 1)] = sf[i];
+        a[(M + 1, i)] = sf[i];
+    }
+    a[(M, M)] = n;
+    a[(M + 1, M + 1)] = ff;
+    a
+}
+
 /// Prepares the subset centred at integer (x, y) of the reference; `None` when it does
 /// not fit in the reference or has no texture.
 #[inline(always)]
@@ -695,27 +716,6 @@ pub fn prepare(
             h2[(1, 0)] = mom[1][0];
             h2[(1, 1)] = mom[2][0];
         }
-    }
-    // The shape block, then the nuisance rows and columns: Σ J, Σ J·(f − f̄), n, 0 (the
-    // mean of f − f̄) and Σ(f − f̄)².
-    fn augment<const M: usize, const N: usize>(
-        h: &SMatrix<f64, M, M>,
-        s1: [f64; M],
-        sf: [f64; M],
-        n: f64,
-        ff: f64,
-    ) -> SMatrix<f64, N, N> {
-        let mut a = SMatrix::<f64, N, N>::zeros();
-        a.fixed_view_mut::<M, M>(0, 0).copy_from(h);
-        for i in 0..M {
-            a[(i, M)] = s1[i];
-            a[(M, i)] = s1[i];
-            a[(i, M + 1)] = sf[i];
-            a[(M + 1, i)] = sf[i];
-        }
-        a[(M, M)] = n;
-        a[(M + 1, M + 1)] = ff;
-        a
     }
     let info = match shape {
         Shape::Affine => Information::Affine(augment::<6, 8>(&h6, s1, sf, n as f64, ff)),

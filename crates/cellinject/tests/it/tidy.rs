@@ -30,7 +30,6 @@ const LONG_FNS: &[(&str, &str, usize)] = &[
     ("crates/fem/src/hinge2d.rs", "solve", 214),
     ("crates/cells/src/tip.rs", "locate_tapered", 164),
     ("crates/plate/src/fields.rs", "plan_near", 163),
-    ("crates/dic/src/icgn.rs", "prepare", 151),
 ];
 
 fn root() -> PathBuf {
