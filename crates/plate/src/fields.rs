@@ -198,17 +198,9 @@ pub fn plan(
     plan_near(plate, window, overlap, travel, None)
 }
 
-/// [`plan`], with the feeder now at `at`: along an axis where one field holds the whole
-/// plate, the feeder stays where it is when the plate is then in the window (no
-/// needless move; a plate put under the objective by hand is served where it lies),
-/// else the plate is centred as [`plan`] does.
-pub fn plan_near(
-    plate: &Plate,
-    window: Window,
-    overlap: f64,
-    travel: Travel,
-    at: Option<[f64; 2]>,
-) -> Result<FieldPlan, PlanError> {
+/// [`plan_near`]'s inputs: an overlap of at least [`MIN_OVERLAP`], a finite window
+/// and a finite feeder travel with lo <= hi.
+fn check_plan_inputs(window: Window, overlap: f64, travel: Travel) -> Result<(), PlanError> {
     if !(overlap.is_finite() && overlap >= MIN_OVERLAP) {
         return Err(PlanError::Invalid {
             what: "overlap",
@@ -234,6 +226,21 @@ pub fn plan_near(
             });
         }
     }
+    Ok(())
+}
+
+/// [`plan`], with the feeder now at `at`: along an axis where one field holds the whole
+/// plate, the feeder stays where it is when the plate is then in the window (no
+/// needless move; a plate put under the objective by hand is served where it lies),
+/// else the plate is centred as [`plan`] does.
+pub fn plan_near(
+    plate: &Plate,
+    window: Window,
+    overlap: f64,
+    travel: Travel,
+    at: Option<[f64; 2]>,
+) -> Result<FieldPlan, PlanError> {
+    check_plan_inputs(window, overlap, travel)?;
     let half = 0.5 * plate.pitch;
     // The plate's outer walls.
     let lo = [plate.origin[0] - half, plate.origin[1] - half];

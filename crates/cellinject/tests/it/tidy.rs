@@ -29,7 +29,6 @@ const LONG_FNS: &[(&str, &str, usize)] = &[
     ("crates/design/src/evaluate.rs", "evaluate", 215),
     ("crates/fem/src/hinge2d.rs", "solve", 214),
     ("crates/cells/src/tip.rs", "locate_tapered", 164),
-    ("crates/plate/src/fields.rs", "plan_near", 163),
 ];
 
 fn root() -> PathBuf {
