@@ -223,7 +223,11 @@ impl PyBench {
 pub(crate) fn run_failure(e: RunFailure) -> PyErr {
     match e {
         RunFailure::Records(e) => crate::runs::records_error(e),
-        RunFailure::Bench(e) => session_err(e),
+        // Only a twin built for the run can fail here: its J3 check.
+        RunFailure::Bench(e) if !e.is_refusal() => {
+            err(Kind::NotConverged, format!("the twin: {e}"))
+        }
+        RunFailure::Bench(e) => input(e.to_string()),
         RunFailure::Input(e) => input(format!("plate: {e}")),
         e => input(e.to_string()),
     }

@@ -282,7 +282,7 @@ fn twin_run(
     db: PathBuf,
     config: Option<PathBuf>,
 ) -> PyResult<Py<PyAny>> {
-    use cellinject_session::run::{self as session_run, Begin, Ended, RunFailure};
+    use cellinject_session::run::{self as session_run, Begin, Ended};
     let d = description(config.as_deref())?;
     let options = cellinject_core::inject::Options::default();
     options.check(&d.rig).map_err(|e| input(e.to_string()))?;
@@ -315,14 +315,8 @@ fn twin_run(
             session_run::Hooks::default(),
         )
     });
-    let summary = match ended {
-        Ok(Ended::Ran { summary, .. } | Ended::AlreadyFinished { summary, .. }) => summary,
-        Err(RunFailure::Records(e)) => return Err(crate::runs::records_error(e)),
-        Err(RunFailure::Bench(e)) if !e.is_refusal() => {
-            return Err(err(Kind::NotConverged, format!("the twin: {e}")));
-        }
-        Err(RunFailure::Input(e)) => return Err(input(format!("plate: {e}"))),
-        Err(e) => return Err(input(e.to_string())),
+    let summary = match ended.map_err(crate::rig::run_failure)? {
+        Ended::Ran { summary, .. } | Ended::AlreadyFinished { summary, .. } => summary,
     };
     crate::to_py(py, &summary)
 }

@@ -211,7 +211,9 @@ impl From<RunError> for RunFailure {
 /// The record [`run`] works on, once created or checked.
 struct Record {
     run_id: i64,
-    plate_text: String,
+    /// The plate: the caller's for a new run, the recorded one, parsed and checked,
+    /// for a resume.
+    plate: Plate,
     seed: u64,
     previous: Vec<cellinject_records::AttemptRow>,
     base: (f64, f64),
@@ -270,9 +272,12 @@ fn resume(
         f(r.id, dropped, interrupted);
     }
     let previous = db.attempts(r.id)?;
+    let recorded = |e: &dyn std::fmt::Display| RunFailure::RecordedPlate(e.to_string());
+    let plate = cellinject_config::plate::parse(&r.plate).map_err(|e| recorded(&e))?;
+    plate.check().map_err(|e| recorded(&e))?;
     Ok(Ok(Record {
         run_id: r.id,
-        plate_text: r.plate.clone(),
+        plate,
         seed: r.seed.unwrap_or(d.sim.seed),
         previous,
         base: (r.sim_time_s, r.cell_time_s),
@@ -338,7 +343,7 @@ pub fn run<'a>(req: Request<'a>, bench: Bench<'_>, hooks: Hooks<'a>) -> Result<E
             Err((run_id, summary)) => return Ok(Ended::AlreadyFinished { run_id, summary }),
         },
         Begin::New {
-            plate: _,
+            plate,
             text,
             seed,
             faults,
@@ -348,7 +353,7 @@ pub fn run<'a>(req: Request<'a>, bench: Bench<'_>, hooks: Hooks<'a>) -> Result<E
             let run_id = cellinject_run_sim::new_run(&mut db, &text, twin_seed, &name, &settings)?;
             Record {
                 run_id,
-                plate_text: text,
+                plate,
                 seed,
                 previous: Vec::new(),
                 base: (0.0, 0.0),
@@ -357,13 +362,7 @@ pub fn run<'a>(req: Request<'a>, bench: Bench<'_>, hooks: Hooks<'a>) -> Result<E
             }
         }
     };
-    let plate = cellinject_config::plate::parse(&record.plate_text)
-        .map_err(|e| RunFailure::RecordedPlate(e.to_string()))
-        .and_then(|p| {
-            p.check()
-                .map_err(|e| RunFailure::RecordedPlate(e.to_string()))
-                .map(|_| p)
-        })?;
+    let plate = record.plate.clone();
     let mut built;
     let opened: &mut Opened = match bench {
         Bench::Opened(o) => o,
