@@ -11,7 +11,7 @@
 //!   by the discrete Preisach model; then a held step gives its creep per decade.
 
 use cellinject_dic::calib::Calibration;
-use cellinject_hw::{Camera, Clock, PiezoChannel, PositionSensor};
+use cellinject_hw::{Camera, Clock, Pacer, PiezoChannel, PositionSensor};
 use cellinject_hysteresis::{AnyModel, LogCreep, Model, Range, excitation};
 use cellinject_model::{ACTUATOR_NAMES, Approach, Design, Mechanism};
 use cellinject_rig::{Backend, Rig};
@@ -615,9 +615,11 @@ pub fn hysteresis<B: Backend>(
         let zero = (0..20).map(|_| read(rig)).sum::<Result<f64, _>>()? / 20.0;
         let volts = excitation(range, samples);
         let mut disp = Vec::with_capacity(samples);
+        // Samples dt apart, the link's round trips included (see `Pacer`).
+        let mut pace = Pacer::start(&rig.clock, dt);
         for v in &volts {
             rig.piezo[ch].set_voltage(*v).map_err(dev("excitation"))?;
-            rig.clock.sleep(dt).map_err(dev("clock"))?;
+            pace.wait(&mut rig.clock).map_err(dev("clock"))?;
             disp.push(read(rig)? - zero);
         }
         let fit = crate::hysteresis::fit(

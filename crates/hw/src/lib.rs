@@ -194,6 +194,37 @@ pub trait Clock: Send {
     fn sleep(&mut self, seconds: f64) -> Result<(), HwError>;
 }
 
+/// Paces a sampled program at a fixed interval on a [`Clock`]: each [`Pacer::wait`]
+/// lets what is left of `dt` pass since the previous one ended, counting the time the
+/// caller's own device calls took in between. Over a link (a controller on TCP, two
+/// round trips a sample) the samples then stay `dt` apart where the link allows,
+/// instead of `dt` plus the round trips; on a clock that moves only when slept (the
+/// twin) every wait sleeps exactly `dt`, so a twin's run is unchanged.
+#[derive(Debug, Clone, Copy)]
+pub struct Pacer {
+    dt: f64,
+    mark: f64,
+}
+
+impl Pacer {
+    /// A pacer of interval `dt` (s), counting from `clock`'s now.
+    pub fn start<C: Clock + ?Sized>(clock: &C, dt: f64) -> Self {
+        Pacer {
+            dt,
+            mark: clock.now(),
+        }
+    }
+
+    /// Sleeps `dt` less the time spent since the previous wait ended (nothing when the
+    /// calls took longer than `dt`).
+    pub fn wait<C: Clock + ?Sized>(&mut self, clock: &mut C) -> Result<(), HwError> {
+        let spent = clock.now() - self.mark;
+        clock.sleep((self.dt - spent).max(0.0))?;
+        self.mark = clock.now();
+        Ok(())
+    }
+}
+
 /// One channel of a piezo amplifier driving one stack.
 ///
 /// Contract: `set_voltage` returns once the command is accepted (not once the stack has
@@ -439,5 +470,63 @@ impl<T: Optics + ?Sized> Optics for Box<T> {
     }
     fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
         (**self).set_zoom(zoom)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A clock that moves when slept and, with `call`, by a device call's round trip.
+    struct Link {
+        t: f64,
+        slept: Vec<f64>,
+    }
+
+    impl Clock for Link {
+        fn now(&self) -> f64 {
+            self.t
+        }
+        fn sleep(&mut self, seconds: f64) -> Result<(), HwError> {
+            check_range("sleep", seconds, 0.0, 1.0e6)?;
+            self.slept.push(seconds);
+            self.t += seconds;
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_pacer_counts_the_calls_time_and_sleeps_exactly_dt_on_a_simulated_clock() {
+        let dt = 1e-3;
+        // Calls that take no time (the twin): every wait is exactly dt, bit for bit.
+        let mut c = Link {
+            t: 12.345,
+            slept: Vec::new(),
+        };
+        let mut p = Pacer::start(&c, dt);
+        for _ in 0..5 {
+            p.wait(&mut c).unwrap();
+        }
+        assert!(c.slept.iter().all(|&s| s == dt), "{:?}", c.slept);
+        // Calls of 0.4 ms between waits: samples stay dt apart (not dt + 0.4 ms).
+        let mut c = Link {
+            t: 0.0,
+            slept: Vec::new(),
+        };
+        let mut p = Pacer::start(&c, dt);
+        let mut marks = Vec::new();
+        for _ in 0..5 {
+            c.t += 4e-4;
+            p.wait(&mut c).unwrap();
+            marks.push(c.t);
+        }
+        for w in marks.windows(2) {
+            assert!((w[1] - w[0] - dt).abs() < 1e-12, "{marks:?}");
+        }
+        // Calls slower than dt: no sleep at all, never a negative one.
+        c.slept.clear();
+        c.t += 5e-3;
+        p.wait(&mut c).unwrap();
+        assert_eq!(c.slept, vec![0.0]);
     }
 }

@@ -3,7 +3,7 @@
 //! identification. The caller says how to measure (the twin's truth, a strain-gauge
 //! sensor, a camera) through a closure.
 
-use cellinject_hw::{Clock, HwError, PiezoChannel};
+use cellinject_hw::{Clock, HwError, Pacer, PiezoChannel};
 use thiserror::Error;
 
 /// Why a program stopped.
@@ -115,6 +115,8 @@ pub fn hysteresis_loop<P: PiezoChannel + ?Sized, C: Clock + ?Sized>(
     plan.check()?;
     let mut out = Vec::new();
     let mut v = 0.0;
+    // Samples `dt` apart, the device calls' own time included (see `Pacer`).
+    let mut pace = Pacer::start(clock, plan.dt);
     for &target in &plan.turning {
         let target = target * plan.amplitude;
         let n = ((target - v).abs() / (plan.ramp * plan.dt)).ceil().max(1.0) as usize;
@@ -122,7 +124,7 @@ pub fn hysteresis_loop<P: PiezoChannel + ?Sized, C: Clock + ?Sized>(
         for k in 1..=n {
             v = from + (target - from) * k as f64 / n as f64;
             piezo.set_voltage(v).map_err(device(channel, v))?;
-            clock.sleep(plan.dt).map_err(device(channel, v))?;
+            pace.wait(clock).map_err(device(channel, v))?;
             let voltage = piezo.read_voltage().map_err(device(channel, v))?;
             out.push(LoopSample {
                 time: clock.now(),
