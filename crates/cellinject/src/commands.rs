@@ -9,8 +9,8 @@ use cellinject_core::reproduce::ReproduceReport;
 use cellinject_core::tension::{TILT_ACTUATORS, TensionReport, approach_title};
 use cellinject_model::Approach;
 
-use crate::output::{Table, display_unit, number, vector};
 use crate::{Format, InputError};
+use cellinject_print::table::{Table, display_unit, number, vector};
 
 /// Reads and validates the description file, or returns the embedded prototype.
 pub fn load_description(path: Option<&Path>) -> Result<Description> {

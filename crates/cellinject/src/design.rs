@@ -13,8 +13,8 @@ use cellinject_model::Approach;
 use clap::{Args, Subcommand, ValueEnum};
 
 use crate::files::{Kind, Plan, Staged, encode_rgb};
-use crate::output::Table;
 use crate::{Format, InputError};
+use cellinject_print::design as print;
 
 /// `design` subcommands.
 #[derive(Debug, Subcommand)]
@@ -206,70 +206,9 @@ fn evaluate_cmd(config: Option<&Path>, a: &EvaluateArgs) -> Result<()> {
     drop(_p);
     match a.format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&f)?),
-        Format::Text => print_figures(&desc.name, &f),
+        Format::Text => outln!("{}", print::figures_text(&desc.name, &f)),
     }
     Ok(())
-}
-
-fn print_figures(name: &str, f: &Figures) {
-    outln!(
-        "{name}: approach {}, {} fidelity{}",
-        f.approach,
-        f.fidelity.name(),
-        f.level
-            .map(|l| format!(" (FEM level {l})"))
-            .unwrap_or_default()
-    );
-    let mut t = Table::new(&["figure", "x", "y"], &[false, true, true]);
-    t.row(vec![
-        "working range [µm]".into(),
-        format!("{:.2}", f.range_m.x * 1e6),
-        format!("{:.2}", f.range_m.y * 1e6),
-    ]);
-    t.row(vec![
-        "stiffness at the end-effector [N/µm]".into(),
-        format!("{:.4}", f.stiffness_n_per_m.x * 1e-6),
-        format!("{:.4}", f.stiffness_n_per_m.y * 1e-6),
-    ]);
-    let m = &f.stack_margins;
-    t.row(vec![
-        "A1 | A2 push-capacity margin [N]".into(),
-        format!("{:.1}", m.push_capacity_n[0]),
-        format!("{:.1}", m.push_capacity_n[1]),
-    ]);
-    t.row(vec![
-        "A1 | A2 compression margin [N]".into(),
-        format!("{:.2}", m.compression_n[0]),
-        format!("{:.2}", m.compression_n[1]),
-    ]);
-    t.row(vec![
-        "A1 | A2 travel margin [µm]".into(),
-        format!("{:.2}", m.travel_m[0] * 1e6),
-        format!("{:.2}", m.travel_m[1] * 1e6),
-    ]);
-    t.row(vec![
-        "J1 | J2 torque margin [mN·m]".into(),
-        format!("{:.1}", m.torque_nm[0] * 1e3),
-        format!("{:.1}", m.torque_nm[1] * 1e3),
-    ]);
-    outln!("{}", t.text());
-    let s = &f.safety_factors;
-    outln!(
-        "first modes {:.1} and {:.1} Hz; yield safety factors J1 {:.2}, J2 {:.2}, J3 {:.2} (smallest {:.2}); cross-axis coupling {:.3} µm; body 1 {:.1} g",
-        f.modes_hz[0],
-        f.modes_hz[1],
-        s.j1,
-        s.j2,
-        s.j3,
-        f.min_safety_factor,
-        f.coupling_m * 1e6,
-        f.body_mass_kg * 1e3
-    );
-    if f.feasible {
-        outln!("feasible: every margin of the safety envelope holds");
-    } else {
-        outln!("NOT feasible: {}", f.violations.join(", "));
-    }
 }
 
 fn evaluate_batch(
@@ -491,8 +430,6 @@ fn optimise(config: Option<&Path>, a: &OptimiseArgs) -> Result<()> {
         &files,
         &study,
         &front,
-        &points,
-        &records,
         base_figures.as_ref(),
         &base_desc.name,
     )?;
@@ -507,7 +444,10 @@ fn optimise(config: Option<&Path>, a: &OptimiseArgs) -> Result<()> {
     });
     match a.format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&summary)?),
-        Format::Text => print_front(&study, &front, base_figures.as_ref(), &base_desc.name),
+        Format::Text => outln!(
+            "{}",
+            print::front_text(&study, &front, base_figures.as_ref(), &base_desc.name)
+        ),
     }
     eprintln!(
         "wrote {}, {}, {}, {} and {} designs in {}",
@@ -544,209 +484,26 @@ fn evaluate_all(
         .collect()
 }
 
-fn print_front(study: &Study, front: &[FrontEntry], base: Option<&Figures>, name: &str) {
-    outln!(
-        "front of {} designs after {} generations ({} evaluations, {} fidelity)",
-        front.len(),
-        study.search.generation,
-        study.search.evaluations,
-        study.fidelity.name()
-    );
-    let mut head: Vec<String> = study
-        .space
-        .variables
-        .iter()
-        .map(|v| v.key.clone())
-        .collect();
-    head.extend(
-        study
-            .space
-            .objectives
-            .iter()
-            .map(|o| format!("{} ({})", o.figure, if o.maximise { "max" } else { "min" })),
-    );
-    head.extend(
-        study
-            .space
-            .constraints
-            .iter()
-            .map(|c| format!("{} >= {}", c.figure, c.min)),
-    );
-    let refs: Vec<&str> = head.iter().map(String::as_str).collect();
-    let right: Vec<bool> = refs.iter().map(|_| true).collect();
-    let mut t = Table::new(&refs, &right);
-    for e in front {
-        let mut row: Vec<String> = study
-            .space
-            .variables
-            .iter()
-            .map(|v| {
-                e.variables
-                    .get(&v.key)
-                    .map(|x| format!("{x}"))
-                    .unwrap_or_default()
-            })
-            .collect();
-        for o in &study.space.objectives {
-            row.push(format!(
-                "{:.6e}",
-                e.figures.get(&o.figure).unwrap_or(f64::NAN)
-            ));
-        }
-        for c in &study.space.constraints {
-            row.push(format!(
-                "{:.4}",
-                e.figures.get(&c.figure).unwrap_or(f64::NAN)
-            ));
-        }
-        t.row(row);
-    }
-    outln!("{}", t.text());
-    if let Some(b) = base {
-        let figs: Vec<String> = study
-            .space
-            .objectives
-            .iter()
-            .map(|o| format!("{} {:.6e}", o.figure, b.get(&o.figure).unwrap_or(f64::NAN)))
-            .collect();
-        outln!(
-            "{name} itself: {} ({})",
-            figs.join(", "),
-            if b.feasible {
-                "feasible"
-            } else {
-                "not feasible"
-            }
-        );
-    }
-}
-
-fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
-}
-
 fn write_front(
     files: &StudyFiles,
     study: &Study,
     front: &[FrontEntry],
-    points: &[Vec<f64>],
-    records: &[Record],
     base: Option<&Figures>,
     name: &str,
 ) -> Result<()> {
-    let _ = records;
     let mut staged = Staged::new();
     staged.add(
         &files.front_json,
         serde_json::to_string_pretty(front)?.as_bytes(),
     )?;
-    // CSV: the variables, then every figure of FIGURES.
-    let mut csv = String::new();
-    let mut head: Vec<String> = vec!["design".into()];
-    head.extend(study.space.variables.iter().map(|v| csv_field(&v.key)));
-    head.extend(
-        cellinject_design::FIGURES
-            .iter()
-            .map(|(n, _)| n.to_string()),
-    );
-    head.push("feasible".into());
-    csv.push_str(&head.join(","));
-    csv.push('\n');
     std::fs::create_dir_all(&files.designs)?;
     for (k, e) in front.iter().enumerate() {
-        let mut row = vec![format!("{k:03}")];
-        for v in &study.space.variables {
-            row.push(
-                e.variables
-                    .get(&v.key)
-                    .map(|x| x.to_string())
-                    .unwrap_or_default(),
-            );
-        }
-        for (n, _) in cellinject_design::FIGURES {
-            row.push(format!("{:e}", e.figures.get(n).unwrap_or(f64::NAN)));
-        }
-        row.push(e.figures.feasible.to_string());
-        csv.push_str(&row.join(","));
-        csv.push('\n');
-        // The design's full description, for `design evaluate --config` and the rest.
-        let x: Vec<f64> = study
-            .space
-            .variables
-            .iter()
-            .map(|v| {
-                e.variables
-                    .get(&v.key)
-                    .and_then(|x| x.as_f64())
-                    .unwrap_or(f64::NAN)
-            })
-            .collect();
-        let text = cellinject_design::study::description(&study.space, &study.base, &x)
-            .map_err(design_error)?;
-        let header = format!(
-            "# front design {k:03} of a `cellinject design optimise` study of {name}\n\nname = \"{name}, front design {k:03}\"\n"
-        );
-        let body: String = text
-            .lines()
-            .filter(|l| !l.starts_with("name ="))
-            .collect::<Vec<_>>()
-            .join("\n");
-        staged.add(
-            &files.designs.join(format!("{k:03}.toml")),
-            format!("{header}{body}\n").as_bytes(),
-        )?;
+        let text = print::front_design(study, k, e, name).map_err(design_error)?;
+        staged.add(&files.designs.join(format!("{k:03}.toml")), text.as_bytes())?;
     }
-    let _ = points;
-    staged.add(&files.front_csv, csv.as_bytes())?;
-    // The plot: the first two objectives (or the first against the smallest safety
-    // factor), the front and the base design.
-    let obj = &study.space.objectives;
-    let xname = obj[0].figure.clone();
-    let yname = obj
-        .get(1)
-        .map(|o| o.figure.clone())
-        .unwrap_or_else(|| "min_safety_factor".into());
-    let (xs, xu) = display_scale(&xname);
-    let (ys, yu) = display_scale(&yname);
-    let pts: Vec<(f64, f64)> = front
-        .iter()
-        .map(|e| {
-            (
-                e.figures.get(&xname).unwrap_or(f64::NAN) * xs,
-                e.figures.get(&yname).unwrap_or(f64::NAN) * ys,
-            )
-        })
-        .collect();
-    let mut series = vec![cellinject_plot::Series {
-        name: format!("front ({} designs)", front.len()),
-        points: pts,
-        style: cellinject_plot::Style::Dots,
-    }];
-    if let Some(b) = base {
-        series.push(cellinject_plot::Series {
-            name: format!("{name}{}", if b.feasible { "" } else { " (not feasible)" }),
-            points: vec![(
-                b.get(&xname).unwrap_or(f64::NAN) * xs,
-                b.get(&yname).unwrap_or(f64::NAN) * ys,
-            )],
-            style: cellinject_plot::Style::Dots,
-        });
-    }
-    let chart = cellinject_plot::Chart {
-        title: format!(
-            "Design front, {} fidelity, {} generations",
-            study.fidelity.name(),
-            study.search.generation
-        ),
-        x_label: format!("{xname} [{xu}]"),
-        y_label: format!("{yname} [{yu}]"),
-        series,
-    };
+    staged.add(&files.front_csv, print::front_csv(study, front).as_bytes())?;
     if !front.is_empty() {
+        let chart = print::front_chart(study, front, base, name);
         let size = (800, 560);
         let svg = cellinject_plot::svg(std::slice::from_ref(&chart), 1, size)
             .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
@@ -756,23 +513,4 @@ fn write_front(
         staged.add(&files.front_png, &encode_rgb(rgb, &files.front_png)?)?;
     }
     staged.commit()
-}
-
-/// Display scale and unit of a figure for the plot.
-fn display_scale(name: &str) -> (f64, &'static str) {
-    if name.ends_with("_m") || name.contains("travel_m") {
-        (1e6, "µm")
-    } else if name.ends_with("_hz") {
-        (1.0, "Hz")
-    } else if name.starts_with("stiffness") {
-        (1e-6, "N/µm")
-    } else if name.ends_with("_kg") {
-        (1e3, "g")
-    } else if name.ends_with("_nm") {
-        (1e3, "mN·m")
-    } else if name.ends_with("_n") {
-        (1.0, "N")
-    } else {
-        (1.0, "1")
-    }
 }

@@ -11,12 +11,13 @@ use cellinject_dic::accept::DEFAULT_MAX_SIGMA;
 use cellinject_dic::field::FieldOptions;
 use cellinject_dic::track::{Roi, Status, Tracker};
 use cellinject_dic::{Acceptance, DicError, Image, PointOptions, Shape};
-use cellinject_plot::map::{GridMap, maps_rgb, maps_svg};
+use cellinject_plot::map::{maps_rgb, maps_svg};
 use clap::{Args, Subcommand, ValueEnum};
 
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
-use crate::output::{Table, fixed, print_json};
+use crate::output::print_json;
 use crate::{Format, InputError};
+use cellinject_print::table::{Table, fixed};
 
 /// Shape function of the subsets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -437,7 +438,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
     let elapsed = t0.elapsed().as_secs_f64();
     drop(bar);
     let f = &report.field;
-    let csv = field_csv(&report);
+    let csv = cellinject_print::dic::field_csv(&report);
     let found = report.found;
     let dropped = report.dropped;
     let (Some(ru), Some(rv)) = (report.u_range, report.v_range) else {
@@ -447,7 +448,7 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
             dropped.total()
         );
     };
-    let maps = field_maps(f, um_per_px);
+    let maps = cellinject_print::dic::field_maps(f, um_per_px);
     // Panels as wide as the image's aspect allows, at least 480 px tall.
     let aspect = f.nx as f64 / f.ny.max(1) as f64;
     let height = 520u32;
@@ -492,68 +493,6 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         svg_path.display()
     );
     Ok(())
-}
-
-/// The displacement maps, u and v side by side, each on its own colour scale (µm
-/// when the pixel size is given, else px).
-fn field_maps(f: &cellinject_dic::field::Field, um_per_px: Option<f64>) -> [GridMap; 2] {
-    let (scale, unit) = match um_per_px {
-        Some(s) => (s, "µm"),
-        None => (1.0, "px"),
-    };
-    let map = |name: &str, sel: fn(&cellinject_dic::PointResult) -> f64| GridMap {
-        title: format!(
-            "{name}: displacement along {}",
-            if name == "u" { "x" } else { "y" }
-        ),
-        x_label: format!("x [{unit}]"),
-        y_label: format!("y [{unit}]"),
-        value_label: format!("{name} [{unit}]"),
-        x: (f.x0 as f64 * scale, f.step as f64 * scale),
-        y: (f.y0 as f64 * scale, f.step as f64 * scale),
-        nx: f.nx,
-        ny: f.ny,
-        values: f
-            .points
-            .iter()
-            .map(|p| p.as_ref().map(|p| sel(p) * scale))
-            .collect(),
-    };
-    [map("u", |p| p.u), map("v", |p| p.v)]
-}
-
-/// The field's CSV: one row a grid point, empty where none was kept.
-fn field_csv(report: &cellinject_core::dic::FieldReport) -> String {
-    let mut csv = String::from(
-        "x,y,u,v,du_dx,du_dy,dv_dx,dv_dy,zncc,iterations,converged,sigma_u,sigma_v,subset\n",
-    );
-    for (k, p) in report.field.points.iter().enumerate() {
-        let (x, y) = report.position(k);
-        match p {
-            Some(p) => {
-                let _ = writeln!(
-                    csv,
-                    "{x},{y},{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e},{:.6},{},{},{:.6},{:.6},{}",
-                    p.u,
-                    p.v,
-                    p.gradients[0],
-                    p.gradients[1],
-                    p.gradients[2],
-                    p.gradients[3],
-                    p.zncc,
-                    p.iterations,
-                    p.converged,
-                    p.sigma_u,
-                    p.sigma_v,
-                    p.subset
-                );
-            }
-            None => {
-                let _ = writeln!(csv, "{x},{y},,,,,,,,0,false,,,");
-            }
-        }
-    }
-    csv
 }
 
 /// Files of a directory (PNG/TIFF, sorted) or of a `dir/pattern` with `*` and `?`.

@@ -14,8 +14,8 @@ use cellinject_plot::contour::{
 use clap::{Args, Subcommand};
 
 use crate::files::{Kind, Plan, encode_rgb, write_one};
-use crate::output::Table;
 use crate::{Format, InputError};
+use cellinject_print::table::Table;
 
 /// `cellinject fea`: one load case, or a subcommand.
 #[derive(Debug, Args)]

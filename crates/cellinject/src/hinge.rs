@@ -7,8 +7,8 @@ use cellinject_flexure::{FlexureError, Hinge, Material};
 use clap::{Args, ValueEnum};
 
 use crate::files::{Kind, Plan, write_one};
-use crate::output::Table;
 use crate::{Format, InputError};
+use cellinject_print::table::Table;
 
 /// Notch profiles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
