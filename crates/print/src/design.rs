@@ -119,17 +119,7 @@ pub fn front_text(
     let right: Vec<bool> = refs.iter().map(|_| true).collect();
     let mut t = Table::new(&refs, &right);
     for e in front {
-        let mut row: Vec<String> = study
-            .space
-            .variables
-            .iter()
-            .map(|v| {
-                e.variables
-                    .get(&v.key)
-                    .map(|x| format!("{x}"))
-                    .unwrap_or_default()
-            })
-            .collect();
+        let mut row = variable_cells(study, e);
         for o in &study.space.objectives {
             row.push(format!(
                 "{:.6e}",
@@ -167,6 +157,21 @@ pub fn front_text(
     out
 }
 
+/// A front design's variables in the study's order, as written (empty where missing).
+fn variable_cells(study: &Study, e: &FrontEntry) -> Vec<String> {
+    study
+        .space
+        .variables
+        .iter()
+        .map(|v| {
+            e.variables
+                .get(&v.key)
+                .map(|x| x.to_string())
+                .unwrap_or_default()
+        })
+        .collect()
+}
+
 /// The front's CSV: a design's number, its variables, then every figure of
 /// [`cellinject_design::FIGURES`] and whether it is feasible.
 pub fn front_csv(study: &Study, front: &[FrontEntry]) -> String {
@@ -183,14 +188,7 @@ pub fn front_csv(study: &Study, front: &[FrontEntry]) -> String {
     csv.push('\n');
     for (k, e) in front.iter().enumerate() {
         let mut row = vec![format!("{k:03}")];
-        for v in &study.space.variables {
-            row.push(
-                e.variables
-                    .get(&v.key)
-                    .map(|x| x.to_string())
-                    .unwrap_or_default(),
-            );
-        }
+        row.extend(variable_cells(study, e));
         for (n, _) in cellinject_design::FIGURES {
             row.push(format!("{:e}", e.figures.get(n).unwrap_or(f64::NAN)));
         }
