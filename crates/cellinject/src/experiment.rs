@@ -357,6 +357,50 @@ impl Outputs {
     }
 }
 
+/// The files an experiment writes beside its JSON: `stem`.csv and its charts (in so
+/// many columns) as `stem`.svg and `stem`.png.
+struct Written {
+    stem: String,
+    csv: String,
+    charts: (Vec<Chart>, usize),
+}
+
+/// Writes an experiment's files under `--out` (the calibrations made for it first),
+/// then prints its JSON or its summary `text` and the files written.
+fn finish<T: Serialize>(
+    args: &BenchArgs,
+    made: calibration::MadeFiles,
+    report: &T,
+    written: Written,
+    text: impl FnOnce() -> String,
+) -> Result<()> {
+    let stem = args.out.join(&written.stem);
+    let mut out = Outputs::new();
+    out.calibrations(&args.out, made)?;
+    out.add(stem.with_extension("csv"), written.csv.as_bytes())?;
+    out.add(stem.with_extension("json"), &json_bytes(report)?)?;
+    out.plots(&stem, &written.charts.0, written.charts.1)?;
+    let files = out.commit()?;
+    if args.twin.format() == Format::Json {
+        let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
+        return print_json(report, &f);
+    }
+    outln!("{}", text());
+    outln!("{}", crate::files::wrote(&files));
+    Ok(())
+}
+
+/// The `kind` controller of the stacks, over the calibrations `cal`.
+fn controller(
+    s: &Setup,
+    kind: Kind,
+    cal: &Calibrations,
+) -> Result<Box<dyn cellinject_control::Controller>> {
+    let stacks = experiment::stacks(&s.description.design, &s.description.rig, &cal.hysteresis);
+    experiment::controller(kind, stacks, cal)
+        .map_err(|e| anyhow::anyhow!("cannot build the {} controller: {e}", kind.name()))
+}
+
 fn check_out(bench: &BenchArgs) -> Result<()> {
     if let Some(c) = &bench.calibration
         && !c.is_dir()
@@ -458,20 +502,12 @@ fn range(d: &Description, sweep: f64, args: &BenchArgs) -> Result<()> {
         experiment::range(&mut bench, &s.description.design, &s.description.rig, sweep)
             .map_err(bench_error)?
     };
-    let stem = args.out.join(format!("range-approach{}", r.approach));
-    let mut out = Outputs::new();
-    out.calibrations(&args.out, made)?;
-    out.add(stem.with_extension("csv"), print::range_csv(&r).as_bytes())?;
-    out.add(stem.with_extension("json"), &json_bytes(&r)?)?;
-    out.plots(&stem, &print::range_charts(&r), 2)?;
-    let files = out.commit()?;
-    if args.twin.format() == Format::Json {
-        let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
-        return print_json(&r, &f);
-    }
-    outln!("{}", print::range_text(&r));
-    outln!("{}", crate::files::wrote(&files));
-    Ok(())
+    let written = Written {
+        stem: format!("range-approach{}", r.approach),
+        csv: print::range_csv(&r),
+        charts: (print::range_charts(&r), 2),
+    };
+    finish(args, made, &r, written, || print::range_text(&r))
 }
 
 fn repeatability(
@@ -484,9 +520,7 @@ fn repeatability(
     check_out(args)?;
     let mut s = setup(d, &args.twin, &args.backend)?;
     let (pixels, cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
-    let stacks = experiment::stacks(&s.description.design, &s.description.rig, &cal.hysteresis);
-    let mut controller = experiment::controller(kind, stacks, &cal)
-        .map_err(|e| anyhow::anyhow!("cannot build the {} controller: {e}", kind.name()))?;
+    let mut controller = controller(&s, kind, &cal)?;
     let marker = s.description.rig.optics.marker;
     let approach = s.description.rig.approach;
     let r = {
@@ -505,27 +539,12 @@ fn repeatability(
         })
         .map_err(bench_error)?
     };
-    let stem = args.out.join(format!(
-        "repeatability-approach{}-{}",
-        r.approach,
-        kind.name()
-    ));
-    let mut out = Outputs::new();
-    out.calibrations(&args.out, made)?;
-    out.add(
-        stem.with_extension("csv"),
-        print::repeatability_csv(&r).as_bytes(),
-    )?;
-    out.add(stem.with_extension("json"), &json_bytes(&r)?)?;
-    out.plots(&stem, &[print::repeatability_chart(&r)], 1)?;
-    let files = out.commit()?;
-    if args.twin.format() == Format::Json {
-        let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
-        return print_json(&r, &f);
-    }
-    outln!("{}", print::repeatability_text(&r));
-    outln!("{}", crate::files::wrote(&files));
-    Ok(())
+    let written = Written {
+        stem: format!("repeatability-approach{}-{}", r.approach, kind.name()),
+        csv: print::repeatability_csv(&r),
+        charts: (vec![print::repeatability_chart(&r)], 1),
+    };
+    finish(args, made, &r, written, || print::repeatability_text(&r))
 }
 
 fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs) -> Result<()> {
@@ -533,9 +552,7 @@ fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs
     check_out(args)?;
     let mut s = setup(d, &args.twin, &args.backend)?;
     let (pixels, cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
-    let stacks = experiment::stacks(&s.description.design, &s.description.rig, &cal.hysteresis);
-    let mut controller = experiment::controller(kind, stacks, &cal)
-        .map_err(|e| anyhow::anyhow!("cannot build the {} controller: {e}", kind.name()))?;
+    let mut controller = controller(&s, kind, &cal)?;
     let marker = s.description.rig.optics.marker;
     let approach = s.description.rig.approach;
     let r = {
@@ -558,23 +575,10 @@ fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs
         )
         .map_err(bench_error)?
     };
-    let stem = args
-        .out
-        .join(format!("tracking-approach{}-{}", r.approach, kind.name()));
-    let mut out = Outputs::new();
-    out.calibrations(&args.out, made)?;
-    out.add(
-        stem.with_extension("csv"),
-        print::tracking_csv(&r).as_bytes(),
-    )?;
-    out.add(stem.with_extension("json"), &json_bytes(&r)?)?;
-    out.plots(&stem, &print::tracking_charts(&r), 2)?;
-    let files = out.commit()?;
-    if args.twin.format() == Format::Json {
-        let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
-        return print_json(&r, &f);
-    }
-    outln!("{}", print::tracking_text(&r));
-    outln!("{}", crate::files::wrote(&files));
-    Ok(())
+    let written = Written {
+        stem: format!("tracking-approach{}-{}", r.approach, kind.name()),
+        csv: print::tracking_csv(&r),
+        charts: (print::tracking_charts(&r), 2),
+    };
+    finish(args, made, &r, written, || print::tracking_text(&r))
 }
