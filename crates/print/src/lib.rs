@@ -7,4 +7,5 @@
 pub mod design;
 pub mod dic;
 pub mod experiment;
+pub mod model;
 pub mod table;
