@@ -7,5 +7,6 @@
 pub mod design;
 pub mod dic;
 pub mod experiment;
+pub mod fea;
 pub mod model;
 pub mod table;
