@@ -8,7 +8,7 @@ use clap::{Args, ValueEnum};
 
 use crate::files::{Kind, Plan, write_one};
 use crate::{Format, InputError};
-use cellinject_print::table::Table;
+use cellinject_print::hinge as print;
 
 /// Notch profiles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -183,83 +183,7 @@ pub fn run(a: &HingeArgs) -> Result<()> {
     }
     match a.format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
-        Format::Text => {
-            let mut t = Table::new(&["quantity", "value", "unit"], &[false, true, false]);
-            let mut row = |q: &str, v: String, u: &str| t.row(vec![q.into(), v, u.into()]);
-            row(
-                "compliant bending stiffness k_bend",
-                format!("{:.4}", r.k_bend),
-                "N·m/rad",
-            );
-            row(
-                "off-axis bending stiffness",
-                format!("{:.4}", r.k_bend_off),
-                "N·m/rad",
-            );
-            row(
-                "torsional stiffness",
-                format!("{:.4}", r.k_torsion),
-                "N·m/rad",
-            );
-            row("axial stiffness", format!("{:.4e}", r.k_axial), "N/m");
-            row(
-                "stress concentration K_t",
-                format!("{:.4}", r.stress_concentration),
-                "",
-            );
-            row(
-                "throat stress per radian",
-                format!("{:.2}", r.max_stress_per_rad * 1e-6),
-                "MPa/rad",
-            );
-            row(
-                "rotation at yield",
-                format!("{:.4}", r.max_rotation * 1e3),
-                "mrad",
-            );
-            if let Some(c) = &r.fem {
-                let levels: Vec<String> =
-                    c.k_bend_levels.iter().map(|k| format!("{k:.4}")).collect();
-                row("FEM k_bend at levels 1, 2, 4", levels.join(", "), "N·m/rad");
-                row(
-                    "FEM mesh error (last refinement)",
-                    format!("{:.2e}", c.mesh_error),
-                    "",
-                );
-                row(
-                    "FEM unknowns (finest)",
-                    format!("{}", c.unknowns.last().copied().unwrap_or(0)),
-                    "",
-                );
-                row("beam / FEM", format!("{:.4}", c.beam_over_fem), "");
-            }
-            if let (Some(th), Some(s)) = (r.angle, r.stress) {
-                row(
-                    "stress at --angle",
-                    format!("{:.2} at {:.3} mrad", s * 1e-6, th * 1e3),
-                    "MPa",
-                );
-                row(
-                    "safety factor against yield",
-                    r.safety_factor
-                        .map_or("unloaded".into(), |sf| format!("{sf:.2}")),
-                    "",
-                );
-            }
-            outln!(
-                "{:?} hinge, t = {} mm, b = {} mm, L = {} mm ({})",
-                a.profile,
-                a.thickness * 1e3,
-                a.width * 1e3,
-                r.length * 1e3,
-                match a.method {
-                    MethodArg::Beam => "beam integral",
-                    MethodArg::PwSimple => "simplified Paros-Weisbord",
-                    MethodArg::Fem => "2-D FEM for k_bend, beam integrals for the rest",
-                }
-            );
-            out!("{}", t.text());
-        }
+        Format::Text => out!("{}", print::hinge_text(kind, &hinge, method, &r)),
     }
     Ok(())
 }
@@ -308,42 +232,10 @@ pub fn table(a: &TableArgs) -> Result<()> {
     };
     match a.format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&rows)?),
-        Format::Text => {
-            outln!(
-                "Circular notch, R = {} mm, b = {} mm, E = {} GPa, plane {}: compliant stiffness, N·m/rad",
-                a.radius * 1e3,
-                a.width * 1e3,
-                a.youngs * 1e-9,
-                match a.plane {
-                    PlaneArg::Stress => "stress",
-                    PlaneArg::Strain => "strain",
-                }
-            );
-            let mut t = Table::new(
-                &[
-                    "t/R",
-                    "beam integral",
-                    "PW simplified",
-                    "FEM",
-                    "beam/FEM",
-                    "PW/FEM",
-                    "FEM mesh error",
-                ],
-                &[true; 7],
-            );
-            for r in rows {
-                t.row(vec![
-                    format!("{}", r.t_over_r),
-                    format!("{:.4}", r.k_beam),
-                    format!("{:.4}", r.k_pw_simple),
-                    format!("{:.4}", r.k_fem),
-                    format!("{:.4}", r.beam_over_fem),
-                    format!("{:.4}", r.pw_over_fem),
-                    format!("{:.1e}", r.fem_mesh_error),
-                ]);
-            }
-            out!("{}", t.text());
-        }
+        Format::Text => out!(
+            "{}",
+            print::table_text(a.radius, a.width, a.youngs, plane(a.plane), &rows)
+        ),
     }
     Ok(())
 }

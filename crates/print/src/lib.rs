@@ -8,5 +8,6 @@ pub mod design;
 pub mod dic;
 pub mod experiment;
 pub mod fea;
+pub mod hinge;
 pub mod model;
 pub mod table;
