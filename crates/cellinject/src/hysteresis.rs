@@ -3,14 +3,13 @@
 //! actuator follow a trajectory, and a model's prediction of a second recording; each
 //! plots what it did.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use cellinject_config::Description;
 use cellinject_core::hysteresis::{self as core, Kind};
 use cellinject_hysteresis::{AnyModel, HysteresisError, Model};
-use cellinject_plot::{Chart, Series, Style};
+use cellinject_print::hysteresis as print;
 use clap::{Subcommand, ValueEnum};
 
 use cellinject_core::table::Table;
@@ -261,17 +260,8 @@ fn identify(
     })
     .map_err(|e| InputError(e.to_string()))?;
     drop(progress);
-    let csv = crate::sim::voltage_displacement_csv(&r.samples);
-    let chart = Chart {
-        title: format!("{}: identification excitation", r.actuator),
-        x_label: "amplifier command [V]".into(),
-        y_label: "stack displacement [µm]".into(),
-        series: vec![Series {
-            name: r.actuator.into(),
-            points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
-            style: Style::Line,
-        }],
-    };
+    let csv = print::voltage_displacement_csv(&r.samples);
+    let chart = print::identify_chart(&r);
     write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
     outln!(
         "{}: {} samples up to {:.1} V (the safety envelope's limit), 1 ms apart",
@@ -355,36 +345,7 @@ fn fit(
             d.input_noise
         );
     }
-    // Measured and modelled loops.
-    let mut m = r.model.clone();
-    m.reset();
-    let modelled: Vec<(f64, f64)> = volts.iter().map(|v| (*v, m.apply(*v) * 1e6)).collect();
-    let chart = Chart {
-        title: format!(
-            "{:?} fit: RMS {:.1} nm ({:.2} % of the span)",
-            model,
-            r.rms * 1e9,
-            100.0 * r.rms_relative
-        ),
-        x_label: "voltage [V]".into(),
-        y_label: "displacement [µm]".into(),
-        series: vec![
-            Series {
-                name: "measured".into(),
-                points: volts
-                    .iter()
-                    .zip(&disp)
-                    .map(|(v, y)| (*v, y * 1e6))
-                    .collect(),
-                style: Style::Line,
-            },
-            Series {
-                name: "model".into(),
-                points: modelled,
-                style: Style::Line,
-            },
-        ],
-    };
+    let chart = print::fit_chart(&format!("{model:?}"), &r, &volts, &disp);
     let json = serde_json::to_string_pretty(&r.model)?;
     write_with_plots(&files, json.as_bytes(), &[chart], 1)?;
     if format == Format::Json {
@@ -447,43 +408,8 @@ fn invert(model: &Path, trajectory: &Path, out: &Path, clip: bool, format: Forma
         );
     }
     let t = column(&tab, "time_s").to_vec();
-    let mut csv = String::from("time_s,voltage_v\n");
-    for (time, v) in t.iter().zip(&r.volts) {
-        let _ = writeln!(csv, "{time:.6},{v:.6}");
-    }
-    let charts = [
-        Chart {
-            title: "desired and predicted displacement".into(),
-            x_label: "time [s]".into(),
-            y_label: "displacement [µm]".into(),
-            series: vec![
-                Series {
-                    name: "desired".into(),
-                    points: t.iter().zip(&targets).map(|(t, y)| (*t, y * 1e6)).collect(),
-                    style: Style::Line,
-                },
-                Series {
-                    name: "model's prediction".into(),
-                    points: t
-                        .iter()
-                        .zip(&r.predicted)
-                        .map(|(t, y)| (*t, y * 1e6))
-                        .collect(),
-                    style: Style::Line,
-                },
-            ],
-        },
-        Chart {
-            title: "command".into(),
-            x_label: "time [s]".into(),
-            y_label: "voltage [V]".into(),
-            series: vec![Series {
-                name: "command".into(),
-                points: t.iter().zip(&r.volts).map(|(t, v)| (*t, *v)).collect(),
-                style: Style::Line,
-            }],
-        },
-    ];
+    let csv = print::invert_csv(&t, &r);
+    let charts = print::invert_charts(&t, &targets, &r);
     write_with_plots(&files, csv.as_bytes(), &charts, 2)?;
     if format == Format::Json {
         return print_json(&r, &[&files[0], &files[1], &files[2]]);
@@ -559,59 +485,9 @@ fn validate(model: &Path, recording: &Path, out: &Path, format: Format) -> Resul
         Some(c) => c.to_vec(),
         None => (0..r.samples).map(|k| k as f64).collect(),
     };
-    let mut csv = String::from("time_s,voltage_v,measured_m,predicted_m,error_m\n");
-    for k in 0..r.samples {
-        let _ = writeln!(
-            csv,
-            "{:.6},{:.6},{:.6e},{:.6e},{:.6e}",
-            time[k],
-            volts[k],
-            disp[k],
-            r.predicted[k],
-            r.predicted[k] - disp[k]
-        );
-    }
-    let um = |x: &[f64], y: &[f64]| -> Vec<(f64, f64)> {
-        x.iter().zip(y).map(|(a, b)| (*a, b * 1e6)).collect()
-    };
-    let x_time = if t.column("time_s").is_some() {
-        "time [s]"
-    } else {
-        "row"
-    };
-    let pair = |x: &[f64]| {
-        vec![
-            Series {
-                name: "measured".into(),
-                points: um(x, disp),
-                style: Style::Line,
-            },
-            Series {
-                name: "predicted".into(),
-                points: um(x, &r.predicted),
-                style: Style::Line,
-            },
-        ]
-    };
-    let charts = [
-        Chart {
-            title: format!(
-                "prediction: RMS {:.3} µm ({:.2} % of stroke), worst {:.3} µm",
-                r.rms * 1e6,
-                r.rms_percent,
-                r.max * 1e6
-            ),
-            x_label: x_time.into(),
-            y_label: "displacement [µm]".into(),
-            series: pair(&time),
-        },
-        Chart {
-            title: "loops".into(),
-            x_label: "voltage [V]".into(),
-            y_label: "displacement [µm]".into(),
-            series: pair(volts),
-        },
-    ];
+    let has_time = t.column("time_s").is_some();
+    let csv = print::validate_csv(&time, volts, disp, &r);
+    let charts = print::validate_charts(&time, has_time, volts, disp, &r);
     write_with_plots(&files, csv.as_bytes(), &charts, 2)?;
     if format == Format::Json {
         return print_json(&r, &[&files[0], &files[1], &files[2]]);

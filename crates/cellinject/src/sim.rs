@@ -1,7 +1,6 @@
 //! `cellinject sim ...`: programs of `cellinject-core` run on the digital twin through
 //! its guarded rig, measured by the twin's own truth; this file writes what they did.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -9,7 +8,7 @@ use cellinject_config::Description;
 use cellinject_core::sim::{self as core, Acquisition, FrameSummary, SimError, StepSample};
 use cellinject_hw::{Frame, HwError};
 use cellinject_model::Approach;
-use cellinject_plot::{Chart, Series, Style};
+use cellinject_print::hysteresis as print;
 use cellinject_rig::Rig;
 use cellinject_twin::devices::displacement_in;
 use cellinject_twin::{SharedTwin, Twin, TwinBackend};
@@ -209,16 +208,6 @@ fn csv_and_plots(out: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// (s, V, m) samples as the CSV `time_s,voltage_v,displacement_m` that `sim loop` and
-/// `hysteresis identify` write and `hysteresis fit` reads.
-pub(crate) fn voltage_displacement_csv(samples: &[[f64; 3]]) -> String {
-    let mut csv = String::from("time_s,voltage_v,displacement_m\n");
-    for s in samples {
-        let _ = writeln!(csv, "{:.6},{:.6},{:.6e}", s[0], s[1], s[2]);
-    }
-    csv
-}
-
 /// `sim loop`.
 fn run_loop(
     d: &Description,
@@ -237,17 +226,8 @@ fn run_loop(
     })
     .map_err(sim_error)?;
     drop(progress);
-    let csv = voltage_displacement_csv(&r.samples);
-    let chart = Chart {
-        title: format!("{}: hysteresis loop with nested minor loops", r.actuator),
-        x_label: "amplifier output [V]".into(),
-        y_label: "actuator displacement [µm]".into(),
-        series: vec![Series {
-            name: r.actuator.into(),
-            points: r.samples.iter().map(|s| (s[1], s[2] * 1e6)).collect(),
-            style: Style::Line,
-        }],
-    };
+    let csv = print::voltage_displacement_csv(&r.samples);
+    let chart = print::loop_chart(&r);
     write_with_plots(&files, csv.as_bytes(), &[chart], 1)?;
     if args.format == Format::Json {
         return print_json(r.summary(), &[&files[0], &files[1], &files[2]]);
@@ -296,60 +276,9 @@ fn run_step(
     })
     .map_err(sim_error)?;
     drop(progress);
-    let mut csv = String::from(
-        "time_s,voltage_v,displacement_m,end_effector_x_m,end_effector_y_m,end_effector_z_m\n",
-    );
-    for s in &r.samples {
-        let _ = writeln!(
-            csv,
-            "{:.6},{:.6},{:.6e},{:.6e},{:.6e},{:.6e}",
-            s.time,
-            s.voltage,
-            s.displacement,
-            s.end_effector[0],
-            s.end_effector[1],
-            s.end_effector[2]
-        );
-    }
-    let name = r.actuator;
-    let um = |s: &StepSample| s.displacement * 1e6;
-    let charts = [
-        Chart {
-            title: format!("{name} step to {voltage} V: first 30 ms"),
-            x_label: "time [ms]".into(),
-            y_label: "actuator displacement [µm]".into(),
-            series: vec![Series {
-                name: name.into(),
-                points: r
-                    .samples
-                    .iter()
-                    .filter(|s| s.time <= 0.03)
-                    .map(|s| (s.time * 1e3, um(s)))
-                    .collect(),
-                style: Style::Line,
-            }],
-        },
-        Chart {
-            title: format!("{name} step to {voltage} V: creep over {duration} s"),
-            x_label: "time [s]".into(),
-            y_label: "actuator displacement [µm]".into(),
-            series: vec![Series {
-                name: name.into(),
-                // After the ringing, so that the vertical axis shows the creep.
-                points: r
-                    .samples
-                    .iter()
-                    .filter(|s| s.time >= 0.05)
-                    .map(|s| (s.time, um(s)))
-                    .collect(),
-                style: Style::Line,
-            }],
-        },
-    ];
-    // A run that ends within the ringing has no creep to show: one panel.
-    let creep = charts[1].series[0].points.len() >= 2;
-    let charts = if creep { &charts[..] } else { &charts[..1] };
-    write_with_plots(&files, csv.as_bytes(), charts, charts.len())?;
+    let csv = print::step_csv(&r);
+    let charts = print::step_charts(&r, voltage, duration);
+    write_with_plots(&files, csv.as_bytes(), &charts, charts.len())?;
     let f = lock(&twin).world.natural_frequencies();
     if args.format == Format::Json {
         return print_json(
@@ -357,22 +286,9 @@ fn run_step(
             &[&files[0], &files[1], &files[2]],
         );
     }
-    // Only what was measured is printed: no NaN for a run shorter than 0.1 s.
-    let at_100ms = r
-        .displacement_at(0.1)
-        .filter(|_| duration >= 0.1)
-        .map(|x| format!("{:.3} µm at 0.1 s, ", x * 1e6))
-        .unwrap_or_default();
-    let last = r
-        .samples
-        .last()
-        .map(|s| format!("{:.3} µm at {duration} s", um(s)))
-        .unwrap_or_else(|| "no sample".into());
     outln!(
-        "{name}: step to {voltage} V; displacement {at_100ms}{last}; tilt modes {:.0} Hz and {:.0} Hz, A3 axis {:.0} Hz",
-        f[0],
-        f[1],
-        f[2]
+        "{}",
+        print::step_text(&r, voltage, duration, [f[0], f[1], f[2]])
     );
     outln!("{}", wrote(&files));
     Ok(())

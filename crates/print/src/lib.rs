@@ -9,5 +9,6 @@ pub mod dic;
 pub mod experiment;
 pub mod fea;
 pub mod hinge;
+pub mod hysteresis;
 pub mod model;
 pub mod table;
