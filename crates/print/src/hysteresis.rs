@@ -82,39 +82,36 @@ pub fn step_csv(r: &StepReport) -> String {
 /// (left out when the run ends within it).
 pub fn step_charts(r: &StepReport, voltage: f64, duration: f64) -> Vec<Chart> {
     let name = r.actuator;
-    let um = |s: &StepSample| s.displacement * 1e6;
+    // Samples within `keep`: time times `scale` against the displacement in µm.
+    let panel = |title: String, x_label: &str, keep: &dyn Fn(f64) -> bool, scale: f64| Chart {
+        title,
+        x_label: x_label.into(),
+        y_label: "actuator displacement [µm]".into(),
+        series: vec![Series {
+            name: name.into(),
+            points: r
+                .samples
+                .iter()
+                .filter(|s| keep(s.time))
+                .map(|s| (s.time * scale, s.displacement * 1e6))
+                .collect(),
+            style: Style::Line,
+        }],
+    };
     let mut charts = vec![
-        Chart {
-            title: format!("{name} step to {voltage} V: first 30 ms"),
-            x_label: "time [ms]".into(),
-            y_label: "actuator displacement [µm]".into(),
-            series: vec![Series {
-                name: name.into(),
-                points: r
-                    .samples
-                    .iter()
-                    .filter(|s| s.time <= 0.03)
-                    .map(|s| (s.time * 1e3, um(s)))
-                    .collect(),
-                style: Style::Line,
-            }],
-        },
-        Chart {
-            title: format!("{name} step to {voltage} V: creep over {duration} s"),
-            x_label: "time [s]".into(),
-            y_label: "actuator displacement [µm]".into(),
-            series: vec![Series {
-                name: name.into(),
-                // After the ringing, so that the vertical axis shows the creep.
-                points: r
-                    .samples
-                    .iter()
-                    .filter(|s| s.time >= 0.05)
-                    .map(|s| (s.time, um(s)))
-                    .collect(),
-                style: Style::Line,
-            }],
-        },
+        panel(
+            format!("{name} step to {voltage} V: first 30 ms"),
+            "time [ms]",
+            &|t| t <= 0.03,
+            1e3,
+        ),
+        // After the ringing, so that the vertical axis shows the creep.
+        panel(
+            format!("{name} step to {voltage} V: creep over {duration} s"),
+            "time [s]",
+            &|t| t >= 0.05,
+            1.0,
+        ),
     ];
     // A run that ends within the ringing has no creep to show: one panel.
     if charts[1].series[0].points.len() < 2 {
