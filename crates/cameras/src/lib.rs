@@ -10,8 +10,12 @@
 //! final name (write `frame-000123.png.part`, then rename): names starting with `.` or
 //! ending in anything but `.png`, `.tif`, `.tiff` are ignored.
 //!
+//! [`list`]: the frame files a command line names (a folder, or a pattern in one).
+//!
 //! **Architecture invariant:** the only file IO of a camera; it never deletes or
 //! rewrites a frame it read.
+
+pub mod list;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};

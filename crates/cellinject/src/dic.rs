@@ -495,43 +495,11 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
     Ok(())
 }
 
-/// Files of a directory (PNG/TIFF, sorted) or of a `dir/pattern` with `*` and `?`.
+/// Files of a directory (PNG/TIFF, sorted) or of a `dir/pattern` with `*` and `?`: at
+/// least two.
 fn frame_list(spec: &str) -> Result<Vec<PathBuf>> {
-    let path = Path::new(spec);
-    let is_image = |p: &Path| {
-        p.extension()
-            .and_then(|e| e.to_str())
-            .map(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "tif" | "tiff"))
-            .unwrap_or(false)
-    };
-    let (dir, pattern) = if path.is_dir() {
-        (path.to_path_buf(), None)
-    } else {
-        let dir = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-        (dir.to_path_buf(), Some(name.to_string()))
-    };
-    let entries = std::fs::read_dir(&dir).map_err(|e| {
-        InputError(format!(
-            "--frames `{spec}`: cannot read directory `{}`: {e}",
-            dir.display()
-        ))
-    })?;
-    let mut files: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && is_image(p))
-        .filter(|p| match &pattern {
-            None => true,
-            Some(pat) => p
-                .file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| wildcard(pat, n)),
-        })
-        .collect();
-    files.sort();
+    let files = cellinject_cameras::list::frame_files(Path::new(spec))
+        .map_err(|e| InputError(format!("--frames `{spec}`: {e}")))?;
     if files.len() < 2 {
         return Err(InputError(format!(
             "--frames `{spec}`: needs at least two PNG/TIFF frames, found {}",
@@ -540,32 +508,6 @@ fn frame_list(spec: &str) -> Result<Vec<PathBuf>> {
         .into());
     }
     Ok(files)
-}
-
-/// Matches `*` (any run) and `?` (one character).
-fn wildcard(pattern: &str, name: &str) -> bool {
-    let (p, n): (Vec<char>, Vec<char>) = (pattern.chars().collect(), name.chars().collect());
-    let (mut i, mut j, mut star, mut mark) = (0, 0, None, 0);
-    while j < n.len() {
-        if i < p.len() && (p[i] == '?' || p[i] == n[j]) {
-            i += 1;
-            j += 1;
-        } else if i < p.len() && p[i] == '*' {
-            star = Some(i);
-            mark = j;
-            i += 1;
-        } else if let Some(s) = star {
-            i = s + 1;
-            mark += 1;
-            j = mark;
-        } else {
-            return false;
-        }
-    }
-    while i < p.len() && p[i] == '*' {
-        i += 1;
-    }
-    i == p.len()
 }
 
 fn run_track(
@@ -832,15 +774,6 @@ pub fn run(a: &DicArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn wildcards_match_like_a_shell() {
-        assert!(wildcard("*.png", "frame_001.png"));
-        assert!(wildcard("frame_??1.png", "frame_001.png"));
-        assert!(!wildcard("*.png", "frame_001.tif"));
-        assert!(wildcard("*", "x"));
-        assert!(!wildcard("a*b", "acd"));
-    }
 
     #[test]
     fn pairs_parse_and_refuse_garbage() {
