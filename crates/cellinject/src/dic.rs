@@ -17,7 +17,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
 use crate::output::print_json;
 use crate::{Format, InputError};
-use cellinject_print::table::{Table, fixed};
+use cellinject_print::table::fixed;
 
 /// Shape function of the subsets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -294,57 +294,7 @@ fn run_points(a: &PointArgs) -> Result<()> {
     })?;
     match a.format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&res)?),
-        Format::Text => {
-            let mut t = Table::new(
-                &[
-                    "x",
-                    "y",
-                    "u [px]",
-                    "v [px]",
-                    "zncc",
-                    "iter.",
-                    "σ_u [px]",
-                    "σ_v [px]",
-                ],
-                &[true; 8],
-            );
-            for p in &res {
-                t.row(match *p {
-                    PointReport::Found {
-                        x,
-                        y,
-                        u,
-                        v,
-                        zncc,
-                        iterations,
-                        converged,
-                        sigma_u,
-                        sigma_v,
-                        ..
-                    } => vec![
-                        format!("{x}"),
-                        format!("{y}"),
-                        fixed(u, 4),
-                        fixed(v, 4),
-                        fixed(zncc, 4),
-                        format!("{iterations}{}", if converged { "" } else { "!" }),
-                        format!("{sigma_u:.4}"),
-                        format!("{sigma_v:.4}"),
-                    ],
-                    PointReport::Missing { x, y, error, .. } => vec![
-                        format!("{x}"),
-                        format!("{y}"),
-                        error.to_string(),
-                        String::new(),
-                        String::new(),
-                        String::new(),
-                        String::new(),
-                        String::new(),
-                    ],
-                });
-            }
-            out!("{}", t.text());
-        }
+        Format::Text => out!("{}", cellinject_print::dic::points_text(&res)),
     }
     if res.iter().all(|p| matches!(p, PointReport::Missing { .. })) {
         anyhow::bail!(
@@ -439,15 +389,14 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
     drop(bar);
     let f = &report.field;
     let csv = cellinject_print::dic::field_csv(&report);
-    let found = report.found;
     let dropped = report.dropped;
-    let (Some(ru), Some(rv)) = (report.u_range, report.v_range) else {
+    if report.u_range.is_none() || report.v_range.is_none() {
         anyhow::bail!(
             "no grid point matched ({} tried, {} dropped as unreliable): nothing to measure (no texture, or the images do not overlap); no file written",
             f.nx * f.ny,
             dropped.total()
         );
-    };
+    }
     let maps = cellinject_print::dic::field_maps(f, um_per_px);
     // Panels as wide as the image's aspect allows, at least 480 px tall.
     let aspect = f.nx as f64 / f.ny.max(1) as f64;
@@ -465,26 +414,8 @@ fn run_field(reference: &Path, current: &Path, a: FieldArgs, out: &Path) -> Resu
         return print_json(report.summary(), &[csv_path, png, svg_path]);
     }
     outln!(
-        "{found} of {} grid points ({}x{}, step {step}) in {elapsed:.3} s ({:.0} points/s)",
-        f.nx * f.ny,
-        f.nx,
-        f.ny,
-        found as f64 / elapsed.max(1e-9)
-    );
-    outln!(
-        "{} dropped as unreliable ({} predicted σ above {max_sigma} px, {} ZNCC below {min_zncc}, {} not converged, {} contradicted by their neighbours or alone)",
-        dropped.total(),
-        dropped.uncertain,
-        dropped.low_zncc,
-        dropped.not_converged,
-        dropped.inconsistent
-    );
-    outln!(
-        "u from {:.4} to {:.4} px, v from {:.4} to {:.4} px",
-        ru.0,
-        ru.1,
-        rv.0,
-        rv.1
+        "{}",
+        cellinject_print::dic::field_text(&report, step, elapsed)
     );
     outln!(
         "wrote {}, {} and {} (u left, v right)",

@@ -1,8 +1,12 @@
-//! `cellinject dic field`'s files: the field's CSV and its displacement maps.
+//! `cellinject dic`'s output: the points' table, and `dic field`'s summary, CSV and
+//! displacement maps.
 
 use std::fmt::Write as _;
 
+use cellinject_core::dic::{FieldReport, PointReport};
 use cellinject_plot::map::GridMap;
+
+use crate::table::{Table, fixed};
 
 /// The displacement maps, u and v side by side, each on its own colour scale (µm
 /// when the pixel size is given, else px).
@@ -64,4 +68,97 @@ pub fn field_csv(report: &cellinject_core::dic::FieldReport) -> String {
         }
     }
     csv
+}
+
+/// `cellinject dic`'s table: each point's displacement, ZNCC, iterations (`!` when not
+/// converged) and predicted σ, or why it was not matched.
+pub fn points_text(res: &[PointReport]) -> String {
+    let mut t = Table::new(
+        &[
+            "x",
+            "y",
+            "u [px]",
+            "v [px]",
+            "zncc",
+            "iter.",
+            "σ_u [px]",
+            "σ_v [px]",
+        ],
+        &[true; 8],
+    );
+    for p in res {
+        t.row(match *p {
+            PointReport::Found {
+                x,
+                y,
+                u,
+                v,
+                zncc,
+                iterations,
+                converged,
+                sigma_u,
+                sigma_v,
+                ..
+            } => vec![
+                format!("{x}"),
+                format!("{y}"),
+                fixed(u, 4),
+                fixed(v, 4),
+                fixed(zncc, 4),
+                format!("{iterations}{}", if converged { "" } else { "!" }),
+                format!("{sigma_u:.4}"),
+                format!("{sigma_v:.4}"),
+            ],
+            PointReport::Missing { x, y, error, .. } => vec![
+                format!("{x}"),
+                format!("{y}"),
+                error.to_string(),
+                String::new(),
+                String::new(),
+                String::new(),
+                String::new(),
+                String::new(),
+            ],
+        });
+    }
+    t.text()
+}
+
+/// `cellinject dic field`'s summary: the points kept of the grid and the rate
+/// (converged points over `elapsed`, the correlation's wall time; scripts read this
+/// line), why the others were dropped, and the displacements' ranges (when any point
+/// was kept).
+pub fn field_text(r: &FieldReport, step: usize, elapsed: f64) -> String {
+    let f = &r.field;
+    let dropped = &r.dropped;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{} of {} grid points ({}x{}, step {step}) in {elapsed:.3} s ({:.0} points/s)",
+        r.found,
+        f.nx * f.ny,
+        f.nx,
+        f.ny,
+        r.found as f64 / elapsed.max(1e-9)
+    );
+    let _ = writeln!(
+        out,
+        "{} dropped as unreliable ({} predicted σ above {} px, {} ZNCC below {}, {} not converged, {} contradicted by their neighbours or alone)",
+        dropped.total(),
+        dropped.uncertain,
+        r.acceptance.max_sigma,
+        dropped.low_zncc,
+        r.acceptance.min_zncc,
+        dropped.not_converged,
+        dropped.inconsistent
+    );
+    if let (Some(ru), Some(rv)) = (r.u_range, r.v_range) {
+        let _ = writeln!(
+            out,
+            "u from {:.4} to {:.4} px, v from {:.4} to {:.4} px",
+            ru.0, ru.1, rv.0, rv.1
+        );
+    }
+    out.pop();
+    out
 }
