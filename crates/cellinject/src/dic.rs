@@ -1,6 +1,5 @@
 //! `cellinject dic ...`: digital image correlation on image files.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -17,7 +16,6 @@ use clap::{Args, Subcommand, ValueEnum};
 use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
 use crate::output::print_json;
 use crate::{Format, InputError};
-use cellinject_print::table::fixed;
 
 /// Shape function of the subsets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -478,8 +476,7 @@ fn run_track(
     };
     let mut tracker =
         Tracker::new(&first, roi, shape.into(), min_zncc).map_err(|e| dic_error("--roi", e))?;
-    let mut csv =
-        String::from("frame,file,u_px,v_px,u_m,v_m,zncc,iterations,sigma_u_px,status,blur_px\n");
+    let mut csv = cellinject_print::dic::TrackCsv::new(um_per_px);
     let (mut tracked, mut rejected) = (0, 0);
     let mut worst_zncc = (f64::INFINITY, f64::NEG_INFINITY);
     let t0 = std::time::Instant::now();
@@ -490,12 +487,6 @@ fn run_track(
         let p = tracker
             .track(&img)
             .map_err(|e| dic_error(&format!("frame `{}`", f.display()), e))?;
-        let status = match p.status {
-            Status::Tracked => "tracked",
-            Status::Recovered => "recovered",
-            Status::Defocused => "defocused",
-            Status::Rejected => "rejected",
-        };
         if p.status == Status::Rejected {
             rejected += 1;
             if p.zncc.is_finite() {
@@ -504,34 +495,8 @@ fn run_track(
         } else {
             tracked += 1;
         }
-        // Below 1e-9 px a displacement is rounding (the reference frame against itself).
-        let clean = |v: f64| if v.abs() < 1e-9 { 0.0 } else { v };
-        let m = |v: f64| {
-            um_per_px
-                .filter(|_| v.is_finite())
-                .map(|s| format!("{:.6e}", clean(v) * s * 1e-6))
-                .unwrap_or_default()
-        };
-        let num = |v: f64| {
-            if v.is_finite() {
-                fixed(clean(v), 6)
-            } else {
-                String::new()
-            }
-        };
-        let _ = writeln!(
-            csv,
-            "{k},{},{},{},{},{},{:.6},{},{},{status},{}",
-            f.file_name().and_then(|n| n.to_str()).unwrap_or(""),
-            num(p.u),
-            num(p.v),
-            m(p.u),
-            m(p.v),
-            p.zncc,
-            p.iterations,
-            num(p.sigma_u),
-            p.blur
-        );
+        let name = f.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        csv.row(k, name, &p);
     }
     drop(progress);
     if files.len() > 1 && rejected == files.len() - 1 {
@@ -548,7 +513,7 @@ fn run_track(
         );
     }
     let mut staged = Staged::new();
-    staged.add(out, csv.as_bytes())?;
+    staged.add(out, csv.text().as_bytes())?;
     staged.commit()?;
     if format == Format::Json {
         let s = TrackSummary {

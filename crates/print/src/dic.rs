@@ -1,9 +1,10 @@
-//! `cellinject dic`'s output: the points' table, and `dic field`'s summary, CSV and
-//! displacement maps.
+//! `cellinject dic`'s output: the points' table, `dic field`'s summary, CSV and
+//! displacement maps, and `dic track`'s CSV.
 
 use std::fmt::Write as _;
 
 use cellinject_core::dic::{FieldReport, PointReport};
+use cellinject_dic::track::{Status, TrackPoint};
 use cellinject_plot::map::GridMap;
 
 use crate::table::{Table, fixed};
@@ -161,4 +162,66 @@ pub fn field_text(r: &FieldReport, step: usize, elapsed: f64) -> String {
     }
     out.pop();
     out
+}
+
+/// `cellinject dic track`'s CSV, a row a frame: the displacement in pixels (and in
+/// metres with a pixel size), ZNCC, iterations, σ, the tracker's status and the blur.
+/// Displacements below 1e-9 px are rounding (the reference frame against itself) and
+/// written as 0; what was not measured is left empty.
+pub struct TrackCsv {
+    um_per_px: Option<f64>,
+    text: String,
+}
+
+impl TrackCsv {
+    /// The header; `um_per_px` adds the displacements in metres.
+    pub fn new(um_per_px: Option<f64>) -> Self {
+        TrackCsv {
+            um_per_px,
+            text: String::from(
+                "frame,file,u_px,v_px,u_m,v_m,zncc,iterations,sigma_u_px,status,blur_px\n",
+            ),
+        }
+    }
+
+    /// Frame `k`, file `name`, tracked as `p`.
+    pub fn row(&mut self, k: usize, name: &str, p: &TrackPoint) {
+        let status = match p.status {
+            Status::Tracked => "tracked",
+            Status::Recovered => "recovered",
+            Status::Defocused => "defocused",
+            Status::Rejected => "rejected",
+        };
+        let clean = |v: f64| if v.abs() < 1e-9 { 0.0 } else { v };
+        let m = |v: f64| {
+            self.um_per_px
+                .filter(|_| v.is_finite())
+                .map(|s| format!("{:.6e}", clean(v) * s * 1e-6))
+                .unwrap_or_default()
+        };
+        let num = |v: f64| {
+            if v.is_finite() {
+                fixed(clean(v), 6)
+            } else {
+                String::new()
+            }
+        };
+        let _ = writeln!(
+            self.text,
+            "{k},{name},{},{},{},{},{:.6},{},{},{status},{}",
+            num(p.u),
+            num(p.v),
+            m(p.u),
+            m(p.v),
+            p.zncc,
+            p.iterations,
+            num(p.sigma_u),
+            p.blur
+        );
+    }
+
+    /// The CSV so far.
+    pub fn text(&self) -> &str {
+        &self.text
+    }
 }
