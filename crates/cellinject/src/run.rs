@@ -8,7 +8,7 @@ use cellinject_config::Description;
 use cellinject_core::inject::Options;
 use cellinject_plate::Plate;
 use cellinject_records::{Records, RecordsError};
-use cellinject_run_sim::{FocusRow, RunProgress, Summary};
+use cellinject_run_sim::RunProgress;
 use cellinject_session::run::{self as session_run, Begin, RunFailure};
 use cellinject_twin::FaultAt;
 use clap::{Args, Subcommand};
@@ -324,7 +324,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
     if args.format == Format::Json {
         print_json(&s, &[])?;
     } else {
-        print_text(&s);
+        outln!("{}", s.text());
     }
     match (*outcome, stopped) {
         (Err(e), _) => Err(anyhow!("run {run_id} stopped: {e}")),
@@ -368,116 +368,6 @@ fn failure(e: RunFailure, args: &RunArgs) -> anyhow::Error {
     }
 }
 
-fn print_text(s: &Summary) {
-    // The twin's truth, else what the camera measured.
-    let twin = s.backend == "twin";
-    let errs: Vec<f64> = s
-        .attempts
-        .iter()
-        .filter(|a| a.outcome == "injected")
-        .filter_map(|a| {
-            if twin {
-                a.tip_error_m
-            } else {
-                a.measured_tip_error_m
-            }
-        })
-        .collect();
-    let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
-    outln!(
-        "run {} {}: {} cells found, {} injected, {} failed, {} skipped, {} interrupted",
-        s.run,
-        s.status,
-        s.cells_found,
-        s.injected,
-        s.failed,
-        s.skipped,
-        s.interrupted
-    );
-    let tip = if errs.is_empty() {
-        "no injection".to_string()
-    } else {
-        format!(
-            "mean tip error at injection {:.2} µm{}",
-            mean * 1e6,
-            if twin {
-                ""
-            } else {
-                " (as the camera measured it)"
-            }
-        )
-    };
-    outln!(
-        "{:.1} s {} ({:.1} s on cells): {:.1} cells per minute; {tip}",
-        s.sim_time_s,
-        if twin {
-            "simulated"
-        } else {
-            "on the bench's clock"
-        },
-        s.cell_time_s,
-        s.cells_per_min
-    );
-    if let Some(g) = s.grazed {
-        if g == 0 {
-            outln!("the pipette's glass touched no cell but its targets");
-        } else {
-            outln!("the pipette's glass ran into {g} other cells");
-        }
-    }
-    if !s.focus.is_empty() {
-        let swept: Vec<&FocusRow> = s.focus.iter().filter(|f| f.focus.frames > 0).collect();
-        let tilt = |f: &&FocusRow| f.focus.slope[0].hypot(f.focus.slope[1]) * 1e3;
-        let (lo, hi) = swept
-            .iter()
-            .map(tilt)
-            .fold((f64::INFINITY, 0.0f64), |(a, b), t| (a.min(t), b.max(t)));
-        let worst = s
-            .focus
-            .iter()
-            .filter_map(|f| f.true_error_m)
-            .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.max(e))));
-        let slope = if format!("{lo:.1}") == format!("{hi:.1}") {
-            format!("{hi:.1}")
-        } else {
-            format!("{lo:.1}-{hi:.1}")
-        };
-        outln!(
-            "{} focused ({} focus frames), the floor sloping {slope} um/mm{}",
-            if swept.len() == 1 {
-                "1 field".to_string()
-            } else {
-                format!("{} fields", swept.len())
-            },
-            swept.iter().map(|f| f.focus.frames).sum::<usize>(),
-            worst.map_or(String::new(), |w| format!(
-                "; the floor under the cells at most {:.2} um from where the focus put it",
-                w * 1e6
-            ))
-        );
-    }
-    for e in s
-        .events
-        .iter()
-        .filter(|e| e.event == "recheck" || e.event == "rechecked")
-    {
-        outln!("  {:.0} s: {}", e.t, e.reason);
-    }
-    for a in s.attempts.iter().filter(|a| a.outcome != "injected") {
-        outln!(
-            "  cell {} well [{}, {}]: {}: {}",
-            a.cell,
-            a.well[0],
-            a.well[1],
-            a.outcome,
-            a.reason
-        );
-    }
-    if let Some(w) = &s.stopped {
-        outln!("stopped: {w}");
-    }
-}
-
 /// `cellinject runs`.
 pub fn runs(cmd: &RunsCommand) -> Result<()> {
     match cmd {
@@ -489,24 +379,7 @@ pub fn runs(cmd: &RunsCommand) -> Result<()> {
             }
             for r in runs {
                 let a = db.attempts(r.id).map_err(records_error)?;
-                let inj = a.iter().filter(|a| a.outcome == "injected").count();
-                outln!(
-                    "run {}: {}, {} cells found, {} attempts, {} injected, {:.1} s {}{}",
-                    r.id,
-                    r.status,
-                    r.cells_found,
-                    a.len(),
-                    inj,
-                    r.sim_time_s,
-                    if r.backend == "twin" {
-                        "simulated".to_string()
-                    } else {
-                        format!("on {}", r.backend)
-                    },
-                    r.stopped
-                        .map(|s| format!(" (stopped: {s})"))
-                        .unwrap_or_default()
-                );
+                outln!("{}", cellinject_print::run::run_line(&r, &a));
             }
             Ok(())
         }

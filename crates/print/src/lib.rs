@@ -11,4 +11,5 @@ pub mod fea;
 pub mod hinge;
 pub mod hysteresis;
 pub mod model;
+pub mod run;
 pub mod table;

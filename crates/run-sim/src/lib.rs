@@ -17,6 +17,7 @@ use cellinject_plate::{GenerateOptions, Plate, PlateError, generate};
 use cellinject_records::{AttemptRow, EventRow, Records, RecordsError, RunRow};
 use cellinject_twin::{Fault, SharedTwin};
 use serde::Serialize;
+use std::fmt::Write as _;
 
 /// Why a run could not be executed (before or after the workflow: the workflow's own
 /// failures are in its [`Outcome`]).
@@ -169,6 +170,120 @@ pub struct Summary {
     /// show`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub focus: Vec<FocusRow>,
+}
+
+impl Summary {
+    /// `cellinject run`'s summary: what became of the cells, the time and rate, the tip's
+    /// error at injection (the twin's truth, else as the camera measured it), the focus
+    /// over the fields, the rechecks, each cell not injected and why, and why the run
+    /// stopped.
+    pub fn text(&self) -> String {
+        let s = self;
+        let mut out = String::new();
+        // The twin's truth, else what the camera measured.
+        let twin = s.backend == "twin";
+        let errs: Vec<f64> = s
+            .attempts
+            .iter()
+            .filter(|a| a.outcome == "injected")
+            .filter_map(|a| {
+                if twin {
+                    a.tip_error_m
+                } else {
+                    a.measured_tip_error_m
+                }
+            })
+            .collect();
+        let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
+        let _ = writeln!(
+            out,
+            "run {} {}: {} cells found, {} injected, {} failed, {} skipped, {} interrupted",
+            s.run, s.status, s.cells_found, s.injected, s.failed, s.skipped, s.interrupted
+        );
+        let tip = if errs.is_empty() {
+            "no injection".to_string()
+        } else {
+            format!(
+                "mean tip error at injection {:.2} µm{}",
+                mean * 1e6,
+                if twin {
+                    ""
+                } else {
+                    " (as the camera measured it)"
+                }
+            )
+        };
+        let _ = writeln!(
+            out,
+            "{:.1} s {} ({:.1} s on cells): {:.1} cells per minute; {tip}",
+            s.sim_time_s,
+            if twin {
+                "simulated"
+            } else {
+                "on the bench's clock"
+            },
+            s.cell_time_s,
+            s.cells_per_min
+        );
+        if let Some(g) = s.grazed {
+            if g == 0 {
+                let _ = writeln!(out, "the pipette's glass touched no cell but its targets");
+            } else {
+                let _ = writeln!(out, "the pipette's glass ran into {g} other cells");
+            }
+        }
+        if !s.focus.is_empty() {
+            let swept: Vec<&FocusRow> = s.focus.iter().filter(|f| f.focus.frames > 0).collect();
+            let tilt = |f: &&FocusRow| f.focus.slope[0].hypot(f.focus.slope[1]) * 1e3;
+            let (lo, hi) = swept
+                .iter()
+                .map(tilt)
+                .fold((f64::INFINITY, 0.0f64), |(a, b), t| (a.min(t), b.max(t)));
+            let worst = s
+                .focus
+                .iter()
+                .filter_map(|f| f.true_error_m)
+                .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.max(e))));
+            let slope = if format!("{lo:.1}") == format!("{hi:.1}") {
+                format!("{hi:.1}")
+            } else {
+                format!("{lo:.1}-{hi:.1}")
+            };
+            let _ = writeln!(
+                out,
+                "{} focused ({} focus frames), the floor sloping {slope} um/mm{}",
+                if swept.len() == 1 {
+                    "1 field".to_string()
+                } else {
+                    format!("{} fields", swept.len())
+                },
+                swept.iter().map(|f| f.focus.frames).sum::<usize>(),
+                worst.map_or(String::new(), |w| format!(
+                    "; the floor under the cells at most {:.2} um from where the focus put it",
+                    w * 1e6
+                ))
+            );
+        }
+        for e in s
+            .events
+            .iter()
+            .filter(|e| e.event == "recheck" || e.event == "rechecked")
+        {
+            let _ = writeln!(out, "  {:.0} s: {}", e.t, e.reason);
+        }
+        for a in s.attempts.iter().filter(|a| a.outcome != "injected") {
+            let _ = writeln!(
+                out,
+                "  cell {} well [{}, {}]: {}: {}",
+                a.cell, a.well[0], a.well[1], a.outcome, a.reason
+            );
+        }
+        if let Some(w) = &s.stopped {
+            let _ = writeln!(out, "stopped: {w}");
+        }
+        out.pop();
+        out
+    }
 }
 
 /// A field's focus as measured, and on the twin how far it is from the truth.
