@@ -105,7 +105,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
                 let _p = crate::progress::spinner("calibrating the cameras' pixels");
                 calibrate::pixels(&mut s.rig, marker, *step).map_err(bench_error)?
             };
-            crate::files::write_one(&path, &file_bytes("pixels", &s.made, &c)?)?;
+            cellinject_files::write_one(&path, &file_bytes("pixels", &s.made, &c)?)?;
             if twin.format() == Format::Json {
                 return print_json(c, &[&path]);
             }
@@ -147,7 +147,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
                 calibrate::hysteresis(&mut s.rig, *samples as usize, *size as usize)
                     .map_err(bench_error)?
             };
-            crate::files::write_one(&path, &file_bytes("hysteresis", &s.made, &c)?)?;
+            cellinject_files::write_one(&path, &file_bytes("hysteresis", &s.made, &c)?)?;
             if twin.format() == Format::Json {
                 return print_json(&c, &[&path]);
             }
@@ -177,7 +177,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
                 let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
                 return print_json(serde_json::json!({ "approach": s.made.approach }), &f);
             }
-            outln!("{}", crate::files::wrote(&files));
+            outln!("{}", cellinject_files::wrote(&files));
             Ok(())
         }
     }
@@ -229,7 +229,7 @@ fn calibrate_jacobian(
         )
         .map_err(bench_error)?
     };
-    crate::files::write_one(&path, &file_bytes("jacobian", &s.made, &c)?)?;
+    cellinject_files::write_one(&path, &file_bytes("jacobian", &s.made, &c)?)?;
     if twin.format() == Format::Json {
         return print_json(c, &[&path]);
     }
@@ -257,11 +257,11 @@ fn calibrate_jacobian(
 
 /// Checks a JSON output path (and that it is not the input) before the bench runs.
 fn plan_json(out: &Path, input: Option<(&str, &Path)>) -> Result<PathBuf> {
-    let mut plan = crate::files::Plan::new();
+    let mut plan = cellinject_files::Plan::new();
     if let Some((arg, p)) = input {
         plan.input(arg, p);
     }
-    let p = plan.output("--out", out, &[crate::files::Kind::Json])?;
+    let p = plan.output("--out", out, &[cellinject_files::Kind::Json])?;
     plan.check()?;
     Ok(p)
 }

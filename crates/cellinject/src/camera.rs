@@ -157,12 +157,12 @@ pub fn run(cmd: &CameraCommand) -> Result<()> {
             let req = request(a)?;
             let t = timeout(a.timeout)?;
             // The first frame's file stands for all: same directory, same extension.
-            let mut plan = crate::files::Plan::new();
+            let mut plan = cellinject_files::Plan::new();
             let first = cellinject_genicam::frame_path(&a.out, 0, a.frames as usize);
             plan.output(
                 "--out",
                 &first,
-                &[crate::files::Kind::Png, crate::files::Kind::Tiff],
+                &[cellinject_files::Kind::Png, cellinject_files::Kind::Tiff],
             )?;
             plan.check()?;
             imp::grab(id, &req, t, a)
@@ -363,7 +363,7 @@ mod imp {
             let path = cellinject_genicam::frame_path(&a.out, k, n);
             let bits = if frame.bit_depth > 8 { 16 } else { 8 };
             let bytes = crate::sim::encode_frame(&frame, bits, &path)?;
-            crate::files::write_one(&path, &bytes)
+            cellinject_files::write_one(&path, &bytes)
                 .with_context(|| format!("writing frame {k} to `{}`", path.display()))?;
             rows.push(json!({
                 "file": path.display().to_string(),

@@ -65,14 +65,14 @@ pub fn reproduce(d: &Description, out: &Path, format: Format) -> Result<()> {
         ))
     })?;
     let path = out.join("reproduce.md");
-    let mut plan = crate::files::Plan::new();
-    plan.output("--out", &path, &[crate::files::Kind::Markdown])?;
+    let mut plan = cellinject_files::Plan::new();
+    plan.output("--out", &path, &[cellinject_files::Kind::Markdown])?;
     plan.check()?;
     let r: ReproduceReport = cellinject_core::reproduce::reproduce(&d.name, &d.design)
         .context("reproduction of the paper's figures")?;
     let table = print::reproduce_table(&r);
     let md = print::reproduce_markdown(&d.name, &r);
-    crate::files::write_one(&path, md.as_bytes())?;
+    cellinject_files::write_one(&path, md.as_bytes())?;
     match format {
         Format::Json => outln!("{}", serde_json::to_string_pretty(&r)?),
         Format::Text => {

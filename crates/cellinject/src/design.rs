@@ -12,8 +12,8 @@ use cellinject_fea::JointStore;
 use cellinject_model::Approach;
 use clap::{Args, Subcommand, ValueEnum};
 
-use crate::files::{Kind, Plan, Staged, encode_rgb};
 use crate::{Format, InputError};
+use cellinject_files::{Kind, Plan, Staged, encode_rgb};
 use cellinject_print::design as print;
 
 /// `design` subcommands.
@@ -276,7 +276,7 @@ fn evaluate_batch(
         bar.inc();
     }
     drop(bar);
-    crate::files::write_one(out, body.as_bytes())?;
+    cellinject_files::write_one(out, body.as_bytes())?;
     eprintln!(
         "evaluated designs {}..{} of {} ({}failed: {failed}); wrote {}",
         range.start,
@@ -306,7 +306,7 @@ fn merge(out: &Path, count: Option<usize>, slices: &[PathBuf]) -> Result<()> {
         files.push((s.display().to_string(), text));
     }
     let merged = batch::merge(&files, count).map_err(design_error)?;
-    crate::files::write_one(out, merged.as_bytes())?;
+    cellinject_files::write_one(out, merged.as_bytes())?;
     eprintln!(
         "merged {} designs from {} slices into {}",
         merged.lines().count(),
@@ -512,5 +512,5 @@ fn write_front(
         staged.add(&files.front_svg, svg.as_bytes())?;
         staged.add(&files.front_png, &encode_rgb(rgb, &files.front_png)?)?;
     }
-    staged.commit()
+    Ok(staged.commit()?)
 }

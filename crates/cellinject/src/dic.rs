@@ -13,9 +13,9 @@ use cellinject_dic::{Acceptance, DicError, Image, PointOptions, Shape};
 use cellinject_plot::map::{maps_rgb, maps_svg};
 use clap::{Args, Subcommand, ValueEnum};
 
-use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb};
 use crate::output::print_json;
 use crate::{Format, InputError};
+use cellinject_files::{Kind, Plan, Staged, encode_image, encode_rgb};
 
 /// Shape function of the subsets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -542,7 +542,7 @@ fn encode_grey8(img: &Image, path: &Path) -> Result<Vec<u8>> {
         .collect();
     let buf = image::GrayImage::from_raw(img.width() as u32, img.height() as u32, data)
         .ok_or_else(|| anyhow::anyhow!("image buffer size"))?;
-    encode_image(&buf, path)
+    Ok(encode_image(&buf, path)?)
 }
 
 /// The settings of `dic synth`.

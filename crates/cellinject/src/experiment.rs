@@ -22,10 +22,10 @@ use cellinject_session::calibration::{self, Made, RunBench, description_digest, 
 use clap::{Args, Subcommand, ValueEnum};
 use serde::Serialize;
 
-use crate::files::Staged;
 use crate::output::print_json;
 use crate::sim::TwinArgs;
 use crate::{Format, InputError};
+use cellinject_files::Staged;
 
 /// The controllers on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -346,7 +346,7 @@ impl Outputs {
         let rgb = cellinject_plot::rgb(charts, columns, size)
             .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
         let png_path = stem.with_extension("png");
-        let png = crate::files::encode_rgb(rgb, &png_path)?;
+        let png = cellinject_files::encode_rgb(rgb, &png_path)?;
         self.add(stem.with_extension("svg"), svg.as_bytes())?;
         self.add(png_path, &png)
     }
@@ -386,7 +386,7 @@ fn finish<T: Serialize>(
         return print_json(report, &f);
     }
     outln!("{}", text());
-    outln!("{}", crate::files::wrote(&files));
+    outln!("{}", cellinject_files::wrote(&files));
     Ok(())
 }
 

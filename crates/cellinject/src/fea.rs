@@ -11,8 +11,8 @@ use cellinject_fea::{Approach, FeaError, FeaModel, FeaOptions, JointStore, Membe
 use cellinject_plot::contour::{structure_rgb, structure_svg};
 use clap::{Args, Subcommand};
 
-use crate::files::{Kind, Plan, encode_rgb, write_one};
 use crate::{Format, InputError};
+use cellinject_files::{Kind, Plan, encode_rgb, write_one};
 use cellinject_print::fea as print;
 
 /// `cellinject fea`: one load case, or a subcommand.

@@ -6,8 +6,8 @@ use cellinject_fem::hinge2d::Plane;
 use cellinject_flexure::{FlexureError, Hinge, Material};
 use clap::{Args, ValueEnum};
 
-use crate::files::{Kind, Plan, write_one};
 use crate::{Format, InputError};
+use cellinject_files::{Kind, Plan, write_one};
 use cellinject_print::hinge as print;
 
 /// Notch profiles.

@@ -15,9 +15,9 @@ use clap::{Subcommand, ValueEnum};
 use cellinject_core::table::Table;
 use serde::Serialize;
 
-use crate::files::{Kind as FileKind, Plan, write_with_plots, wrote};
 use crate::output::print_json;
 use crate::{Format, InputError};
+use cellinject_files::{Kind as FileKind, Plan, write_with_plots, wrote};
 
 /// Model classes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

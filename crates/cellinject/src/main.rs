@@ -24,7 +24,6 @@ mod dic;
 mod emulate;
 mod experiment;
 mod fea;
-mod files;
 mod hinge;
 mod hysteresis;
 mod output;
@@ -363,7 +362,8 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.downcast_ref::<InputError>().is_some() {
+            let files = e.downcast_ref::<cellinject_files::FilesError>();
+            if e.downcast_ref::<InputError>().is_some() || files.is_some_and(|f| f.is_input()) {
                 ExitCode::from(2)
             } else {
                 ExitCode::from(1)

@@ -8,9 +8,9 @@ use cellinject_plate::{GenerateOptions, Plate, generate};
 use clap::Subcommand;
 use serde::Serialize;
 
-use crate::files::{Kind as FileKind, Plan, write_one};
 use crate::output::print_json;
 use crate::{Format, InputError};
+use cellinject_files::{Kind as FileKind, Plan, write_one};
 
 /// The plate subcommands.
 #[derive(Debug, Subcommand)]

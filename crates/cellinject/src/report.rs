@@ -9,7 +9,7 @@ use anyhow::Result;
 use cellinject_records::{AttemptRow, RunRow};
 
 use crate::InputError;
-use crate::files::{Kind, Plan, write_one};
+use cellinject_files::{Kind, Plan, write_one};
 
 /// Writes `DIR/report.html` for run `id` (or the latest) of `db`.
 pub fn report(db: &Path, id: Option<i64>, out: &Path) -> Result<PathBuf> {

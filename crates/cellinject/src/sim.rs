@@ -14,9 +14,9 @@ use cellinject_twin::devices::displacement_in;
 use cellinject_twin::{SharedTwin, Twin, TwinBackend};
 use clap::{Args, Subcommand};
 
-use crate::files::{Kind, Plan, Staged, encode_image, encode_rgb, write_with_plots, wrote};
 use crate::output::print_json;
 use crate::{Format, InputError};
+use cellinject_files::{Kind, Plan, Staged, encode_image, encode_rgb, write_with_plots, wrote};
 
 /// Options shared by every `sim` command.
 #[derive(Debug, Args)]
@@ -302,13 +302,13 @@ pub fn encode_frame(frame: &Frame, bits: u8, path: &Path) -> Result<Vec<u8>> {
         let img =
             image::ImageBuffer::<image::Luma<u16>, _>::from_raw(frame.width, frame.height, data)
                 .context("frame buffer size")?;
-        encode_image(&img, path)
+        Ok(encode_image(&img, path)?)
     } else {
         let down = frame.bit_depth as u32 - 8;
         let data: Vec<u8> = frame.pixels.iter().map(|&v| (v >> down) as u8).collect();
         let img = image::GrayImage::from_raw(frame.width, frame.height, data)
             .context("frame buffer size")?;
-        encode_image(&img, path)
+        Ok(encode_image(&img, path)?)
     }
 }
 

@@ -1,3 +1,5 @@
+//! # cellinject-files
+//!
 //! Files a command writes: planned and checked before any computation, then written
 //! together at the end, atomically.
 //!
@@ -7,14 +9,43 @@
 //! must exist and be writable before the work starts; a command that fails leaves no
 //! half-set of outputs behind (every file is staged as a temporary beside its target and
 //! all are renamed only once all are written).
+//!
+//! **Architecture invariant:** the only place a command's outputs are written; errors
+//! say whether the user can fix them ([`FilesError::is_input`]).
 
 use std::fs;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+/// Why a file could not be planned, written or encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum FilesError {
+    /// A path the user gave cannot be used as given (a wrong extension, a missing
+    /// directory, an output on an input, ...): the message names the argument.
+    #[error("{0}")]
+    Invalid(String),
+    /// A file could not be written (a full disk, a permission); nothing was replaced.
+    #[error("cannot write `{}`: {source}", path.display())]
+    Write {
+        /// The file that was to be written.
+        path: PathBuf,
+        /// Why not.
+        source: std::io::Error,
+    },
+    /// An image or a plot could not be encoded.
+    #[error("{0}")]
+    Encode(String),
+}
 
-use crate::InputError;
+impl FilesError {
+    /// Whether the user can fix it (a command exits with 2 then, else with 1).
+    pub fn is_input(&self) -> bool {
+        !matches!(self, FilesError::Encode(_))
+    }
+}
+
+/// A result of this crate.
+pub type Result<T> = std::result::Result<T, FilesError>;
 
 /// What a file holds, as its extension says.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -126,12 +157,11 @@ impl Plan {
         match Kind::of(path) {
             Some(k) if kinds.contains(&k) => {}
             _ => {
-                return Err(InputError(format!(
+                return Err(FilesError::Invalid(format!(
                     "{arg} `{}`: give a {} file (the format follows the extension)",
                     path.display(),
                     names(kinds)
-                ))
-                .into());
+                )));
             }
         }
         self.outputs.push(Planned {
@@ -146,30 +176,27 @@ impl Plan {
     /// mean `loop.csv` + `loop.svg`.
     pub fn companions(&mut self, arg: &str, out: &Path, kinds: &[Kind]) -> Result<Vec<PathBuf>> {
         if out.extension().is_some() && !matches!(Kind::of(out), Some(k) if kinds.contains(&k)) {
-            return Err(InputError(format!(
+            return Err(FilesError::Invalid(format!(
                 "{arg} `{}`: this command writes {}; give a path ending in one of them",
                 out.display(),
                 names(kinds)
-            ))
-            .into());
+            )));
         }
         if out
             .file_stem()
             .is_none_or(|s| s.is_empty() || s.to_string_lossy().starts_with('.'))
         {
-            return Err(InputError(format!(
+            return Err(FilesError::Invalid(format!(
                 "{arg} `{}`: give a file name with a stem (e.g. `run.csv`)",
                 out.display()
-            ))
-            .into());
+            )));
         }
         if out.is_dir() {
-            return Err(InputError(format!(
+            return Err(FilesError::Invalid(format!(
                 "{arg} `{}` is a directory; give a file name in it (e.g. `{}`)",
                 out.display(),
                 out.join(format!("out.{}", kinds[0].extension())).display()
-            ))
-            .into());
+            )));
         }
         Ok(kinds
             .iter()
@@ -195,45 +222,41 @@ impl Plan {
                     .parent()
                     .filter(|d| !d.as_os_str().is_empty())
                     .unwrap_or(Path::new("."));
-                return Err(InputError(format!(
+                return Err(FilesError::Invalid(format!(
                     "{} `{}`: the directory `{}` does not exist (it is not created)",
                     o.arg,
                     o.path.display(),
                     dir.display()
-                ))
-                .into());
+                )));
             };
             if r.is_dir() {
-                return Err(InputError(format!(
+                return Err(FilesError::Invalid(format!(
                     "{} `{}` is a directory; give a file name",
                     o.arg,
                     o.path.display()
-                ))
-                .into());
+                )));
             }
             if let Some((_, other)) = seen.iter().find(|(p, _)| *p == r) {
-                return Err(InputError(format!(
+                return Err(FilesError::Invalid(format!(
                     "{} `{}` and {} `{}` are the same file: one would replace the other",
                     other.arg,
                     other.path.display(),
                     o.arg,
                     o.path.display()
-                ))
-                .into());
+                )));
             }
             for (arg, input) in &self.inputs {
                 if resolved(input).as_ref() == Some(&r) {
-                    return Err(InputError(format!(
+                    return Err(FilesError::Invalid(format!(
                         "{} `{}` is the input {arg} `{}`: refusing to replace a file the command reads",
                         o.arg,
                         o.path.display(),
                         input.display()
-                    ))
-                    .into());
+                    )));
                 }
             }
             writable(&r).map_err(|e| {
-                InputError(format!(
+                FilesError::Invalid(format!(
                     "{} `{}`: cannot write in its directory: {e}",
                     o.arg,
                     o.path.display()
@@ -289,7 +312,10 @@ impl Staged {
         })();
         if let Err(e) = r {
             let _ = fs::remove_file(&tmp);
-            return Err(InputError(format!("cannot write `{}`: {e}", path.display())).into());
+            return Err(FilesError::Write {
+                path: path.to_path_buf(),
+                source: e,
+            });
         }
         self.files.push((tmp, path.to_path_buf()));
         Ok(())
@@ -303,7 +329,10 @@ impl Staged {
                 for (t, _) in &files[i..] {
                     let _ = fs::remove_file(t);
                 }
-                return Err(InputError(format!("cannot write `{}`: {e}", path.display())).into());
+                return Err(FilesError::Write {
+                    path: path.to_path_buf(),
+                    source: e,
+                });
             }
         }
         Ok(())
@@ -336,16 +365,15 @@ where
         Some(Kind::Png) => image::ImageFormat::Png,
         Some(Kind::Tiff) => image::ImageFormat::Tiff,
         _ => {
-            return Err(InputError(format!(
+            return Err(FilesError::Invalid(format!(
                 "`{}`: images are written as .png or .tif",
                 path.display()
-            ))
-            .into());
+            )));
         }
     };
     let mut buf = std::io::Cursor::new(Vec::new());
     img.write_to(&mut buf, format)
-        .map_err(|e| anyhow::anyhow!("encoding `{}`: {e}", path.display()))?;
+        .map_err(|e| FilesError::Encode(format!("encoding `{}`: {e}", path.display())))?;
     Ok(buf.into_inner())
 }
 
@@ -358,10 +386,10 @@ pub fn write_with_plots(
     columns: usize,
 ) -> Result<()> {
     let size = (720, 480);
-    let svg =
-        cellinject_plot::svg(charts, columns, size).map_err(|e| anyhow::anyhow!("plot: {e}"))?;
-    let rgb =
-        cellinject_plot::rgb(charts, columns, size).map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    let svg = cellinject_plot::svg(charts, columns, size)
+        .map_err(|e| FilesError::Encode(format!("plot: {e}")))?;
+    let rgb = cellinject_plot::rgb(charts, columns, size)
+        .map_err(|e| FilesError::Encode(format!("plot: {e}")))?;
     let mut staged = Staged::new();
     staged.add(&files[0], main)?;
     staged.add(&files[1], svg.as_bytes())?;
@@ -382,7 +410,7 @@ pub fn wrote(files: &[PathBuf]) -> String {
 /// A rendered plot encoded in the format its path names (PNG or TIFF).
 pub fn encode_rgb(rgb: cellinject_plot::Rgb, path: &Path) -> Result<Vec<u8>> {
     let img = image::RgbImage::from_raw(rgb.width, rgb.height, rgb.data)
-        .ok_or_else(|| anyhow::anyhow!("plot buffer size"))?;
+        .ok_or_else(|| FilesError::Encode("plot buffer size".into()))?;
     encode_image(&img, path)
 }
 
@@ -468,3 +496,4 @@ mod tests {
         fs::remove_dir_all(&d).unwrap();
     }
 }
+
