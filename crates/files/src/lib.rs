@@ -496,4 +496,3 @@ mod tests {
         fs::remove_dir_all(&d).unwrap();
     }
 }
-

@@ -74,13 +74,15 @@ const TWIN: &str = "cellinject-twin";
 const FRONT_ENDS: [&str; 2] = ["cellinject", "cellinject-python"];
 
 /// Crates allowed to depend on the twin: the front ends, those whose names say they
-/// simulate or emulate, and the session library that opens whichever bench a rig
-/// names for the front ends (the twin one driver among the others).
+/// simulate or emulate, the session library that opens whichever bench a rig names
+/// for the front ends (the twin one driver among the others), and the station that
+/// serves that bench to the dashboard (the twin's scene as its live view).
 fn may_use_the_twin(name: &str) -> bool {
     FRONT_ENDS.contains(&name)
         || name.contains("-sim")
         || name.contains("emul")
         || name == "cellinject-session"
+        || name == "cellinject-station"
 }
 
 #[test]
