@@ -106,23 +106,8 @@ pub fn station(
         path: bench.db.clone(),
         db: Mutex::new(None),
     });
-    let Bench {
-        d,
-        opened,
-        plate,
-        plate_text,
-        seed,
-        db,
-        options,
-    } = bench;
     let station = BenchStation {
-        d,
-        opened,
-        plate,
-        plate_text,
-        seed,
-        db,
-        options,
+        b: bench,
         generation,
         session: None,
     };
@@ -131,14 +116,7 @@ pub fn station(
 
 /// The bench as the dashboard drives it.
 struct BenchStation {
-    d: Description,
-    /// The bench, its twin kept from run to run.
-    opened: Opened,
-    plate: Plate,
-    plate_text: String,
-    seed: u64,
-    db: PathBuf,
-    options: Options,
+    b: Bench,
     /// Bumped when the twin gets a fresh plate (the viewer renews its camera).
     generation: Arc<AtomicU64>,
     /// What the session's first run found of the resting tip (the side camera's
@@ -149,18 +127,18 @@ struct BenchStation {
 
 impl Station for BenchStation {
     fn backend(&self) -> String {
-        self.opened.name.clone()
+        self.b.opened.name.clone()
     }
     fn plate(&self) -> PlateView {
         PlateView {
-            rows: self.plate.rows,
-            cols: self.plate.cols,
-            pitch_m: self.plate.pitch,
-            origin_m: self.plate.origin,
+            rows: self.b.plate.rows,
+            cols: self.b.plate.cols,
+            pitch_m: self.b.plate.pitch,
+            origin_m: self.b.plate.origin,
         }
     }
     fn rig(&mut self) -> &mut Rig<DynBackend> {
-        &mut self.opened.rig
+        &mut self.b.opened.rig
     }
     fn run(
         &mut self,
@@ -175,18 +153,18 @@ impl Station for BenchStation {
             generation.fetch_add(1, Ordering::SeqCst);
         };
         let request = session_run::Request {
-            d: &self.d,
-            db: &self.db,
-            options: self.options,
+            d: &self.b.d,
+            db: &self.b.db,
+            options: self.b.options,
             hysteresis,
             session: self.session.clone(),
             begin: Begin::New {
-                plate: self.plate.clone(),
-                text: self.plate_text.clone(),
-                seed: self.seed,
+                plate: self.b.plate.clone(),
+                text: self.b.plate_text.clone(),
+                seed: self.b.seed,
                 faults: Vec::new(),
                 settings: serde_json::json!({
-                    "options": self.options,
+                    "options": self.b.options,
                     "faults": [],
                     "front_end": "dashboard",
                 }),
@@ -199,8 +177,12 @@ impl Station for BenchStation {
             plate_loaded: Some(&renew),
             ..session_run::Hooks::default()
         };
-        let ended = session_run::run(request, session_run::Bench::Opened(&mut self.opened), hooks)
-            .map_err(|e| e.to_string())?;
+        let ended = session_run::run(
+            request,
+            session_run::Bench::Opened(&mut self.b.opened),
+            hooks,
+        )
+        .map_err(|e| e.to_string())?;
         let Ended::Ran {
             run_id,
             summary,
