@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use cellinject_plate::{GenerateOptions, Plate, generate};
 use clap::Subcommand;
-use serde::Serialize;
 
 use crate::output::print_json;
 use crate::{Format, InputError};
@@ -79,75 +78,6 @@ pub enum PlateCommand {
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
     },
-}
-
-/// What a plate holds.
-#[derive(Debug, Serialize)]
-struct Summary {
-    rows: u32,
-    cols: u32,
-    pitch_m: f64,
-    wells: usize,
-    cells: usize,
-    /// Wells holding two or more cells.
-    doublets: usize,
-    empty_wells: usize,
-    debris: usize,
-    /// Smallest and largest cell, m (null without cells).
-    cell_diameter_m: Option<[f64; 2]>,
-}
-
-fn summary(p: &Plate) -> Summary {
-    let mut per_well = vec![0usize; p.wells()];
-    for c in &p.cells {
-        per_well[c.well[0] as usize * p.cols as usize + c.well[1] as usize] += 1;
-    }
-    let d = p.cells.iter().map(|c| c.diameter);
-    let cell_diameter_m = (!p.cells.is_empty()).then(|| {
-        [
-            d.clone().fold(f64::INFINITY, f64::min),
-            d.fold(0.0, f64::max),
-        ]
-    });
-    Summary {
-        rows: p.rows,
-        cols: p.cols,
-        pitch_m: p.pitch,
-        wells: p.wells(),
-        cells: p.cells.len(),
-        doublets: per_well.iter().filter(|n| **n >= 2).count(),
-        empty_wells: per_well.iter().filter(|n| **n == 0).count(),
-        debris: p.debris.len(),
-        cell_diameter_m,
-    }
-}
-
-/// `n` and the noun, singular or plural.
-fn count(n: usize, one: &str, many: &str) -> String {
-    format!("{n} {}", if n == 1 { one } else { many })
-}
-
-fn say(s: &Summary) {
-    let sizes = s
-        .cell_diameter_m
-        .map(|d| {
-            if (d[1] - d[0]).abs() < 0.05e-6 {
-                format!(" of {:.1} µm", d[0] * 1e6)
-            } else {
-                format!(" of {:.1}-{:.1} µm", d[0] * 1e6, d[1] * 1e6)
-            }
-        })
-        .unwrap_or_default();
-    outln!(
-        "{}x{} wells at {:.1} µm: {}{sizes}, {}, {}, {}",
-        s.rows,
-        s.cols,
-        s.pitch_m * 1e6,
-        count(s.cells, "cell", "cells"),
-        count(s.doublets, "doublet", "doublets"),
-        count(s.empty_wells, "empty well", "empty wells"),
-        count(s.debris, "piece of debris", "pieces of debris")
-    );
 }
 
 fn parse_origin(s: &str) -> Result<[f64; 2], String> {
@@ -236,32 +166,8 @@ fn detect(
         return print_json(&r, &[]);
     }
     outln!(
-        "{}x{} frame at {zoom}x ({:.3} µm per pixel): {} of the plate's cells and {} pieces of debris in view",
-        f.width,
-        f.height,
-        g.pitch * 1e6,
-        r.true_cells,
-        r.true_debris
-    );
-    outln!(
-        "found {} cells ({} split from a touching neighbour) and {} debris; {} match a true cell, {} do not ({} of them debris), {} cells missed",
-        r.found_cells,
-        r.cells.iter().filter(|c| c.split).count(),
-        r.found_debris,
-        r.true_positives,
-        r.false_positives,
-        r.debris_called_cells,
-        r.false_negatives
-    );
-    let ratio = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
-    let um = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{:.3} µm", v * 1e6));
-    outln!(
-        "precision {}, recall {}; centre error median {}, 95th percentile {}; diameter error median {}",
-        ratio(r.precision),
-        ratio(r.recall),
-        um(r.centre_error_m.map(|c| c[0])),
-        um(r.centre_error_m.map(|c| c[1])),
-        um(r.diameter_error_m)
+        "{}",
+        cellinject_print::plate::detect_text(&r, zoom, (f.width, f.height), g.pitch)
     );
     Ok(())
 }
@@ -317,21 +223,21 @@ pub fn run(
             );
             let text = cellinject_config::plate::to_toml(&plate, &comment);
             write_one(out, text.as_bytes())?;
-            let s = summary(&plate);
+            let s = cellinject_print::plate::summary(&plate);
             if *format == Format::Json {
                 return print_json(&s, &[out.as_path()]);
             }
-            say(&s);
+            outln!("{}", cellinject_print::plate::summary_text(&s));
             outln!("wrote {}", out.display());
             Ok(())
         }
         PlateCommand::Check { plate, format } => {
             let p = load("--plate", plate)?;
-            let s = summary(&p);
+            let s = cellinject_print::plate::summary(&p);
             if *format == Format::Json {
                 return print_json(&s, &[]);
             }
-            say(&s);
+            outln!("{}", cellinject_print::plate::summary_text(&s));
             Ok(())
         }
     }

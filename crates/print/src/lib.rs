@@ -11,5 +11,6 @@ pub mod fea;
 pub mod hinge;
 pub mod hysteresis;
 pub mod model;
+pub mod plate;
 pub mod run;
 pub mod table;
