@@ -9,6 +9,7 @@ use cellinject_config::Description;
 use cellinject_core::bench::{Bench, Timing};
 use cellinject_core::calibrate;
 use cellinject_core::vision::Acquisition;
+use cellinject_print::calibrate as print;
 use cellinject_session::calibration;
 use clap::Subcommand;
 
@@ -109,19 +110,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             if twin.format() == Format::Json {
                 return print_json(c, &[&path]);
             }
-            for m in &c.maps {
-                outln!(
-                    "{} camera: {:.5} x {:.5} µm per pixel (nominal {:.5}), rotation {:.3} mrad, shear {:.3} mrad, residual {:.3} px over {} positions",
-                    m.camera.name(),
-                    m.metres_per_pixel[0] * 1e6,
-                    m.metres_per_pixel[1] * 1e6,
-                    m.nominal_pixel * 1e6,
-                    m.rotation * 1e3,
-                    m.skew * 1e3,
-                    m.rms_px,
-                    m.moves
-                );
-            }
+            outln!("{}", print::pixels_text(&c));
             outln!("wrote {}", path.display());
             Ok(())
         }
@@ -151,16 +140,7 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             if twin.format() == Format::Json {
                 return print_json(&c, &[&path]);
             }
-            for i in 0..2 {
-                outln!(
-                    "A{}: Preisach fit RMS {:.1} nm ({:.2} % of the span) up to {:.1} V; creep {:.2} % per decade",
-                    i + 1,
-                    c.fit_rms[i] * 1e9,
-                    c.fit_rms_relative[i] * 100.0,
-                    c.v_max[i],
-                    c.creep[i].gamma * 100.0
-                );
-            }
+            outln!("{}", print::hysteresis_text(&c));
             outln!("wrote {}", path.display());
             Ok(())
         }
@@ -233,24 +213,7 @@ fn calibrate_jacobian(
     if twin.format() == Format::Json {
         return print_json(c, &[&path]);
     }
-    let j = c.jacobian;
-    outln!(
-        "tip per stack extension (m/m): [[{:.4}, {:.4}], [{:.4}, {:.4}]]; model [[{:.4}, {:.4}], [{:.4}, {:.4}]]",
-        j[0][0],
-        j[0][1],
-        j[1][0],
-        j[1][1],
-        c.model[0][0],
-        c.model[0][1],
-        c.model[1][0],
-        c.model[1][1]
-    );
-    outln!(
-        "deviation from the model {:.2} %, spread over {} steps {:.2} %",
-        c.deviation * 100.0,
-        c.repeats,
-        c.spread * 100.0
-    );
+    outln!("{}", print::jacobian_text(&c));
     outln!("wrote {}", path.display());
     Ok(())
 }

@@ -49,14 +49,7 @@ pub fn run(d: &Description, cmd: &RigCommand) -> Result<()> {
             (None, None) => format!("rig {}", rig.backend()),
         };
         outln!("{title}");
-        let width = answers.iter().map(|x| x.driver.len()).max().unwrap_or(0);
-        for x in &answers {
-            let (mark, detail) = match &x.result {
-                Ok(s) => ("ok ", s.as_str()),
-                Err(s) => ("NO ", s.as_str()),
-            };
-            outln!("  {mark} {:<12} {:<width$}  {detail}", x.section, x.driver);
-        }
+        out!("{}", cellinject_session::check_text(&answers));
     }
     if silent > 0 {
         return Err(anyhow!(

@@ -4,6 +4,7 @@
 //! made from the libraries' typed reports. Pure: strings and charts out, no IO; the
 //! binary (and any other front end) writes them where they belong.
 
+pub mod calibrate;
 pub mod design;
 pub mod dic;
 pub mod experiment;

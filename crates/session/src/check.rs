@@ -116,6 +116,25 @@ pub fn check(d: &Description, rig: &RigFile) -> Result<Vec<Answer>, SessionError
         .collect())
 }
 
+/// `cellinject rig check`'s lines: each device's section, driver and answer (`ok` or
+/// `NO` and why), aligned.
+pub fn text(answers: &[Answer]) -> String {
+    let width = answers.iter().map(|x| x.driver.len()).max().unwrap_or(0);
+    answers
+        .iter()
+        .map(|x| {
+            let (mark, detail) = match &x.result {
+                Ok(s) => ("ok ", s.as_str()),
+                Err(s) => ("NO ", s.as_str()),
+            };
+            format!(
+                "  {mark} {:<12} {:<width$}  {detail}\n",
+                x.section, x.driver
+            )
+        })
+        .collect()
+}
+
 /// What `cellinject rig check --format json` prints and Python's `rig.check`
 /// returns: the rig's name and bench, and each device's answer.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

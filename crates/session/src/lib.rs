@@ -32,7 +32,7 @@ mod check;
 pub mod report;
 pub mod run;
 
-pub use check::{Answer, CheckReport, DeviceReport, check};
+pub use check::{Answer, CheckReport, DeviceReport, check, text as check_text};
 
 /// Why a bench could not be opened.
 #[derive(Debug, Clone, PartialEq, Error)]
