@@ -14,9 +14,7 @@ use cellinject_session::calibration;
 use clap::Subcommand;
 
 use crate::backend::BackendArgs;
-use crate::experiment::{
-    Outputs, bench_error, calibrations, check_dir, file_bytes, given_pixels, setup,
-};
+use crate::experiment::{bench_error, calibrations, file_bytes, given_pixels, setup};
 use crate::output::print_json;
 use crate::sim::TwinArgs;
 use crate::{Format, InputError};
@@ -145,13 +143,11 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             Ok(())
         }
         CalibrateCommand::All { out, twin, backend } => {
-            check_dir("--out", out)?;
+            cellinject_files::check_dir("--out", out)?;
             let mut s = setup(d, twin, backend)?;
             let (_, _, made) = calibrations(&mut s, None)?;
-            let mut o = Outputs::new();
-            for (name, bytes) in made {
-                o.add(out.join(format!("{name}.json")), &bytes)?;
-            }
+            let mut o = cellinject_files::Outputs::new("--out");
+            o.add_named(out, made, "json")?;
             let files = o.commit()?;
             if twin.format() == Format::Json {
                 let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();

@@ -25,7 +25,7 @@ use serde::Serialize;
 use crate::output::print_json;
 use crate::sim::TwinArgs;
 use crate::{Format, InputError};
-use cellinject_files::Staged;
+use cellinject_files::{Outputs, check_dir};
 
 /// The controllers on the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -269,94 +269,6 @@ pub(crate) fn file_bytes<T: Serialize + Clone>(kind: &str, made: &Made, c: &T) -
     Ok(calibration::file_bytes(kind, made, c)?)
 }
 
-/// Creates `dir` (and its parents) or says why not.
-/// Refuses an output directory that cannot be made (a file in the way, or no existing
-/// directory above it); nothing is created yet, so a command that fails leaves nothing.
-pub(crate) fn check_dir(arg: &str, dir: &Path) -> Result<()> {
-    let mut p = Some(dir);
-    while let Some(d) = p {
-        if d.as_os_str().is_empty() || d.is_dir() {
-            return Ok(());
-        }
-        if d.exists() {
-            return Err(InputError(format!(
-                "{arg} `{}`: `{}` is a file, not a directory",
-                dir.display(),
-                d.display()
-            ))
-            .into());
-        }
-        p = d.parent();
-    }
-    Ok(())
-}
-
-/// Creates an output directory (when the outputs are ready to be written).
-fn make_dir(arg: &str, dir: &Path) -> Result<()> {
-    check_dir(arg, dir)?;
-    std::fs::create_dir_all(dir).map_err(|e| {
-        InputError(format!(
-            "{arg}: cannot create the directory `{}`: {e}",
-            dir.display()
-        ))
-        .into()
-    })
-}
-
-/// The files of one experiment, written together: the made calibrations under
-/// OUT/calibration, then CSV, JSON, SVG and PNG.
-pub(crate) struct Outputs {
-    staged: Staged,
-    written: Vec<PathBuf>,
-}
-
-impl Outputs {
-    pub(crate) fn new() -> Self {
-        Outputs {
-            staged: Staged::new(),
-            written: Vec::new(),
-        }
-    }
-
-    pub(crate) fn add(&mut self, path: PathBuf, bytes: &[u8]) -> Result<()> {
-        if let Some(dir) = path.parent() {
-            make_dir("--out", dir)?;
-        }
-        self.staged.add(&path, bytes)?;
-        self.written.push(path);
-        Ok(())
-    }
-
-    fn calibrations(&mut self, out: &Path, made: calibration::MadeFiles) -> Result<()> {
-        if made.is_empty() {
-            return Ok(());
-        }
-        let dir = out.join("calibration");
-        make_dir("--out", &dir)?;
-        for (name, bytes) in made {
-            self.add(dir.join(format!("{name}.json")), &bytes)?;
-        }
-        Ok(())
-    }
-
-    fn plots(&mut self, stem: &Path, charts: &[Chart], columns: usize) -> Result<()> {
-        let size = (720, 480);
-        let svg = cellinject_plot::svg(charts, columns, size)
-            .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
-        let rgb = cellinject_plot::rgb(charts, columns, size)
-            .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
-        let png_path = stem.with_extension("png");
-        let png = cellinject_files::encode_rgb(rgb, &png_path)?;
-        self.add(stem.with_extension("svg"), svg.as_bytes())?;
-        self.add(png_path, &png)
-    }
-
-    pub(crate) fn commit(self) -> Result<Vec<PathBuf>> {
-        self.staged.commit()?;
-        Ok(self.written)
-    }
-}
-
 /// The files an experiment writes beside its JSON: `stem`.csv and its charts (in so
 /// many columns) as `stem`.svg and `stem`.png.
 struct Written {
@@ -375,8 +287,8 @@ fn finish<T: Serialize>(
     text: impl FnOnce() -> String,
 ) -> Result<()> {
     let stem = args.out.join(&written.stem);
-    let mut out = Outputs::new();
-    out.calibrations(&args.out, made)?;
+    let mut out = Outputs::new("--out");
+    out.add_named(&args.out.join("calibration"), made, "json")?;
     out.add(stem.with_extension("csv"), written.csv.as_bytes())?;
     out.add(stem.with_extension("json"), &json_bytes(report)?)?;
     out.plots(&stem, &written.charts.0, written.charts.1)?;
@@ -418,7 +330,7 @@ fn check_out(bench: &BenchArgs) -> Result<()> {
         ))
         .into());
     }
-    check_dir("--out", &bench.out)
+    Ok(check_dir("--out", &bench.out)?)
 }
 
 /// Runs an `experiment` command.

@@ -385,16 +385,24 @@ pub fn write_with_plots(
     charts: &[cellinject_plot::Chart],
     columns: usize,
 ) -> Result<()> {
-    let size = (720, 480);
-    let svg = cellinject_plot::svg(charts, columns, size)
-        .map_err(|e| FilesError::Encode(format!("plot: {e}")))?;
-    let rgb = cellinject_plot::rgb(charts, columns, size)
-        .map_err(|e| FilesError::Encode(format!("plot: {e}")))?;
+    let (svg, rgb) = render(charts, columns)?;
     let mut staged = Staged::new();
     staged.add(&files[0], main)?;
     staged.add(&files[1], svg.as_bytes())?;
     staged.add(&files[2], &encode_rgb(rgb, &files[2])?)?;
     staged.commit()
+}
+
+/// `charts` in so many `columns`, 720 x 480 each, as SVG and as an RGB image.
+fn render(
+    charts: &[cellinject_plot::Chart],
+    columns: usize,
+) -> Result<(String, cellinject_plot::Rgb)> {
+    let size = (720, 480);
+    let plot = |e| FilesError::Encode(format!("plot: {e}"));
+    let svg = cellinject_plot::svg(charts, columns, size).map_err(plot)?;
+    let rgb = cellinject_plot::rgb(charts, columns, size).map_err(plot)?;
+    Ok((svg, rgb))
 }
 
 /// "wrote a, b and c" for the files a command wrote.
@@ -412,6 +420,102 @@ pub fn encode_rgb(rgb: cellinject_plot::Rgb, path: &Path) -> Result<Vec<u8>> {
     let img = image::RgbImage::from_raw(rgb.width, rgb.height, rgb.data)
         .ok_or_else(|| FilesError::Encode("plot buffer size".into()))?;
     encode_image(&img, path)
+}
+
+/// Refuses an output directory that cannot be made (a file in the way); nothing is
+/// created yet, so a command that fails leaves nothing. `arg` names it in messages.
+pub fn check_dir(arg: &str, dir: &Path) -> Result<()> {
+    let mut p = Some(dir);
+    while let Some(d) = p {
+        if d.as_os_str().is_empty() || d.is_dir() {
+            return Ok(());
+        }
+        if d.exists() {
+            return Err(FilesError::Invalid(format!(
+                "{arg} `{}`: `{}` is a file, not a directory",
+                dir.display(),
+                d.display()
+            )));
+        }
+        p = d.parent();
+    }
+    Ok(())
+}
+
+/// Creates an output directory and its parents (when the outputs are ready to be
+/// written), after [`check_dir`].
+pub fn make_dir(arg: &str, dir: &Path) -> Result<()> {
+    check_dir(arg, dir)?;
+    fs::create_dir_all(dir).map_err(|e| {
+        FilesError::Invalid(format!(
+            "{arg}: cannot create the directory `{}`: {e}",
+            dir.display()
+        ))
+    })
+}
+
+/// The files of one command under an output directory (`arg`, `--out`), written
+/// together ([`Staged`]), their directories made as they are added; the paths written
+/// are returned by [`Outputs::commit`], in order.
+pub struct Outputs {
+    arg: String,
+    staged: Staged,
+    written: Vec<PathBuf>,
+}
+
+impl Outputs {
+    /// Nothing yet; `arg` names the output directory in messages.
+    pub fn new(arg: &str) -> Self {
+        Outputs {
+            arg: arg.to_string(),
+            staged: Staged::new(),
+            written: Vec::new(),
+        }
+    }
+
+    /// `path`, its directory made.
+    pub fn add(&mut self, path: PathBuf, bytes: &[u8]) -> Result<()> {
+        if let Some(dir) = path.parent() {
+            make_dir(&self.arg, dir)?;
+        }
+        self.staged.add(&path, bytes)?;
+        self.written.push(path);
+        Ok(())
+    }
+
+    /// Each `(name, bytes)` of `files` as `dir/name.extension` (`dir` made only if
+    /// there is any).
+    pub fn add_named(
+        &mut self,
+        dir: &Path,
+        files: Vec<(String, Vec<u8>)>,
+        extension: &str,
+    ) -> Result<()> {
+        for (name, bytes) in files {
+            self.add(dir.join(format!("{name}.{extension}")), &bytes)?;
+        }
+        Ok(())
+    }
+
+    /// `charts` (in so many `columns`) as `stem`.svg and `stem`.png.
+    pub fn plots(
+        &mut self,
+        stem: &Path,
+        charts: &[cellinject_plot::Chart],
+        columns: usize,
+    ) -> Result<()> {
+        let (svg, rgb) = render(charts, columns)?;
+        let png_path = stem.with_extension("png");
+        let png = encode_rgb(rgb, &png_path)?;
+        self.add(stem.with_extension("svg"), svg.as_bytes())?;
+        self.add(png_path, &png)
+    }
+
+    /// Renames every file into place; the paths written.
+    pub fn commit(self) -> Result<Vec<PathBuf>> {
+        self.staged.commit()?;
+        Ok(self.written)
+    }
 }
 
 #[cfg(test)]
