@@ -11,14 +11,13 @@ use cellinject_core::bench::{Bench, BenchError, Timing};
 use cellinject_core::calibrate::{HysteresisCalibration, PixelCalibration};
 use cellinject_core::experiment::{self, Calibrations, RepeatabilityOptions, TrackingOptions};
 use cellinject_core::vision::Acquisition;
-use cellinject_hw::Optics as _;
 use cellinject_plot::Chart;
 use cellinject_print::experiment as print;
 use cellinject_rig::{DynBackend, Rig};
 use cellinject_twin::SharedTwin;
 
 use crate::backend::BackendArgs;
-use cellinject_session::calibration::{self, Made, RunBench, description_digest, utc_now};
+use cellinject_session::calibration::{self, Made, RunBench};
 use clap::{Args, Subcommand, ValueEnum};
 use serde::Serialize;
 
@@ -159,27 +158,11 @@ pub(crate) struct Setup {
 
 pub(crate) fn setup(d: &Description, args: &TwinArgs, backend: &BackendArgs) -> Result<Setup> {
     let o = crate::backend::open(d, args, &backend.rig()?)?;
-    let (seed, zoom) = match &o.twin {
-        Some(twin) => {
-            let t = twin.lock().unwrap_or_else(|e| e.into_inner());
-            (Some(t.world.params().sim.seed), t.camera.zoom())
-        }
-        None => (None, o.rig.optics.zoom()),
-    };
-    let mut description = d.clone();
-    description.rig.approach = o.approach;
+    let (made, description) = Made::of(d, &o);
     Ok(Setup {
         twin: o.twin,
         rig: o.rig,
-        made: Made {
-            created_utc: utc_now(),
-            backend: o.name,
-            design: d.name.clone(),
-            approach: o.approach.number(),
-            seed,
-            zoom,
-            description_digest: Some(description_digest(d)),
-        },
+        made,
         description,
     })
 }

@@ -87,6 +87,34 @@ pub enum CalibrationError {
     },
 }
 
+impl Made {
+    /// What a calibration made now on the bench `o` records, and the description as
+    /// that bench runs it (`d` with the approach the bench was assembled with): the
+    /// twin's seed and zoom on the twin, the lens's zoom on hardware.
+    pub fn of(d: &Description, o: &crate::Opened) -> (Made, Description) {
+        use cellinject_hw::Optics as _;
+        let (seed, zoom) = match &o.twin {
+            Some(twin) => {
+                let t = twin.lock().unwrap_or_else(|e| e.into_inner());
+                (Some(t.world.params().sim.seed), t.camera.zoom())
+            }
+            None => (None, o.rig.optics.zoom()),
+        };
+        let mut description = d.clone();
+        description.rig.approach = o.approach;
+        let made = Made {
+            created_utc: utc_now(),
+            backend: o.name.clone(),
+            design: d.name.clone(),
+            approach: o.approach.number(),
+            seed,
+            zoom,
+            description_digest: Some(description_digest(d)),
+        };
+        (made, description)
+    }
+}
+
 /// A digest of description `d`, every value it holds (not its file's text: comments
 /// and the order of keys do not change it): FNV-1a, 64 bits, of its debug form, as 16
 /// hex digits. It tells a calibration made on another description (a stack's travel,
