@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use cellinject_design::batch::{self, ResultLine, Shard};
+use cellinject_design::batch::{self, Shard};
 use cellinject_design::study::{FrontEntry, Record, Settings, Study};
 use cellinject_design::{DesignError, EvalOptions, Fidelity, Figures, Space, evaluate};
 use cellinject_fea::JointStore;
@@ -240,40 +240,15 @@ fn evaluate_batch(
     let name = batch_path.display().to_string();
     let lines = batch::parse(&name, &text).map_err(design_error)?;
     // Every line's keys are checked before anything is computed.
-    let mut descs = Vec::with_capacity(lines.len());
-    for (k, l) in lines.iter().enumerate() {
-        let t = cellinject_config::overrides::apply(base, &l.overrides)
-            .map_err(|e| InputError(format!("{name} design {k}: {e}")))?;
-        descs.push(t);
-    }
+    let descs = batch::descriptions(base, &name, &lines).map_err(design_error)?;
     let range = shard.range(lines.len());
     let bar = crate::progress::rate_bar(range.len() as u64, "designs");
+    let (results, failed) =
+        batch::evaluate_lines(&lines, &descs, range.clone(), opts, store, &|| bar.inc());
     let mut body = String::new();
-    let mut failed = 0usize;
-    for k in range.clone() {
-        let r = cellinject_config::parse(&descs[k])
-            .map_err(DesignError::from)
-            .and_then(|d| evaluate(&d, opts, store));
-        let line = match r {
-            Ok(f) => ResultLine {
-                index: k,
-                variables: lines[k].variables.clone(),
-                figures: Some(f),
-                error: None,
-            },
-            Err(e) => {
-                failed += 1;
-                ResultLine {
-                    index: k,
-                    variables: lines[k].variables.clone(),
-                    figures: None,
-                    error: Some(e.to_string()),
-                }
-            }
-        };
-        body.push_str(&serde_json::to_string(&line)?);
+    for line in &results {
+        body.push_str(&serde_json::to_string(line)?);
         body.push('\n');
-        bar.inc();
     }
     drop(bar);
     cellinject_files::write_one(out, body.as_bytes())?;

@@ -15,7 +15,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use crate::DesignError;
-use crate::evaluate::Figures;
+use crate::evaluate::{EvalOptions, Figures, evaluate};
+use cellinject_fea::JointStore;
 
 /// One design of a batch.
 #[derive(Debug, Clone, PartialEq)]
@@ -178,6 +179,60 @@ pub fn merge(files: &[(String, String)], count: Option<usize>) -> Result<String,
         out.push('\n');
     }
     Ok(out)
+}
+
+/// The descriptions of a batch's `lines` (from the file `name`): `base` with each line's
+/// overrides, every line's keys checked before anything is computed; the error names
+/// the line.
+pub fn descriptions(base: &str, name: &str, lines: &[Line]) -> Result<Vec<String>, DesignError> {
+    lines
+        .iter()
+        .enumerate()
+        .map(|(k, l)| {
+            cellinject_config::overrides::apply(base, &l.overrides).map_err(|e| {
+                DesignError::Input {
+                    key: format!("{name} design {k}"),
+                    reason: e.to_string(),
+                }
+            })
+        })
+        .collect()
+}
+
+/// Evaluates the lines `range` of a batch (their descriptions `descs`), calling `done`
+/// after each: a result line each, with the figures or why the design could not be
+/// evaluated, and how many could not.
+pub fn evaluate_lines(
+    lines: &[Line],
+    descs: &[String],
+    range: Range<usize>,
+    opts: &EvalOptions,
+    store: &dyn JointStore,
+    done: &dyn Fn(),
+) -> (Vec<ResultLine>, usize) {
+    let mut failed = 0;
+    let out = range
+        .map(|k| {
+            let r = cellinject_config::parse(&descs[k])
+                .map_err(DesignError::from)
+                .and_then(|d| evaluate(&d, opts, store));
+            let (figures, error) = match r {
+                Ok(f) => (Some(f), None),
+                Err(e) => {
+                    failed += 1;
+                    (None, Some(e.to_string()))
+                }
+            };
+            done();
+            ResultLine {
+                index: k,
+                variables: lines[k].variables.clone(),
+                figures,
+                error,
+            }
+        })
+        .collect();
+    (out, failed)
 }
 
 #[cfg(test)]
