@@ -154,23 +154,8 @@ fn read_table(
     let t = Table::parse(&text, needed, optional)
         .and_then(|t| t.non_decreasing("time_s").map(|()| t))
         .map_err(|e| InputError(format!("{arg} `{}`: {e}", path.display())))?;
-    if !t.ignored.is_empty() {
-        eprintln!(
-            "warning: {arg} `{}`: column{} {} ignored (this command reads {})",
-            path.display(),
-            if t.ignored.len() == 1 { "" } else { "s" },
-            t.ignored
-                .iter()
-                .map(|c| format!("`{c}`"))
-                .collect::<Vec<_>>()
-                .join(", "),
-            needed
-                .iter()
-                .chain(optional)
-                .map(|c| format!("`{c}`"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+    if let Some(note) = t.ignored_note(needed, optional) {
+        eprintln!("warning: {arg} `{}`: {note}", path.display());
     }
     Ok(t)
 }

@@ -100,6 +100,22 @@ fn unquote(s: &str) -> &str {
 }
 
 impl Table {
+    /// What a command reading `needed` and `optional` columns says of the others, when
+    /// there are any: "columns `a`, `b` ignored (this command reads `x`, `y`)".
+    pub fn ignored_note(&self, needed: &[&str], optional: &[&str]) -> Option<String> {
+        let quoted = |v: &mut dyn Iterator<Item = &str>| {
+            v.map(|c| format!("`{c}`")).collect::<Vec<_>>().join(", ")
+        };
+        (!self.ignored.is_empty()).then(|| {
+            format!(
+                "column{} {} ignored (this command reads {})",
+                if self.ignored.len() == 1 { "" } else { "s" },
+                quoted(&mut self.ignored.iter().map(String::as_str)),
+                quoted(&mut needed.iter().chain(optional).copied())
+            )
+        })
+    }
+
     /// Reads `text`: a header line naming the columns, then one row per line (blank
     /// lines skipped), fields separated by commas (surrounding spaces and double quotes
     /// are dropped). `needed` columns must be present, `optional` ones may be.
@@ -234,6 +250,22 @@ mod tests {
     #![allow(clippy::unwrap_used)]
 
     use super::*;
+
+    #[test]
+    fn the_ignored_columns_are_named_with_what_is_read() {
+        let t = Table::parse("t,a,b,c\n0,1,2,3\n", &["a"], &["t", "z"]).unwrap();
+        assert_eq!(
+            t.ignored_note(&["a"], &["t", "z"]).as_deref(),
+            Some("columns `b`, `c` ignored (this command reads `a`, `t`, `z`)")
+        );
+        let t = Table::parse("a,b\n1,2\n", &["a"], &[]).unwrap();
+        assert_eq!(
+            t.ignored_note(&["a"], &[]).as_deref(),
+            Some("column `b` ignored (this command reads `a`)")
+        );
+        let t = Table::parse("a\n1\n", &["a"], &[]).unwrap();
+        assert_eq!(t.ignored_note(&["a"], &[]), None);
+    }
 
     const NEEDED: &[&str] = &["voltage_v", "displacement_m"];
 
