@@ -241,15 +241,7 @@ mod imp {
                     );
                 }
                 for d in &found {
-                    outln!(
-                        "{}  {} {}  serial {}  {} {}",
-                        d.id,
-                        d.vendor,
-                        d.model,
-                        d.serial,
-                        d.interface,
-                        d.address
-                    );
+                    outln!("{}", d.line());
                 }
             }
         }
@@ -279,49 +271,7 @@ mod imp {
         let i = cam.info().map_err(error)?;
         match format {
             Format::Json => outln!("{}", serde_json::to_string_pretty(&info_json(&i))?),
-            Format::Text => {
-                let l = &i.limits;
-                outln!("{} ({} {}, serial {})", i.id, i.vendor, i.model, i.serial);
-                outln!("sensor        {} x {} pixels", l.sensor.0, l.sensor.1);
-                outln!("pixel formats {}", l.pixel_formats.join(", "));
-                outln!(
-                    "exposure      {:.1} µs (from {:.1} to {:.1} µs)",
-                    i.exposure * 1e6,
-                    l.exposure.0 * 1e6,
-                    l.exposure.1 * 1e6
-                );
-                match (l.gain, i.gain) {
-                    (Some((lo, hi)), Some(g)) => {
-                        outln!("gain          {g:.2} dB (from {lo:.2} to {hi:.2} dB)")
-                    }
-                    _ => outln!("gain          none"),
-                }
-                outln!(
-                    "region        {},{},{},{} (width {}..{} step {}, height {}..{} step {})",
-                    i.region.x,
-                    i.region.y,
-                    i.region.width,
-                    i.region.height,
-                    l.width.0,
-                    l.width.1,
-                    l.width.2,
-                    l.height.0,
-                    l.height.1,
-                    l.height.2
-                );
-                match l.binning {
-                    Some((lo, hi)) => outln!("binning       {} (from {lo} to {hi})", i.binning),
-                    None => outln!("binning       not available"),
-                }
-                outln!("pixel format  {}", i.pixel_format);
-                match l.frame_rate {
-                    Some((lo, hi)) => outln!(
-                        "frame rate    {:.2} frames/s (from {lo:.2} to {hi:.2})",
-                        i.frame_rate
-                    ),
-                    None => outln!("frame rate    {:.2} frames/s (fixed)", i.frame_rate),
-                }
-            }
+            Format::Text => out!("{}", i.text()),
         }
         Ok(())
     }

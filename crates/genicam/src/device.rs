@@ -51,6 +51,16 @@ pub struct DeviceInfo {
     pub interface: String,
 }
 
+impl DeviceInfo {
+    /// `camera list`'s line: id, vendor and model, serial, interface and address.
+    pub fn line(&self) -> String {
+        format!(
+            "{}  {} {}  serial {}  {} {}",
+            self.id, self.vendor, self.model, self.serial, self.interface, self.address
+        )
+    }
+}
+
 /// Aravis's device list is global state, and its GenICam parser (libxml2's SAX with
 /// Aravis's DOM builder) is not safe to run on two threads at once (two cameras opened
 /// together corrupt each other's feature tree): one list or open at a time.
@@ -117,6 +127,61 @@ pub struct CameraInfo {
     pub pixel_format: String,
     /// Current frame rate, frames per second.
     pub frame_rate: f64,
+}
+
+impl CameraInfo {
+    /// `camera info`'s text: what the camera is, its sensor, pixel formats, exposure,
+    /// gain, region, binning and frame rate, each with its range.
+    pub fn text(&self) -> String {
+        let l = &self.limits;
+        let gain = match (l.gain, self.gain) {
+            (Some((lo, hi)), Some(g)) => format!("{g:.2} dB (from {lo:.2} to {hi:.2} dB)"),
+            _ => "none".into(),
+        };
+        let binning = match l.binning {
+            Some((lo, hi)) => format!("{} (from {lo} to {hi})", self.binning),
+            None => "not available".into(),
+        };
+        let rate = match l.frame_rate {
+            Some((lo, hi)) => format!("{:.2} frames/s (from {lo:.2} to {hi:.2})", self.frame_rate),
+            None => format!("{:.2} frames/s (fixed)", self.frame_rate),
+        };
+        let r = &self.region;
+        [
+            format!(
+                "{} ({} {}, serial {})",
+                self.id, self.vendor, self.model, self.serial
+            ),
+            format!("sensor        {} x {} pixels", l.sensor.0, l.sensor.1),
+            format!("pixel formats {}", l.pixel_formats.join(", ")),
+            format!(
+                "exposure      {:.1} µs (from {:.1} to {:.1} µs)",
+                self.exposure * 1e6,
+                l.exposure.0 * 1e6,
+                l.exposure.1 * 1e6
+            ),
+            format!("gain          {gain}"),
+            format!(
+                "region        {},{},{},{} (width {}..{} step {}, height {}..{} step {})",
+                r.x,
+                r.y,
+                r.width,
+                r.height,
+                l.width.0,
+                l.width.1,
+                l.width.2,
+                l.height.0,
+                l.height.1,
+                l.height.2
+            ),
+            format!("binning       {binning}"),
+            format!("pixel format  {}", self.pixel_format),
+            format!("frame rate    {rate}"),
+        ]
+        .iter()
+        .map(|line| format!("{line}\n"))
+        .collect()
+    }
 }
 
 /// The stream's counters since the acquisition started.
