@@ -3,7 +3,8 @@
 //! module (kept at its end) and without `tests/` folders. The files and functions
 //! over them today are listed with their size: a listed one may shrink, not grow,
 //! and leaves the list once it is within the rule (the test says so), so the debt
-//! only goes down.
+//! only goes down. And a thin binary: `crates/cellinject/src` holds at most a tenth
+//! of those lines (it parses, calls one library function per command, and prints).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -14,6 +15,8 @@ use std::path::{Path, PathBuf};
 const FILE_LINES: usize = 1000;
 /// Longest function, in lines from its `fn` to its closing brace.
 const FN_LINES: usize = 150;
+/// Largest share of the lines under `crates/*/src` the binary's `src` may hold.
+const BINARY_SHARE: f64 = 0.10;
 
 /// Files over [`FILE_LINES`] today, with their length (issue 38 splits them).
 const LONG_FILES: &[(&str, usize)] = &[
@@ -215,6 +218,25 @@ fn no_file_over_1000_lines_and_no_function_over_150_beyond_the_listed_debt() {
         }
     }
     assert!(faults.is_empty(), "{}", faults.join("\n"));
+}
+
+#[test]
+fn the_binary_holds_at_most_a_tenth_of_the_source() {
+    let (mut binary, mut all) = (0usize, 0usize);
+    for f in sources() {
+        let n = code_lines(&std::fs::read_to_string(root().join(&f)).unwrap()).len();
+        all += n;
+        if f.starts_with("crates/cellinject/src/") {
+            binary += n;
+        }
+    }
+    let share = binary as f64 / all as f64;
+    assert!(
+        share <= BINARY_SHARE,
+        "crates/cellinject/src holds {binary} of {all} source lines ({:.1} %, at most {:.0} %): move what is not parsing or printing into a library crate",
+        share * 100.0,
+        BINARY_SHARE * 100.0
+    );
 }
 
 #[test]
