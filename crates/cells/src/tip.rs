@@ -88,36 +88,7 @@ pub fn locate_tapered(
     blur: Option<f64>,
     taper: f64,
 ) -> Result<Tip, CellsError> {
-    if !(taper.is_finite() && taper > 0.0) {
-        return Err(CellsError::Invalid {
-            what: "taper",
-            value: taper,
-            reason: "must be a positive growth of the radius per length",
-        });
-    }
-    if pixels.len() != width * height || width < 8 || height < 8 {
-        return Err(CellsError::Size {
-            len: pixels.len(),
-            width,
-            height,
-        });
-    }
-    if !(pixel_size.is_finite() && pixel_size > 0.0) {
-        return Err(CellsError::Invalid {
-            what: "pixel_size",
-            value: pixel_size,
-            reason: "must be a positive length",
-        });
-    }
-    if let Some(b) = blur
-        && !(b.is_finite() && b > 0.0)
-    {
-        return Err(CellsError::Invalid {
-            what: "blur",
-            value: b,
-            reason: "must be a positive number of pixels",
-        });
-    }
+    check_inputs(pixels.len(), (width, height), pixel_size, blur, taper)?;
     let um = |v: f64| v * 1e-6 / pixel_size;
     let dark = Darkness::new(pixels, width, height);
     let mask = dark.mask(0.05);
@@ -243,6 +214,44 @@ pub fn locate_tapered(
         axis: u,
         sigma,
     })
+}
+
+/// [`locate_tapered`]'s inputs checked: a positive taper, a frame of at least 8 x 8
+/// pixels holding `len` values, a positive pixel size and blur.
+fn check_inputs(
+    len: usize,
+    (width, height): (usize, usize),
+    pixel_size: f64,
+    blur: Option<f64>,
+    taper: f64,
+) -> Result<(), CellsError> {
+    if !(taper.is_finite() && taper > 0.0) {
+        return Err(CellsError::Invalid {
+            what: "taper",
+            value: taper,
+            reason: "must be a positive growth of the radius per length",
+        });
+    }
+    if len != width * height || width < 8 || height < 8 {
+        return Err(CellsError::Size { len, width, height });
+    }
+    if !(pixel_size.is_finite() && pixel_size > 0.0) {
+        return Err(CellsError::Invalid {
+            what: "pixel_size",
+            value: pixel_size,
+            reason: "must be a positive length",
+        });
+    }
+    if let Some(b) = blur
+        && !(b.is_finite() && b > 0.0)
+    {
+        return Err(CellsError::Invalid {
+            what: "blur",
+            value: b,
+            reason: "must be a positive number of pixels",
+        });
+    }
+    Ok(())
 }
 
 /// Residual of the best `M(s) = a·Φ(z) + c·σ·(z·Φ(z) + φ(z))`, `z = (t − s)/σ` (a step

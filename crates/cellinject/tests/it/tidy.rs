@@ -29,7 +29,6 @@ const LONG_FNS: &[(&str, &str, usize)] = &[
     ("crates/fem/src/joint3d.rs", "solve", 337),
     ("crates/design/src/evaluate.rs", "evaluate", 215),
     ("crates/fem/src/hinge2d.rs", "solve", 214),
-    ("crates/cells/src/tip.rs", "locate_tapered", 164),
 ];
 
 fn root() -> PathBuf {
