@@ -317,6 +317,110 @@ fn with_joints(design: &Design, k: &JointBend) -> Design {
     d
 }
 
+/// The structure with the closed-form joints as ideal universal joints, and its
+/// preload: approach 2's J3 deflection found from the model's `dq0`.
+fn beam_structure_of(
+    params: &StructureParams,
+    design: &Design,
+    approach: Approach,
+    dq0: [f64; 2],
+) -> Result<(Structure, Preload), DesignError> {
+    let j12 = beam_joint(params, params.throat_j12);
+    let spec = StructureSpec {
+        j3: beam_joint(params, params.throat_j3),
+        j12: [j12, j12],
+        mass: params.masses(&design.geometry),
+    };
+    let structure = Structure::new(design, &spec).map_err(DesignError::Structure)?;
+    let preload = match approach {
+        Approach::DriveTranslation => Preload::Translation,
+        Approach::JointDeflection => {
+            // Closed-form joints leave the slider travel noisy at a few 1e-11 m:
+            // straight to 1e-10 m, where `deflection_for` would spend its iterations
+            // at 1e-11 first.
+            let dq0 = structure
+                .deflection_to(design.tension.preload, dq0, 1e-10)
+                .map_err(DesignError::Structure)?;
+            Preload::Deflection { dq0 }
+        }
+    };
+    Ok((structure, preload))
+}
+
+/// The joints' safety factors against yield by the beam formulas: the largest stress of
+/// each over the working range's corners `states`.
+fn beam_factors(
+    params: &StructureParams,
+    states: &[cellinject_model::tension::State],
+) -> JointFactors {
+    let m = material(params);
+    let h12 = notch(params, params.throat_j12);
+    let h3 = notch(params, params.throat_j3);
+    let mut worst = [0.0f64; 3];
+    for s in states {
+        worst[2] = worst[2].max(beam_stress(&h3, &m, [s.fq[0], s.fq[1]], 0.0));
+        worst[0] = worst[0].max(beam_stress(&h12, &m, [s.fw[0], s.fw[1]], s.force[0]));
+        worst[1] = worst[1].max(beam_stress(&h12, &m, [s.fw[2], s.fw[3]], s.force[1]));
+    }
+    let yield_strength = params.yield_strength;
+    JointFactors {
+        j1: yield_strength / worst[0],
+        j2: yield_strength / worst[1],
+        j3: yield_strength / worst[2],
+    }
+}
+
+/// The cross-axis coupling: as one stack alone crosses its range (the corner `loads`),
+/// the largest motion of the other axis.
+fn coupling(
+    structure: &Structure,
+    loads: &[[f64; 2]],
+    preload: Preload,
+) -> Result<f64, DesignError> {
+    let mut tips = Vec::with_capacity(4);
+    for f in loads {
+        let eq = structure
+            .solve(*f, preload)
+            .map_err(DesignError::Structure)?;
+        tips.push(eq.tip);
+    }
+    Ok([
+        (tips[1][1] - tips[0][1]).abs(),
+        (tips[3][1] - tips[2][1]).abs(),
+        (tips[2][0] - tips[0][0]).abs(),
+        (tips[3][0] - tips[1][0]).abs(),
+    ]
+    .into_iter()
+    .fold(0.0f64, f64::max))
+}
+
+/// The margins the design violates, by name (`A1.travel`, `J3.yield`, ...).
+fn violations(m: &StackMargins, factors: &JointFactors) -> Vec<String> {
+    let mut out = Vec::new();
+    for (i, name) in ["A1", "A2"].iter().enumerate() {
+        if m.push_capacity_n[i] < 0.0 {
+            out.push(format!("{name}.push_capacity"));
+        }
+        if m.compression_n[i] <= 0.0 {
+            out.push(format!("{name}.compression"));
+        }
+        if m.travel_m[i] < 0.0 {
+            out.push(format!("{name}.travel"));
+        }
+    }
+    for (i, name) in ["J1", "J2"].iter().enumerate() {
+        if m.torque_nm[i] < 0.0 {
+            out.push(format!("{name}.torque"));
+        }
+    }
+    for (name, sf) in [("J1", factors.j1), ("J2", factors.j2), ("J3", factors.j3)] {
+        if sf < 1.0 {
+            out.push(format!("{name}.yield"));
+        }
+    }
+    out
+}
+
 /// The stacks' states at the working range's corners: (0, 0), (s1, 0), (0, s2),
 /// (s1, s2), each stack at rest or at its working shift.
 fn corners(
@@ -427,32 +531,14 @@ pub fn evaluate(
             model.preload(approach).map_err(DesignError::Fea)?,
         ),
         None => {
-            let j12 = beam_joint(params, params.throat_j12);
-            let spec = StructureSpec {
-                j3: beam_joint(params, params.throat_j3),
-                j12: [j12, j12],
-                mass: params.masses(&design.geometry),
-            };
-            beam_structure = Structure::new(&design, &spec).map_err(DesignError::Structure)?;
-            let preload = match approach {
-                Approach::DriveTranslation => Preload::Translation,
-                Approach::JointDeflection => {
-                    let dq0 = t.dq0.unwrap_or_default();
-                    // Closed-form joints leave the slider travel noisy at a few
-                    // 1e-11 m: straight to 1e-10 m, where `deflection_for` would spend
-                    // its iterations at 1e-11 first.
-                    let dq0 = beam_structure
-                        .deflection_to(design.tension.preload, [dq0[0], dq0[1]], 1e-10)
-                        .map_err(DesignError::Structure)?;
-                    Preload::Deflection { dq0 }
-                }
-            };
+            let dq0 = t.dq0.unwrap_or_default();
+            let (built, preload) = beam_structure_of(params, &design, approach, [dq0[0], dq0[1]])?;
+            beam_structure = built;
             (&beam_structure, preload)
         }
     };
 
     // Stresses at the corners.
-    let yield_strength = params.yield_strength;
     let factors = match &fea {
         Some(model) => {
             let mut worst = [f64::INFINITY; 3];
@@ -471,40 +557,10 @@ pub fn evaluate(
                 j2: worst[2],
             }
         }
-        None => {
-            let m = material(params);
-            let h12 = notch(params, params.throat_j12);
-            let h3 = notch(params, params.throat_j3);
-            let mut worst = [0.0f64; 3];
-            for s in &corner_states {
-                worst[2] = worst[2].max(beam_stress(&h3, &m, [s.fq[0], s.fq[1]], 0.0));
-                worst[0] = worst[0].max(beam_stress(&h12, &m, [s.fw[0], s.fw[1]], s.force[0]));
-                worst[1] = worst[1].max(beam_stress(&h12, &m, [s.fw[2], s.fw[3]], s.force[1]));
-            }
-            JointFactors {
-                j1: yield_strength / worst[0],
-                j2: yield_strength / worst[1],
-                j3: yield_strength / worst[2],
-            }
-        }
+        None => beam_factors(params, &corner_states),
     };
 
-    // Coupling: one stack alone crosses its range, the other axis moves.
-    let mut tips = Vec::with_capacity(4);
-    for f in &loads {
-        let eq = structure
-            .solve(*f, preload)
-            .map_err(DesignError::Structure)?;
-        tips.push(eq.tip);
-    }
-    let coupling = [
-        (tips[1][1] - tips[0][1]).abs(),
-        (tips[3][1] - tips[2][1]).abs(),
-        (tips[2][0] - tips[0][0]).abs(),
-        (tips[3][0] - tips[1][0]).abs(),
-    ]
-    .into_iter()
-    .fold(0.0f64, f64::max);
+    let coupling = coupling(structure, &loads, preload)?;
 
     // Natural modes at the design preload.
     let modes = match &fea {
@@ -547,28 +603,7 @@ pub fn evaluate(
         travel_m: travel,
         torque_nm: g.torque_margin,
     };
-    let mut violations = Vec::new();
-    for (i, name) in ["A1", "A2"].iter().enumerate() {
-        if stack_margins.push_capacity_n[i] < 0.0 {
-            violations.push(format!("{name}.push_capacity"));
-        }
-        if stack_margins.compression_n[i] <= 0.0 {
-            violations.push(format!("{name}.compression"));
-        }
-        if stack_margins.travel_m[i] < 0.0 {
-            violations.push(format!("{name}.travel"));
-        }
-    }
-    for (i, name) in ["J1", "J2"].iter().enumerate() {
-        if stack_margins.torque_nm[i] < 0.0 {
-            violations.push(format!("{name}.torque"));
-        }
-    }
-    for (name, sf) in [("J1", factors.j1), ("J2", factors.j2), ("J3", factors.j3)] {
-        if sf < 1.0 {
-            violations.push(format!("{name}.yield"));
-        }
-    }
+    let violations = violations(&stack_margins, &factors);
     let range = Axes {
         x: t.chi[0],
         y: t.chi[1],
