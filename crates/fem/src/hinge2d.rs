@@ -201,26 +201,7 @@ pub fn solve(
         height,
     } = hm;
     let node = |i: usize, j: usize| j * cols + i;
-    // Elasticity matrix.
-    let (e, nu) = (m.youngs, m.poisson);
-    let d = match plane {
-        Plane::Stress => {
-            let c = e / (1.0 - nu * nu);
-            [
-                [c, c * nu, 0.0],
-                [c * nu, c, 0.0],
-                [0.0, 0.0, c * 0.5 * (1.0 - nu)],
-            ]
-        }
-        Plane::Strain => {
-            let c = e / ((1.0 + nu) * (1.0 - 2.0 * nu));
-            [
-                [c * (1.0 - nu), c * nu, 0.0],
-                [c * nu, c * (1.0 - nu), 0.0],
-                [0.0, 0.0, c * 0.5 * (1.0 - 2.0 * nu)],
-            ]
-        }
-    };
+    let d = elasticity(m, plane);
     let b = hinge.width;
     // DOF numbering without the clamped first column.
     let n_nodes = rows * cols;
@@ -236,61 +217,7 @@ pub fn solve(
     }
     let mut triplets: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nx * ny * 18 * 18);
     for (element, ids) in elements.iter().enumerate() {
-        let mut ke = [[0.0f64; 18]; 18];
-        for &(xi, wx) in &G3 {
-            for &(eta, wy) in &G3 {
-                let (nxi, dxi) = quad(xi);
-                let (neta, deta) = quad(eta);
-                let mut dn = [(0.0, 0.0); 9];
-                let mut jac = [[0.0; 2]; 2];
-                for bj in 0..3 {
-                    for ai in 0..3 {
-                        let k = bj * 3 + ai;
-                        let (dxi_k, deta_k) = (dxi[ai] * neta[bj], nxi[ai] * deta[bj]);
-                        dn[k] = (dxi_k, deta_k);
-                        let (x, y) = coords[ids[k]];
-                        jac[0][0] += dxi_k * x;
-                        jac[0][1] += dxi_k * y;
-                        jac[1][0] += deta_k * x;
-                        jac[1][1] += deta_k * y;
-                    }
-                }
-                let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                if det <= 0.0 {
-                    return Err(FemError::InvertedElement {
-                        element,
-                        jacobian: det,
-                    });
-                }
-                let inv = [
-                    [jac[1][1] / det, -jac[0][1] / det],
-                    [-jac[1][0] / det, jac[0][0] / det],
-                ];
-                // B: rows (εxx, εyy, γxy), columns (ux_k, uy_k).
-                let mut bm = [[0.0f64; 18]; 3];
-                for k in 0..9 {
-                    let gx = inv[0][0] * dn[k].0 + inv[0][1] * dn[k].1;
-                    let gy = inv[1][0] * dn[k].0 + inv[1][1] * dn[k].1;
-                    bm[0][2 * k] = gx;
-                    bm[1][2 * k + 1] = gy;
-                    bm[2][2 * k] = gy;
-                    bm[2][2 * k + 1] = gx;
-                }
-                let w = wx * wy * det * b;
-                let mut db = [[0.0f64; 18]; 3];
-                for r in 0..3 {
-                    for c in 0..18 {
-                        db[r][c] = d[r][0] * bm[0][c] + d[r][1] * bm[1][c] + d[r][2] * bm[2][c];
-                    }
-                }
-                for r in 0..18 {
-                    for c in 0..18 {
-                        ke[r][c] +=
-                            w * (bm[0][r] * db[0][c] + bm[1][r] * db[1][c] + bm[2][r] * db[2][c]);
-                    }
-                }
-            }
-        }
+        let ke = element_stiffness(&coords, ids, &d, b, element)?;
         for r in 0..18 {
             let gr = dof[2 * ids[r / 2] + r % 2];
             if gr == usize::MAX {
@@ -391,6 +318,98 @@ pub fn solve(
         elements: nx * ny,
         residual,
     })
+}
+
+/// The elasticity matrix of `m` in plane stress or plane strain, (σxx, σyy, τxy) from
+/// (εxx, εyy, γxy).
+fn elasticity(m: &Material, plane: Plane) -> [[f64; 3]; 3] {
+    let (e, nu) = (m.youngs, m.poisson);
+    match plane {
+        Plane::Stress => {
+            let c = e / (1.0 - nu * nu);
+            [
+                [c, c * nu, 0.0],
+                [c * nu, c, 0.0],
+                [0.0, 0.0, c * 0.5 * (1.0 - nu)],
+            ]
+        }
+        Plane::Strain => {
+            let c = e / ((1.0 + nu) * (1.0 - 2.0 * nu));
+            [
+                [c * (1.0 - nu), c * nu, 0.0],
+                [c * nu, c * (1.0 - nu), 0.0],
+                [0.0, 0.0, c * 0.5 * (1.0 - 2.0 * nu)],
+            ]
+        }
+    }
+}
+
+/// The stiffness of the nine-node element `element` (its nodes `ids` at `coords`) of
+/// thickness `b` and elasticity `d`, by 3 x 3 Gauss points; an element turned inside
+/// out is refused.
+fn element_stiffness(
+    coords: &[(f64, f64)],
+    ids: &[usize; 9],
+    d: &[[f64; 3]; 3],
+    b: f64,
+    element: usize,
+) -> Result<[[f64; 18]; 18], FemError> {
+    let mut ke = [[0.0f64; 18]; 18];
+    for &(xi, wx) in &G3 {
+        for &(eta, wy) in &G3 {
+            let (nxi, dxi) = quad(xi);
+            let (neta, deta) = quad(eta);
+            let mut dn = [(0.0, 0.0); 9];
+            let mut jac = [[0.0; 2]; 2];
+            for bj in 0..3 {
+                for ai in 0..3 {
+                    let k = bj * 3 + ai;
+                    let (dxi_k, deta_k) = (dxi[ai] * neta[bj], nxi[ai] * deta[bj]);
+                    dn[k] = (dxi_k, deta_k);
+                    let (x, y) = coords[ids[k]];
+                    jac[0][0] += dxi_k * x;
+                    jac[0][1] += dxi_k * y;
+                    jac[1][0] += deta_k * x;
+                    jac[1][1] += deta_k * y;
+                }
+            }
+            let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+            if det <= 0.0 {
+                return Err(FemError::InvertedElement {
+                    element,
+                    jacobian: det,
+                });
+            }
+            let inv = [
+                [jac[1][1] / det, -jac[0][1] / det],
+                [-jac[1][0] / det, jac[0][0] / det],
+            ];
+            // B: rows (εxx, εyy, γxy), columns (ux_k, uy_k).
+            let mut bm = [[0.0f64; 18]; 3];
+            for k in 0..9 {
+                let gx = inv[0][0] * dn[k].0 + inv[0][1] * dn[k].1;
+                let gy = inv[1][0] * dn[k].0 + inv[1][1] * dn[k].1;
+                bm[0][2 * k] = gx;
+                bm[1][2 * k + 1] = gy;
+                bm[2][2 * k] = gy;
+                bm[2][2 * k + 1] = gx;
+            }
+            let w = wx * wy * det * b;
+            let mut db = [[0.0f64; 18]; 3];
+            for r in 0..3 {
+                for c in 0..18 {
+                    db[r][c] = d[r][0] * bm[0][c] + d[r][1] * bm[1][c] + d[r][2] * bm[2][c];
+                }
+            }
+            for r in 0..18 {
+                for c in 0..18 {
+                    ke[r][c] +=
+                        w * (bm[0][r] * db[0][c] + bm[1][r] * db[1][c] + bm[2][r] * db[2][c]);
+                }
+            }
+        }
+    }
+    Ok(ke)
 }
 
 /// Solves at levels 1, 2 and 4 and reports the change between the two finest.
