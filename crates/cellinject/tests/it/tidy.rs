@@ -19,15 +19,10 @@ const FN_LINES: usize = 150;
 const BINARY_SHARE: f64 = 0.10;
 
 /// Files over [`FILE_LINES`] today, with their length (issue 38 splits them).
-const LONG_FILES: &[(&str, usize)] = &[
-    ("crates/dic/src/icgn.rs", 1517),
-    ("crates/fem/src/joint3d.rs", 1444),
-];
+const LONG_FILES: &[(&str, usize)] = &[("crates/dic/src/icgn.rs", 1517)];
 
 /// Functions over [`FN_LINES`] today (file, name, length).
-const LONG_FNS: &[(&str, &str, usize)] = &[
-    ("crates/fem/src/joint3d.rs", "solve", 337),
-];
+const LONG_FNS: &[(&str, &str, usize)] = &[("crates/fem/src/joint3d/mod.rs", "solve", 337)];
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
