@@ -252,56 +252,64 @@ impl pulp::WithSimd for Measure<'_, '_> {
                 Subset::square(size)
             };
             last = sub;
-            let Some(prepared) = icgn::prepare(reference, x, y, sub, shape) else {
+            let Some(prepared) = icgn::prepare_in(reference, x, y, sub, shape, scratch) else {
                 break;
             };
-            let Some(it) = icgn::iterate(&prepared, current, start, opts, scratch) else {
-                break;
-            };
-            if icgn::influence(&prepared, scratch).is_none() {
-                break;
-            }
-            let grown = best.is_some();
-            // The spline's interpolation error, simulated and taken out: no shift can
-            // move it, and on the photographs it is the largest error of strong texture.
-            // A point whose correction cannot be computed has no bound: not a
-            // measurement (its σ is infinite, so a larger subset is still tried).
-            corrections.mismatch(x, y, sub, it.p[0], it.p[3], &mut scratch.mismatch);
-            let mut p = icgn::correct(&prepared, &it, current, scratch, opts, BIAS_KEPT)
-                .unwrap_or(it.result(&prepared));
-            // The current image's rounding (see above). It only raises σ: computed only
-            // when the rest would pass.
-            if opts.quantisation_step > 0.0 && judge(&p, acceptance).is_ok() {
-                // One that cannot be computed leaves the point without a bound: not a
-                // measurement.
-                let tables = corrections.rounding();
-                let coherent =
-                    prepared.weakest_gradient() < COHERENT_ROUNDING * opts.quantisation_step;
-                let bound = if tables.is_empty() || coherent {
-                    icgn::rounding_error_translated(reference, &prepared, &p, opts, scratch)
-                } else {
-                    Some(icgn::rounding_from_tables(&prepared, tables, iw, scratch))
+            // The subset's buffers go back to the scratch whichever way this ends.
+            let stop = 'point: {
+                let Some(it) = icgn::iterate(&prepared, current, start, opts, scratch) else {
+                    break 'point true;
                 };
-                let (du, dv) = bound.unwrap_or((f64::INFINITY, f64::INFINITY));
-                p.sigma_u = p.sigma_u.max(du);
-                p.sigma_v = p.sigma_v.max(dv);
-            }
-            // A larger subset that does not converge leaves the last result.
-            if grown && !p.converged {
+                if icgn::influence(&prepared, scratch).is_none() {
+                    break 'point true;
+                }
+                let grown = best.is_some();
+                // The spline's interpolation error, simulated and taken out: no shift can
+                // move it, and on the photographs it is the largest error of strong texture.
+                // A point whose correction cannot be computed has no bound: not a
+                // measurement (its σ is infinite, so a larger subset is still tried).
+                corrections.mismatch(x, y, sub, it.p[0], it.p[3], &mut scratch.mismatch);
+                let mut p = icgn::correct(&prepared, &it, current, scratch, opts, BIAS_KEPT)
+                    .unwrap_or(it.result(&prepared));
+                // The current image's rounding (see above). It only raises σ: computed only
+                // when the rest would pass.
+                if opts.quantisation_step > 0.0 && judge(&p, acceptance).is_ok() {
+                    // One that cannot be computed leaves the point without a bound: not a
+                    // measurement.
+                    let tables = corrections.rounding();
+                    let coherent =
+                        prepared.weakest_gradient() < COHERENT_ROUNDING * opts.quantisation_step;
+                    let bound = if tables.is_empty() || coherent {
+                        icgn::rounding_error_translated(reference, &prepared, &p, opts, scratch)
+                    } else {
+                        Some(icgn::rounding_from_tables(&prepared, tables, iw, scratch))
+                    };
+                    let (du, dv) = bound.unwrap_or((f64::INFINITY, f64::INFINITY));
+                    p.sigma_u = p.sigma_u.max(du);
+                    p.sigma_v = p.sigma_v.max(dv);
+                }
+                // A larger subset that does not converge leaves the last result.
+                if grown && !p.converged {
+                    break 'point true;
+                }
+                best = Some(p);
+                if judge(&p, acceptance) != Err(Rejection::Uncertain) {
+                    break 'point true;
+                }
+                let side = (((2 * sub.half_w + 1) * (2 * sub.half_h + 1)) as f64).sqrt();
+                k = next_size(
+                    &sizes[..count],
+                    k,
+                    side,
+                    p.sigma_u.max(p.sigma_v),
+                    acceptance,
+                );
+                false
+            };
+            icgn::recycle(prepared, scratch);
+            if stop {
                 break;
             }
-            best = Some(p);
-            if judge(&p, acceptance) != Err(Rejection::Uncertain) {
-                break;
-            }
-            let side = (((2 * sub.half_w + 1) * (2 * sub.half_h + 1)) as f64).sqrt();
-            k = next_size(
-                &sizes[..count],
-                k,
-                side,
-                p.sigma_u.max(p.sigma_v),
-                acceptance,
-            );
         }
         best
     }

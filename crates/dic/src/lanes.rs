@@ -1,5 +1,5 @@
 //! Sums over a subset's pixels on the vector units: [`sums`] (several sums of
-//! per-pixel terms at once) and [`dot`], each in [`LANES`] interleaved partial sums,
+//! per-pixel terms at once) in [`LANES`] interleaved partial sums,
 //! and [`V`], the lane-wise operand of [`sums`]' terms.
 //!
 //! **Compiled where they are called.** Everything here is `#[inline(always)]`, and
@@ -117,25 +117,4 @@ impl At {
             V(v)
         }
     }
-}
-
-/// `Σ a_k b_k` of two slices of one length, in [`LANES`] interleaved partial sums (as
-/// [`sums`], without an index to check).
-#[inline(always)]
-pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
-    debug_assert_eq!(a.len(), b.len());
-    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
-    let tail: f64 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    let mut acc = [0.0; LANES];
-    for (x, y) in ca.zip(cb) {
-        for l in 0..LANES {
-            acc[l] += x[l] * y[l];
-        }
-    }
-    acc.iter().sum::<f64>() + tail
 }

@@ -16,7 +16,7 @@ use nalgebra::{Matrix3, SMatrix, SVector};
 
 use crate::bspline::{BSpline, Degree, warped_corners};
 use crate::image::Image;
-use crate::lanes::{V, dot, lane_sums};
+use crate::lanes::{V, lane_sums};
 
 mod mismatch;
 mod noise;
@@ -218,6 +218,8 @@ struct RefSubset {
     sum_gy2: f64,
     /// Σ1, Σdx², Σdy² over the subset (Σdx, Σdy and Σdx·dy vanish).
     moments: [f64; 3],
+    /// The subset's half sizes, which alone decide `dx` and `dy`.
+    halves: (usize, usize),
 }
 
 /// Number of frequencies of the subset's gradient spectrum kept for the bias term.
@@ -363,11 +365,15 @@ impl RefSubset {
         ]
     }
 
+    /// The subset centred at (x, y), in the buffers of `spare` (a subset measured
+    /// before, whose offsets are kept when its size is the same): no allocation from
+    /// point to point.
     #[inline(always)]
-    fn new(r: &Reference, x: usize, y: usize, s: Subset) -> Self {
+    fn new(r: &Reference, x: usize, y: usize, s: Subset, spare: Option<RefSubset>) -> Self {
         let (nw, nh) = (2 * s.half_w + 1, 2 * s.half_h + 1);
         let n = nw * nh;
-        let mut out = RefSubset {
+        let halves = (s.half_w, s.half_h);
+        let mut out = spare.unwrap_or_else(|| RefSubset {
             dx: Vec::with_capacity(n),
             dy: Vec::with_capacity(n),
             f: Vec::with_capacity(n),
@@ -377,7 +383,17 @@ impl RefSubset {
             sum_gx2: 0.0,
             sum_gy2: 0.0,
             moments: [0.0; 3],
-        };
+            halves: (usize::MAX, usize::MAX),
+        });
+        let offsets = out.halves != halves || out.dx.len() != n;
+        out.f.clear();
+        out.gx.clear();
+        out.gy.clear();
+        if offsets {
+            out.dx.clear();
+            out.dy.clear();
+        }
+        (out.df, out.sum_gx2, out.sum_gy2, out.halves) = (0.0, 0.0, 0.0, halves);
         let w = r.image.width();
         let data = r.image.data();
         for j in 0..nh {
@@ -385,9 +401,11 @@ impl RefSubset {
             out.f.extend_from_slice(&data[start..start + nw]);
             out.gx.extend_from_slice(&r.gx[start..start + nw]);
             out.gy.extend_from_slice(&r.gy[start..start + nw]);
-            let dy = j as f64 - s.half_h as f64;
-            out.dy.extend(std::iter::repeat_n(dy, nw));
-            out.dx.extend((0..nw).map(|i| i as f64 - s.half_w as f64));
+            if offsets {
+                let dy = j as f64 - s.half_h as f64;
+                out.dy.extend(std::iter::repeat_n(dy, nw));
+                out.dx.extend((0..nw).map(|i| i as f64 - s.half_w as f64));
+            }
         }
         // Σ1, Σdx², Σdy² of a centred rectangle.
         let square_sum = |h: usize| (1..=h).map(|d| 2.0 * (d * d) as f64).sum::<f64>();
@@ -533,35 +551,63 @@ pub const RESIDUAL_CORRELATION_PX: usize = 2;
 /// results so that the residuals' mean square is the variance the noise model uses.
 #[inline(always)]
 fn meat(u: &[f64], v: &[f64], nw: usize, nh: usize) -> (f64, f64) {
-    const L: usize = RESIDUAL_CORRELATION_PX;
-    const LAGS: usize = (L + 1) + L * (2 * L + 1);
-    let stride = nw + L;
-    let weight = |d: usize| 1.0 - d as f64 / (L as f64 + 1.0);
-    let mut offsets = [0usize; LAGS];
-    let mut coef = [0.0; LAGS];
-    let mut m = 0;
-    for dy in 0..=L {
-        for dx in -(L as isize)..=L as isize {
-            if dy == 0 && dx < 0 {
-                continue;
+    pulp::Arch::new().dispatch(Meat { u, v, nw, nh })
+}
+
+/// [`meat`]'s arguments, for its loop on the machine's vector units.
+struct Meat<'a> {
+    u: &'a [f64],
+    v: &'a [f64],
+    nw: usize,
+    nh: usize,
+}
+
+impl pulp::WithSimd for Meat<'_> {
+    type Output = (f64, f64);
+
+    /// One pass over each buffer, a vector of pixels k at a time: the lags' weighted
+    /// sum `t_k = Σ_m c_m s_{k + off_m}` by fused multiply-adds of unaligned loads,
+    /// then `Σ_k s_k t_k` (the vector past the last row reads the padding's zeros).
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) -> Self::Output {
+        const L: usize = RESIDUAL_CORRELATION_PX;
+        const LAGS: usize = (L + 1) + L * (2 * L + 1);
+        let Meat { u, v, nw, nh } = self;
+        let stride = nw + L;
+        let weight = |d: usize| 1.0 - d as f64 / (L as f64 + 1.0);
+        let mut offsets = [0usize; LAGS];
+        let mut coef = [simd.splat_f64s(0.0); LAGS];
+        let mut m = 0;
+        for dy in 0..=L {
+            for dx in -(L as isize)..=L as isize {
+                if dy == 0 && dx < 0 {
+                    continue;
+                }
+                offsets[m] = (dy as isize * stride as isize + dx) as usize;
+                let pair = if dy == 0 && dx == 0 { 1.0 } else { 2.0 };
+                coef[m] = simd.splat_f64s(pair * weight(dx.unsigned_abs()) * weight(dy));
+                m += 1;
             }
-            offsets[m] = (dy as isize * stride as isize + dx) as usize;
-            let pair = if dy == 0 && dx == 0 { 1.0 } else { 2.0 };
-            coef[m] = pair * weight(dx.unsigned_abs()) * weight(dy);
-            m += 1;
         }
-    }
-    let n = nh * stride;
-    // A loop, not a closure: a closure is compiled apart, without the vector
-    // context of its caller, unless it is inlined.
-    let mut out = [0.0; 2];
-    for (o, s) in out.iter_mut().zip([u, v]) {
-        let a = &s[..n];
-        for (&off, c) in offsets.iter().zip(&coef) {
-            *o += c * dot(a, &s[off..off + n]);
+        let lanes = S::F64_LANES;
+        let n = nh * stride;
+        let whole = |s: &[f64], at: usize| S::as_simd_f64s(&s[at..at + lanes]).0[0];
+        let mut out = [0.0; 2];
+        for (o, s) in out.iter_mut().zip([u, v]) {
+            let mut acc = simd.splat_f64s(0.0);
+            let mut k = 0;
+            while k < n {
+                let mut t = simd.mul_f64s(coef[0], whole(s, k + offsets[0]));
+                for (c, off) in coef.iter().zip(&offsets).skip(1) {
+                    t = simd.mul_add_e_f64s(*c, whole(s, k + off), t);
+                }
+                acc = simd.mul_add_e_f64s(whole(s, k), t, acc);
+                k += lanes;
+            }
+            *o = simd.reduce_sum_f64s(acc);
         }
+        (out[0], out[1])
     }
-    (out[0], out[1])
 }
 
 /// Writes the scores `score(k)` of the pixels k of an `nw x nh` subset (row-major)
@@ -580,14 +626,19 @@ fn fill_padded(
     }
 }
 
+/// Most f64 lanes of a vector [`meat`] may meet (the zeros it may read past the
+/// scores).
+const MEAT_LANES: usize = 16;
+
 /// Resizes `buf` to hold the scores of an `nw x nh` subset laid out for [`meat`]:
 /// rows `nw + L` apart, the gaps zero, and zeros after the last row as far as the
 /// farthest lag reaches. Returns the stride.
 fn padded_scores(buf: &mut Vec<f64>, nw: usize, nh: usize) -> usize {
     let stride = nw + RESIDUAL_CORRELATION_PX;
     buf.clear();
+    // [`meat`] reads whole vectors: up to a vector past the farthest lag.
     buf.resize(
-        (nh + RESIDUAL_CORRELATION_PX) * stride + RESIDUAL_CORRELATION_PX,
+        (nh + RESIDUAL_CORRELATION_PX) * stride + RESIDUAL_CORRELATION_PX + MEAT_LANES,
         0.0,
     );
     stride
@@ -624,11 +675,43 @@ pub fn prepare(
     subset: Subset,
     shape: Shape,
 ) -> Option<Prepared> {
+    prepare_reusing(reference, x, y, subset, shape, None)
+}
+
+/// [`prepare`] in the buffers of the subset `scratch` holds from the last
+/// [`recycle`] (none at first): the field and point modes' way, with no allocation
+/// from point to point.
+#[inline(always)]
+pub(crate) fn prepare_in(
+    reference: &Reference,
+    x: usize,
+    y: usize,
+    subset: Subset,
+    shape: Shape,
+    scratch: &mut Scratch,
+) -> Option<Prepared> {
+    prepare_reusing(reference, x, y, subset, shape, scratch.spare.take())
+}
+
+/// Hands the buffers of a subset done with back to `scratch`, for [`prepare_in`].
+pub(crate) fn recycle(prepared: Prepared, scratch: &mut Scratch) {
+    scratch.spare = Some(prepared.rs);
+}
+
+#[inline(always)]
+fn prepare_reusing(
+    reference: &Reference,
+    x: usize,
+    y: usize,
+    subset: Subset,
+    shape: Shape,
+    spare: Option<RefSubset>,
+) -> Option<Prepared> {
     let img = reference.image();
     if !subset.fits(x, y, img.width(), img.height()) {
         return None;
     }
-    let mut rs = RefSubset::new(reference, x, y, subset);
+    let mut rs = RefSubset::new(reference, x, y, subset, spare);
     let n = rs.f.len();
     // Two passes over the pixels. The first: the grey levels' sum, and the sums of
     // the steepest-descent images J = [gx, gx·dx, gx·dy, gy, gy·dx, gy·dy] alone and
@@ -799,6 +882,8 @@ pub struct Scratch {
     /// the match to first order, u and v, means removed ([`influence`]).
     influence_u: Vec<f64>,
     influence_v: Vec<f64>,
+    /// The buffers of the last subset [`recycle`]d.
+    spare: Option<RefSubset>,
 }
 
 /// Prepares `scratch` for [`Scratch::first_order`] on the subset: the rows of the
