@@ -28,6 +28,7 @@ mod lanes;
 pub mod search;
 pub mod synth;
 pub mod track;
+pub mod warp;
 
 use rayon::prelude::*;
 use thiserror::Error;
