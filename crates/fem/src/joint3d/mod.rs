@@ -448,12 +448,10 @@ pub fn solve(
         )));
     }
     let g = build_grid(joint, mesh, level);
-    let [ex, ey, _] = g.ne;
-    let n_el = g.active.len();
-    let n_dof = g.n_dof;
-    let pat = pattern(&g);
-    let lambda = m.youngs * m.poisson / ((1.0 + m.poisson) * (1.0 - 2.0 * m.poisson));
-    let mu = m.shear();
+    let lame = Lame {
+        lambda: m.youngs * m.poisson / ((1.0 + m.poisson) * (1.0 - 2.0 * m.poisson)),
+        mu: m.shear(),
+    };
     let mut gauss = Vec::with_capacity(27);
     for &(c, wc) in &G3 {
         for &(b, wb) in &G3 {
@@ -462,9 +460,53 @@ pub fn solve(
             }
         }
     }
+    let pat = pattern(&g);
+    let values = assemble(&g, &pat, &gauss, lame)?;
+    let rhs = top_face_loads(&g);
+    let (u, residual) = factor_and_solve(&g, &pat, values, &rhs)?;
+    let Sections {
+        compliance,
+        asymmetry,
+        block_compliance,
+        block_sections,
+    } = sections(&g, &u)?;
+    let (stress_points, stress_basis) = stresses(&g, &u, &gauss, lame)?;
+    let k_bend = [1.0 / compliance[(3, 3)], 1.0 / compliance[(4, 4)]];
+    Ok(JointSolution {
+        k_bend,
+        k_axial: 1.0 / compliance[(2, 2)],
+        k_torsion: 1.0 / compliance[(5, 5)],
+        compliance,
+        asymmetry,
+        block_compliance,
+        block_sections,
+        layout: joint.layout(),
+        dofs: g.n_dof,
+        elements: g.active.len(),
+        residual,
+        stress_basis,
+        stress_points,
+    })
+}
+
+/// The material's Lamé constants, Pa.
+#[derive(Debug, Clone, Copy)]
+struct Lame {
+    lambda: f64,
+    mu: f64,
+}
+
+/// The Gauss points of an element: the shape functions' natural gradients and the
+/// weight.
+type Gauss = [([[f64; 3]; 27], f64)];
+
+/// The stiffness matrix's lower triangle in the pattern's order: the element matrices
+/// in parallel, a chunk at a time, scattered serially.
+fn assemble(g: &Grid, pat: &Pattern, gauss: &Gauss, lame: Lame) -> Result<Vec<f64>, FemError> {
+    let Lame { lambda, mu } = lame;
+    let n_el = g.active.len();
     let element_nodes = |e: usize| g.element_nodes(g.active[e]);
     let mut values = vec![0.0f64; pat.row_idx.len()];
-    // Element matrices in parallel, a chunk at a time; scattered serially.
     const CHUNK: usize = 256;
     for start in (0..n_el).step_by(CHUNK) {
         let end = (start + CHUNK).min(n_el);
@@ -473,7 +515,7 @@ pub fn solve(
             .map(|e| {
                 let ids = element_nodes(e);
                 let xyz: [[f64; 3]; 27] = std::array::from_fn(|k| g.coords[ids[k]]);
-                element_matrix(&xyz, &gauss, lambda, mu).map_err(|d| (e, d))
+                element_matrix(&xyz, gauss, lambda, mu).map_err(|d| (e, d))
             })
             .collect();
         for (off, res) in mats.into_iter().enumerate() {
@@ -512,7 +554,13 @@ pub fn solve(
             }
         }
     }
-    // Loads on the top face: six unit cases at the face centre.
+    Ok(values)
+}
+
+/// The six unit load cases on the top face (forces and moments at its centre), as
+/// consistent nodal loads: one column per case.
+fn top_face_loads(g: &Grid) -> Mat<f64> {
+    let [ex, ey, _] = g.ne;
     let top_k = g.nk - 1;
     let (mut area, mut ixx, mut iyy) = (0.0, 0.0, 0.0);
     let face_points = |visit: &mut dyn FnMut([usize; 9], [f64; 9], f64, f64, f64)| {
@@ -550,7 +598,7 @@ pub fn solve(
         iyy += w * x * x;
     });
     let jp = ixx + iyy;
-    let mut rhs = Mat::<f64>::zeros(n_dof, 6);
+    let mut rhs = Mat::<f64>::zeros(g.n_dof, 6);
     face_points(&mut |ids, n, x, y, w| {
         // Tractions of the six unit cases.
         let t: [[f64; 3]; 6] = [
@@ -570,6 +618,19 @@ pub fn solve(
             }
         }
     });
+    rhs
+}
+
+/// The displacements of the six load cases: the matrix factorised once (Cholesky,
+/// geometric nested dissection) and the solutions refined; with the refinement's
+/// residual.
+fn factor_and_solve(
+    g: &Grid,
+    pat: &Pattern,
+    values: Vec<f64>,
+    rhs: &Mat<f64>,
+) -> Result<(Mat<f64>, f64), FemError> {
+    let n_dof = g.n_dof;
     let symbolic = SymbolicSparseColMat::<usize>::new_checked(
         n_dof,
         n_dof,
@@ -580,7 +641,7 @@ pub fn solve(
     let k = SparseColMat::<usize, f64>::new(symbolic, values);
     // Geometric nested dissection of the structured grid (separators are node planes
     // on element boundaries): far less fill than AMD on this slender solid.
-    let order = nested_dissection(&g);
+    let order = nested_dissection(g);
     let mut inverse = vec![0usize; n_dof];
     for (new, &old) in order.iter().enumerate() {
         inverse[old] = new;
@@ -618,8 +679,23 @@ pub fn solve(
         llt.solve_in_place_with_conj(Conj::No, x.as_mut(), par, MemStack::new(&mut solve_buf));
         x
     };
-    let mut u = solve(&rhs);
-    let residual = refine(&k, &mut solve, &rhs, &mut u, n_dof)?;
+    let mut u = solve(rhs);
+    let residual = refine(&k, &mut solve, rhs, &mut u, n_dof)?;
+    Ok((u, residual))
+}
+
+/// The compliances [`sections`] measures.
+struct Sections {
+    compliance: Matrix6<f64>,
+    asymmetry: f64,
+    block_compliance: Matrix6<f64>,
+    block_sections: [f64; 2],
+}
+
+/// The joint's compliance between its end sections, and the blocks' between their
+/// middles, from rigid fits of the sections' displacements.
+fn sections(g: &Grid, u: &Mat<f64>) -> Result<Sections, FemError> {
+    let top_k = g.nk - 1;
     // Rigid fits of the end sections.
     let section = |kk: usize, case: usize| -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
         let pts: Vec<(Vector3<f64>, Vector3<f64>)> = (0..g.nj)
@@ -676,6 +752,28 @@ pub fn solve(
     let (k_blo, k_bup) = (g.lower_k / 2, (g.upper_k + g.nk - 1) / 2);
     let (block_compliance, _) = between(k_blo, k_bup)?;
     let block_sections = [g.zs[k_blo], g.zs[k_bup]];
+    Ok(Sections {
+        compliance,
+        asymmetry,
+        block_compliance,
+        block_sections,
+    })
+}
+
+/// Stresses at the element nodes between the end sections, per unit section wrench:
+/// the points and, for each, the six stress components of the six unit wrenches.
+#[allow(clippy::type_complexity)]
+fn stresses(
+    g: &Grid,
+    u: &Mat<f64>,
+    gauss: &Gauss,
+    lame: Lame,
+) -> Result<(Vec<[f64; 3]>, Vec<[[f64; 6]; 6]>), FemError> {
+    let Lame { lambda, mu } = lame;
+    let [ex, ey, _] = g.ne;
+    let n_el = g.active.len();
+    let top_k = g.nk - 1;
+    let element_nodes = |e: usize| g.element_nodes(g.active[e]);
     // Face cases as unit wrenches at the top end section, for the stresses.
     let w_inv = face_to_section(g.zs[top_k] - g.zs[g.upper_k])?;
     // Stresses at the Gauss points, extrapolated to the element nodes by the quadratic
@@ -753,23 +851,7 @@ pub fn solve(
             out
         })
         .collect();
-    let (stress_points, stress_basis): (Vec<_>, Vec<_>) = stressed.into_iter().unzip();
-    let k_bend = [1.0 / compliance[(3, 3)], 1.0 / compliance[(4, 4)]];
-    Ok(JointSolution {
-        k_bend,
-        k_axial: 1.0 / compliance[(2, 2)],
-        k_torsion: 1.0 / compliance[(5, 5)],
-        compliance,
-        asymmetry,
-        block_compliance,
-        block_sections,
-        layout: joint.layout(),
-        dofs: n_dof,
-        elements: n_el,
-        residual,
-        stress_basis,
-        stress_points,
-    })
+    Ok(stressed.into_iter().unzip())
 }
 
 /// The six unit face loads (forces and moments at the loaded face's centre) seen as
