@@ -191,6 +191,7 @@ pub(crate) fn records_error(e: RecordsError) -> anyhow::Error {
         RecordsError::Sql(_) => anyhow!("{e}"),
         RecordsError::Foreign { .. }
         | RecordsError::Newer { .. }
+        | RecordsError::Missing { .. }
         | RecordsError::Unreadable { .. } => InputError(format!("--db {e}")).into(),
         other => InputError(other.to_string()).into(),
     }
@@ -476,15 +477,14 @@ pub(crate) fn gcs_run_checks(plate_given: bool, seed_given: bool) -> Result<()> 
 }
 
 pub(crate) fn open_existing(p: &Path) -> Result<Records> {
-    if !p.exists() {
-        return Err(InputError(format!(
-            "--db `{}`: no such file (a run creates it: cellinject run --db {})",
-            p.display(),
+    Records::open_existing(p).map_err(|e| match e {
+        RecordsError::Missing { .. } => InputError(format!(
+            "--db {e} (a run creates it: cellinject run --db {})",
             p.display()
         ))
-        .into());
-    }
-    Records::open(p).map_err(records_error)
+        .into(),
+        e => records_error(e),
+    })
 }
 
 #[cfg(test)]

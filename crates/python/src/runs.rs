@@ -14,6 +14,7 @@ pub(crate) fn records_error(e: RecordsError) -> PyErr {
         RecordsError::Sql(_) => err(Kind::Other, e.to_string()),
         RecordsError::Foreign { .. }
         | RecordsError::Newer { .. }
+        | RecordsError::Missing { .. }
         | RecordsError::Unreadable { .. } => input(format!("db {e}")),
         other => input(other.to_string()),
     }
@@ -21,13 +22,12 @@ pub(crate) fn records_error(e: RecordsError) -> PyErr {
 
 /// A run database that must exist (reading never creates one).
 fn open_existing(p: &Path) -> PyResult<Records> {
-    if !p.exists() {
-        return Err(input(format!(
-            "db `{}`: no such file (a run creates it: cellinject.twin.run(db=...))",
-            p.display()
-        )));
-    }
-    Records::open(p).map_err(records_error)
+    Records::open_existing(p).map_err(|e| match e {
+        RecordsError::Missing { .. } => input(format!(
+            "db {e} (a run creates it: cellinject.twin.run(db=...))"
+        )),
+        e => records_error(e),
+    })
 }
 
 /// The plate file `p`, parsed and checked, and its text.

@@ -63,6 +63,12 @@ pub enum RecordsError {
         /// SQLite's message.
         message: String,
     },
+    /// The database to read does not exist ([`Records::open_existing`]).
+    #[error("{path}: no such file")]
+    Missing {
+        /// File.
+        path: String,
+    },
     /// No such run.
     #[error("no run {0} in the database")]
     NoRun(i64),
@@ -241,6 +247,17 @@ fn unreadable(path: &Path, e: rusqlite::Error) -> RecordsError {
 }
 
 impl Records {
+    /// Opens the database at `path` to read it: [`Records::open`] of a file that
+    /// exists ([`RecordsError::Missing`] otherwise: reading never creates one).
+    pub fn open_existing(path: &Path) -> Result<Self, RecordsError> {
+        if !path.exists() {
+            return Err(RecordsError::Missing {
+                path: path.display().to_string(),
+            });
+        }
+        Records::open(path)
+    }
+
     /// Opens (creating if needed) the database at `path`, refusing a foreign or newer
     /// one without writing to it.
     pub fn open(path: &Path) -> Result<Self, RecordsError> {
@@ -546,6 +563,19 @@ mod tests {
             std::env::temp_dir().join(format!("cellinject-records-{}-{name}", std::process::id()));
         let _ = std::fs::remove_file(&d);
         d
+    }
+
+    #[test]
+    fn reading_a_database_that_does_not_exist_creates_none() {
+        let p = tmp("missing.db");
+        match Records::open_existing(&p) {
+            Err(RecordsError::Missing { path }) => assert_eq!(path, p.display().to_string()),
+            other => panic!("{:?}", other.map(|_| ())),
+        }
+        assert!(!p.exists(), "{} was created", p.display());
+        Records::open(&p).unwrap();
+        assert!(Records::open_existing(&p).is_ok());
+        let _ = std::fs::remove_file(&p);
     }
 
     fn attempt(outcome: &str) -> AttemptRow {

@@ -271,14 +271,13 @@ impl DbArchive {
     ) -> Result<R, String> {
         let mut g = self.db.lock().unwrap_or_else(|e| e.into_inner());
         if g.is_none() {
-            if !self.path.exists() {
-                return Err(format!(
-                    "--db `{}`: no such file (a run creates it: cellinject run --db {})",
-                    self.path.display(),
+            *g = Some(Records::open_existing(&self.path).map_err(|e| match e {
+                cellinject_records::RecordsError::Missing { .. } => format!(
+                    "--db {e} (a run creates it: cellinject run --db {})",
                     self.path.display()
-                ));
-            }
-            *g = Some(Records::open(&self.path).map_err(|e| format!("--db {e}"))?);
+                ),
+                e => format!("--db {e}"),
+            })?);
         }
         let db = g.as_ref().ok_or("no database")?;
         f(db).map_err(|e| e.to_string())
