@@ -179,11 +179,6 @@ impl RunProgress for Bar {
     }
 }
 
-/// Whether `CELLINJECT_DEBUG` asks for every transition and each cell's truth.
-pub(crate) fn debug() -> bool {
-    std::env::var_os("CELLINJECT_DEBUG").is_some()
-}
-
 /// A records failure as the user's error: the file's own faults name `--db`, the only
 /// way a database reaches a command.
 pub(crate) fn records_error(e: RecordsError) -> anyhow::Error {
@@ -299,7 +294,7 @@ pub fn run(d: &Description, args: &RunArgs) -> Result<()> {
         hysteresis,
         session: None,
         begin,
-        debug: debug(),
+        debug: session_run::debug_requested(),
     };
     let hooks = session_run::Hooks {
         progress: Some(&mut bar),

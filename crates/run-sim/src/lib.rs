@@ -525,8 +525,9 @@ pub struct Job<'a> {
     /// Told how many cells the survey left and of each attempt's end (a progress
     /// bar).
     pub progress: Option<&'a mut dyn RunProgress>,
-    /// Say every transition and each cell's truth on standard error (the binary sets
-    /// it from `CELLINJECT_DEBUG`).
+    /// Say every transition and each cell's truth on standard error (the command line
+    /// and the dashboard set it from `CELLINJECT_DEBUG`:
+    /// `cellinject_session::run::debug_requested`).
     pub debug: bool,
 }
 

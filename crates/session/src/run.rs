@@ -85,6 +85,13 @@ pub struct Request<'a> {
     pub debug: bool,
 }
 
+/// Whether `CELLINJECT_DEBUG` is set: the switch for [`Request::debug`] the
+/// command line and the dashboard honour (every transition and each cell's truth on
+/// standard error).
+pub fn debug_requested() -> bool {
+    std::env::var_os("CELLINJECT_DEBUG").is_some()
+}
+
 /// What a front end sees of a run besides its records.
 pub struct Hooks<'a> {
     /// Told how many cells the survey left, and of each attempt's end.

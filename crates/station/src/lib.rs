@@ -169,7 +169,7 @@ impl Station for BenchStation {
                     "front_end": "dashboard",
                 }),
             },
-            debug: std::env::var_os("CELLINJECT_DEBUG").is_some(),
+            debug: session_run::debug_requested(),
         };
         let hooks = session_run::Hooks {
             watch: Some(watch),
