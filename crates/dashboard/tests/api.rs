@@ -386,6 +386,11 @@ async fn a_thousand_control_requests_do_not_starve_abort() {
             limited += 1;
         }
     }
+    // A `run` of the flood that reached the bench after the abort may have been
+    // paused by a later `pause` of it, and would wait for a resume forever: the
+    // operator's abort once the flood is over stops whatever it left.
+    let (s, v) = call(&r, "POST", "/api/abort").await;
+    assert_eq!(s, StatusCode::OK, "{v}");
     // The bench reaches its safe state once the control thread's clock ticks: the
     // aborted run (or a run started after it, run to its end) with the pipette out.
     let v = until(&r, Duration::from_secs(POLL_S), |v| v["task"].is_null()).await;
