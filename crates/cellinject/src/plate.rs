@@ -223,7 +223,7 @@ pub fn run(
             );
             let text = cellinject_config::plate::to_toml(&plate, &comment);
             write_one(out, text.as_bytes())?;
-            let s = cellinject_print::plate::summary(&plate);
+            let s = plate.summary();
             if *format == Format::Json {
                 return print_json(&s, &[out.as_path()]);
             }
@@ -233,7 +233,7 @@ pub fn run(
         }
         PlateCommand::Check { plate, format } => {
             let p = load("--plate", plate)?;
-            let s = cellinject_print::plate::summary(&p);
+            let s = p.summary();
             if *format == Format::Json {
                 return print_json(&s, &[]);
             }

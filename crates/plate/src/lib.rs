@@ -101,7 +101,60 @@ pub struct Plate {
     pub debris: Vec<Object>,
 }
 
+/// What a plate holds: its grid and the counts `plate generate|check` report (the
+/// cells of wells outside the grid are counted as cells, in no well).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Summary {
+    /// Rows of wells.
+    pub rows: u32,
+    /// Columns of wells.
+    pub cols: u32,
+    /// Distance between wells, m.
+    pub pitch_m: f64,
+    /// Wells in all.
+    pub wells: usize,
+    /// Cells in all.
+    pub cells: usize,
+    /// Wells holding two or more cells.
+    pub doublets: usize,
+    /// Wells without a cell.
+    pub empty_wells: usize,
+    /// Pieces of debris.
+    pub debris: usize,
+    /// Smallest and largest cell, m (null without cells).
+    pub cell_diameter_m: Option<[f64; 2]>,
+}
+
 impl Plate {
+    /// What the plate holds.
+    pub fn summary(&self) -> Summary {
+        let mut per_well = vec![0usize; self.wells()];
+        for c in &self.cells {
+            let [r, k] = c.well;
+            if r < self.rows && k < self.cols {
+                per_well[r as usize * self.cols as usize + k as usize] += 1;
+            }
+        }
+        let d = self.cells.iter().map(|c| c.diameter);
+        let cell_diameter_m = (!self.cells.is_empty()).then(|| {
+            [
+                d.clone().fold(f64::INFINITY, f64::min),
+                d.fold(0.0, f64::max),
+            ]
+        });
+        Summary {
+            rows: self.rows,
+            cols: self.cols,
+            pitch_m: self.pitch,
+            wells: self.wells(),
+            cells: self.cells.len(),
+            doublets: per_well.iter().filter(|n| **n >= 2).count(),
+            empty_wells: per_well.iter().filter(|n| **n == 0).count(),
+            debris: self.debris.len(),
+            cell_diameter_m,
+        }
+    }
+
     /// The centre of well `[row, col]` in stage coordinates, m.
     pub fn well_centre(&self, well: [u32; 2]) -> [f64; 2] {
         [
@@ -449,6 +502,39 @@ mod tests {
 
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn the_summary_counts_doublets_empty_wells_and_sizes_and_skips_foreign_wells() {
+        let o = |well: [u32; 2], d: f64| Object {
+            well,
+            offset: [0.0; 2],
+            diameter: d,
+        };
+        let p = Plate {
+            rows: 2,
+            cols: 3,
+            pitch: 1e-4,
+            origin: [0.0; 2],
+            // Well [0, 1] holds two, [1, 2] one; [5, 0] lies outside the grid.
+            cells: vec![
+                o([0, 1], 12e-6),
+                o([0, 1], 20e-6),
+                o([1, 2], 15e-6),
+                o([5, 0], 18e-6),
+            ],
+            debris: vec![o([1, 0], 3e-6)],
+        };
+        let s = p.summary();
+        assert_eq!((s.rows, s.cols, s.wells), (2, 3, 6));
+        assert_eq!((s.cells, s.doublets, s.empty_wells, s.debris), (4, 1, 4, 1));
+        assert_eq!(s.cell_diameter_m, Some([12e-6, 20e-6]));
+        let empty = Plate {
+            cells: Vec::new(),
+            ..p
+        };
+        assert_eq!(empty.summary().cell_diameter_m, None);
+        assert_eq!(empty.summary().empty_wells, 6);
+    }
 
     fn plate() -> Plate {
         Plate {

@@ -3,57 +3,7 @@
 use std::fmt::Write as _;
 
 use cellinject_core::cells::DetectionReport;
-use cellinject_plate::Plate;
-use serde::Serialize;
-
-/// What a plate holds.
-#[derive(Debug, Serialize)]
-pub struct Summary {
-    /// Rows of wells.
-    pub rows: u32,
-    /// Columns of wells.
-    pub cols: u32,
-    /// Distance between wells, m.
-    pub pitch_m: f64,
-    /// Wells in all.
-    pub wells: usize,
-    /// Cells in all.
-    pub cells: usize,
-    /// Wells holding two or more cells.
-    pub doublets: usize,
-    /// Wells without a cell.
-    pub empty_wells: usize,
-    /// Pieces of debris.
-    pub debris: usize,
-    /// Smallest and largest cell, m (null without cells).
-    pub cell_diameter_m: Option<[f64; 2]>,
-}
-
-/// What `p` holds.
-pub fn summary(p: &Plate) -> Summary {
-    let mut per_well = vec![0usize; p.wells()];
-    for c in &p.cells {
-        per_well[c.well[0] as usize * p.cols as usize + c.well[1] as usize] += 1;
-    }
-    let d = p.cells.iter().map(|c| c.diameter);
-    let cell_diameter_m = (!p.cells.is_empty()).then(|| {
-        [
-            d.clone().fold(f64::INFINITY, f64::min),
-            d.fold(0.0, f64::max),
-        ]
-    });
-    Summary {
-        rows: p.rows,
-        cols: p.cols,
-        pitch_m: p.pitch,
-        wells: p.wells(),
-        cells: p.cells.len(),
-        doublets: per_well.iter().filter(|n| **n >= 2).count(),
-        empty_wells: per_well.iter().filter(|n| **n == 0).count(),
-        debris: p.debris.len(),
-        cell_diameter_m,
-    }
-}
+use cellinject_plate::Summary;
 
 /// `n` and the noun, singular or plural.
 fn count(n: usize, one: &str, many: &str) -> String {
