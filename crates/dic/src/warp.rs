@@ -213,8 +213,9 @@ impl<T: Lane> Rows<'_, T> {
                 // stay in the coefficients: with the corners inside (x < w − 4,
                 // y < h − 4) the last tap is at column w − 2 at most of a row h − 2 at
                 // most, and a vector read from it runs at most `lanes − 2` values
-                // into the next row, which holds w of them (w ≥ lanes, checked by the
-                // caller).
+                // into the next row, which holds w of them: w ≥ 7 for any block inside
+                // (6 for double precision's 8 lanes), and the caller runs single
+                // precision (16 lanes: 14) only on images 16 pixels wide or more.
                 let reach = len + TAPS - 1 + lanes;
                 let taps: [&[T]; TAPS] = std::array::from_fn(|k| {
                     let from = base + k * w;

@@ -589,6 +589,8 @@ impl pulp::WithSimd for Meat<'_> {
                 m += 1;
             }
         }
+        // The buffers hold `MEAT_LANES` zeros past the farthest lag.
+        const { assert!(S::F64_LANES <= MEAT_LANES) };
         let lanes = S::F64_LANES;
         let n = nh * stride;
         let whole = |s: &[f64], at: usize| S::as_simd_f64s(&s[at..at + lanes]).0[0];
