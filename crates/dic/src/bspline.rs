@@ -965,6 +965,17 @@ mod tests {
         }
     }
 
+    /// A warped value `o` against the scalar `v`: to rounding in double precision,
+    /// within `5e-6·largest` in single (see `warped_block_agrees_with_value`).
+    fn agrees(o: f64, v: f64, single: bool, largest: f64, what: impl Fn() -> String) {
+        let bound = if single {
+            5e-6 * largest
+        } else {
+            1e-11 * v.abs()
+        };
+        assert!((o - v).abs() <= bound, "{}: {o} against {v}", what());
+    }
+
     #[test]
     fn warped_block_agrees_with_value() {
         // The vectorised rows (lanes over pixels, masked tails, runs cut where the
@@ -1008,15 +1019,9 @@ mod tests {
                             xc + dx + p[0] + p[1] * dx + p[2] * dy,
                             yc + dy + p[3] + p[4] * dx + p[5] * dy,
                         );
-                        let bound = if single {
-                            5e-6 * largest
-                        } else {
-                            1e-11 * v.abs()
-                        };
-                        assert!(
-                            (o - v).abs() <= bound,
-                            "{degree:?} single {single} {p:?} {hw}x{hh} pixel {k}: {o} against {v}"
-                        );
+                        agrees(*o, v, single, largest, || {
+                            format!("{degree:?} single {single} {p:?} {hw}x{hh} pixel {k}")
+                        });
                     }
                 }
             }
@@ -1055,15 +1060,9 @@ mod tests {
                             let (dx, dy) =
                                 ((k % nw) as f64 - hw as f64, (k / nw) as f64 - hh as f64);
                             let v = spline.value(xc + dx + u, yc + dy + v);
-                            let bound = if single {
-                                5e-6 * largest
-                            } else {
-                                1e-11 * v.abs()
-                            };
-                            assert!(
-                                (o - v).abs() <= bound,
-                                "({xc}, {yc}) {p:?} single {single}: {o} against {v}"
-                            );
+                            agrees(*o, v, single, largest, || {
+                                format!("({xc}, {yc}) {p:?} single {single}")
+                            });
                             checked += 1;
                         }
                     }
