@@ -50,7 +50,11 @@ pub struct FieldOptions {
     /// What makes a point a measurement (the point mode's rule); the others are
     /// dropped.
     pub acceptance: Acceptance,
-    /// Grid points per tile side (each tile grows from its own seed).
+    /// Most grid points per tile side (each tile grows from its own seed). The grid
+    /// is cut into as few tiles along each axis as this allows, all of one size (the
+    /// last a little smaller where the grid does not divide evenly), and never fewer
+    /// than [`MIN_TILES_PER_SIDE`] where the grid has points enough: tiles of equal
+    /// work keep every thread busy to the end, whichever their number.
     pub tile: usize,
     /// Sigma of an optional Gaussian prefilter of both images, pixels (0 = none).
     pub prefilter: f64,
@@ -132,6 +136,26 @@ impl Ord for Candidate {
 /// own), or a band of weak texture would cut the rest of its tile off.
 fn propagates(verdict: Result<(), Rejection>) -> bool {
     matches!(verdict, Ok(()) | Err(Rejection::Uncertain))
+}
+
+/// Fewest tiles along each axis of a grid with at least [`MIN_TILE`] points per tile
+/// there: 16 tiles of equal size share out evenly over 1, 2, 4, 8 or 16 threads, and
+/// over 3 within a tile.
+pub const MIN_TILES_PER_SIDE: usize = 4;
+
+/// Fewest grid points along a tile's side from the cut into [`MIN_TILES_PER_SIDE`]
+/// (each tile pays for a seed's search).
+pub const MIN_TILE: usize = 8;
+
+/// The tiles' side along an axis of `n` grid points, at most `most`
+/// ([`FieldOptions::tile`]): `n` cut into equal parts.
+fn tile_side(n: usize, most: usize) -> usize {
+    let most = most.max(1);
+    let parts = n
+        .div_ceil(most)
+        .max(MIN_TILES_PER_SIDE.min(n / MIN_TILE))
+        .max(1);
+    n.div_ceil(parts)
 }
 
 /// Candidates nearest the centre tried as a tile's seed before [`seed_candidates`]
@@ -306,7 +330,8 @@ struct TileJob<'a> {
     step: usize,
     nx: usize,
     ny: usize,
-    tile: usize,
+    /// Tile sides, grid points along x and y.
+    tile: (usize, usize),
     opts: &'a FieldOptions,
     icgn: &'a IcgnOptions,
     corrections: &'a Corrections<'a>,
@@ -347,10 +372,10 @@ impl TileJob<'_> {
 
     /// Tile (tx, ty): seeded, then grown from neighbour to neighbour.
     fn grow(&self, tx: usize, ty: usize) -> TileResult {
-        let (nx, ny, tile) = (self.nx, self.ny, self.tile);
+        let (nx, ny, (sx, sy)) = (self.nx, self.ny, self.tile);
         let opts = self.opts;
-        let (gx0, gy0) = (tx * tile, ty * tile);
-        let (gx1, gy1) = ((gx0 + tile).min(nx), (gy0 + tile).min(ny));
+        let (gx0, gy0) = (tx * sx, ty * sy);
+        let (gx1, gy1) = ((gx0 + sx).min(nx), (gy0 + sy).min(ny));
         let (tw, th) = (gx1 - gx0, gy1 - gy0);
         let mut work = Tile::new(tw * th);
         let mut scratch = Scratch::default();
@@ -528,15 +553,19 @@ pub fn field_with_progress(
         step,
         nx,
         ny,
-        tile: opts.tile.max(4),
+        tile: (
+            tile_side(nx, opts.tile.max(4)),
+            tile_side(ny, opts.tile.max(4)),
+        ),
         opts,
         icgn: &icgn_opts,
         corrections: &corrections,
         finished: std::sync::atomic::AtomicUsize::new(0),
         progress,
     };
-    let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(job.tile))
-        .flat_map(|ty| (0..nx.div_ceil(job.tile)).map(move |tx| (tx, ty)))
+    let (sx, sy) = job.tile;
+    let tiles: Vec<(usize, usize)> = (0..ny.div_ceil(sy))
+        .flat_map(|ty| (0..nx.div_ceil(sx)).map(move |tx| (tx, ty)))
         .collect();
     let results: Vec<TileResult> = tiles.par_iter().map(|&(tx, ty)| job.grow(tx, ty)).collect();
     let mut points = vec![None; nx * ny];
@@ -568,6 +597,30 @@ pub fn field_with_progress(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Over every grid of up to 300 points a side and every tile size: the tiles
+    /// cover the grid, none is larger than asked, all but the last are of one size
+    /// and the last is not much smaller (equal work), and a grid of 32 points or more
+    /// has at least four tiles a side.
+    #[test]
+    fn tiles_cut_the_grid_into_equal_parts_of_at_most_the_size_asked() {
+        for most in [1, 4, 8, 16, 32, 64] {
+            for n in 1..=300 {
+                let side = tile_side(n, most);
+                let parts = n.div_ceil(side);
+                assert!(side >= 1 && side <= most.max(1), "n {n} most {most}: {side}");
+                let last = n - (parts - 1) * side;
+                assert!(last >= 1 && last <= side, "n {n} most {most}: last {last}");
+                assert!(side - last < parts, "n {n} most {most}: {side} then {last}");
+                if n >= MIN_TILES_PER_SIDE * MIN_TILE {
+                    assert!(parts >= MIN_TILES_PER_SIDE, "n {n} most {most}: {parts}");
+                }
+            }
+        }
+        // The step-10 grid of a 512-pixel image: 48 points, 4 tiles of 12 (it was cut
+        // 32 + 16, and one thread of two had twice the other's work).
+        assert_eq!(tile_side(48, 32), 12);
+    }
 
     #[test]
     fn seed_candidates_start_at_the_centre_then_spread_over_the_tile() {

@@ -189,14 +189,16 @@ impl Prepared {
         prefilter: f64,
         spline: Degree,
     ) -> Self {
+        let (qr, qc) = rayon::join(
+            || image::quantisation_variance(reference),
+            || image::quantisation_variance(current),
+        );
         let step = if prefilter > 0.0 {
             0.0
         } else {
-            (12.0 * image::quantisation_variance(current)).sqrt()
+            (12.0 * qc).sqrt()
         };
-        let floor = (image::quantisation_variance(reference)
-            + image::quantisation_variance(current))
-            * image::blur_noise_gain(prefilter);
+        let floor = (qr + qc) * image::blur_noise_gain(prefilter);
         let blurred = (prefilter > 0.0).then(|| {
             (
                 reference.gaussian_blur(prefilter),
