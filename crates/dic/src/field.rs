@@ -608,7 +608,10 @@ mod tests {
             for n in 1..=300 {
                 let side = tile_side(n, most);
                 let parts = n.div_ceil(side);
-                assert!(side >= 1 && side <= most.max(1), "n {n} most {most}: {side}");
+                assert!(
+                    side >= 1 && side <= most.max(1),
+                    "n {n} most {most}: {side}"
+                );
                 let last = n - (parts - 1) * side;
                 assert!(last >= 1 && last <= side, "n {n} most {most}: last {last}");
                 assert!(side - last < parts, "n {n} most {most}: {side} then {last}");
