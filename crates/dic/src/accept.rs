@@ -176,6 +176,34 @@ pub fn measure(
     corrections: &Corrections,
     scratch: &mut Scratch,
 ) -> Option<PointResult> {
+    measure_on_grid(
+        reference,
+        current,
+        (x, y),
+        (subset, adaptive, shape),
+        initial,
+        (opts, acceptance),
+        corrections,
+        scratch,
+        None,
+    )
+}
+
+/// [`measure`] of a point of a field's grid, whose subsets' reference-only sums
+/// `grid` holds ([`icgn::GridSums`]; a larger subset's are made for it alone).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub(crate) fn measure_on_grid(
+    reference: &Reference,
+    current: &BSpline,
+    (x, y): (usize, usize),
+    (subset, adaptive, shape): (usize, bool, Shape),
+    initial: [f64; 6],
+    (opts, acceptance): (&IcgnOptions, &Acceptance),
+    corrections: &Corrections,
+    scratch: &mut Scratch,
+    grid: Option<&icgn::GridSums>,
+) -> Option<PointResult> {
     pulp::Arch::new().dispatch(Measure {
         reference,
         current,
@@ -189,6 +217,7 @@ pub fn measure(
         acceptance,
         corrections,
         scratch,
+        grid,
     })
 }
 
@@ -207,6 +236,7 @@ struct Measure<'a, 'b> {
     acceptance: &'a Acceptance,
     corrections: &'a Corrections<'b>,
     scratch: &'a mut Scratch,
+    grid: Option<&'a icgn::GridSums>,
 }
 
 impl pulp::WithSimd for Measure<'_, '_> {
@@ -227,6 +257,7 @@ impl pulp::WithSimd for Measure<'_, '_> {
             acceptance,
             corrections,
             scratch,
+            grid,
         } = self;
         let sizes = subset_sizes(subset);
         let count = if adaptive { sizes.len() } else { 1 };
@@ -252,7 +283,8 @@ impl pulp::WithSimd for Measure<'_, '_> {
                 Subset::square(size)
             };
             last = sub;
-            let Some(prepared) = icgn::prepare_in(reference, x, y, sub, shape, scratch) else {
+            let Some(prepared) = icgn::prepare_in(reference, x, y, sub, shape, scratch, grid)
+            else {
                 break;
             };
             // The subset's buffers go back to the scratch whichever way this ends.

@@ -26,9 +26,9 @@ use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
-use crate::accept::{Acceptance, Dropped, Rejection, judge, measure};
+use crate::accept::{Acceptance, Dropped, Rejection, judge, measure_on_grid};
 use crate::correction::Corrections;
-use crate::icgn::{IcgnOptions, PointResult, Scratch, Shape};
+use crate::icgn::{GridSums, IcgnOptions, PointResult, Scratch, Shape};
 use crate::search;
 use crate::{Degree, DicError, Image, check_subset};
 
@@ -348,25 +348,22 @@ impl TileJob<'_> {
     /// One point measured from `init` ([`measure`]).
     fn refine(
         &self,
-        px: usize,
-        py: usize,
+        (px, py): (usize, usize),
         init: [f64; 6],
         scratch: &mut Scratch,
+        sums: Option<&GridSums>,
     ) -> Option<PointResult> {
         let opts = self.opts;
-        measure(
+        measure_on_grid(
             self.r,
             self.s,
-            px,
-            py,
-            opts.subset,
-            opts.adaptive_subset,
-            opts.shape,
+            (px, py),
+            (opts.subset, opts.adaptive_subset, opts.shape),
             init,
-            self.icgn,
-            &opts.acceptance,
+            (self.icgn, &opts.acceptance),
             self.corrections,
             scratch,
+            sums,
         )
     }
 
@@ -380,6 +377,11 @@ impl TileJob<'_> {
         let mut work = Tile::new(tw * th);
         let mut scratch = Scratch::default();
         let mut done = vec![false; tw * th];
+        // The reference-only sums of the tile's subsets, made together.
+        let xs: Vec<usize> = (gx0..gx1).map(|i| self.grid(i, 0).0).collect();
+        let ys: Vec<usize> = (gy0..gy1).map(|j| self.grid(0, j).1).collect();
+        let sums = GridSums::new(self.r, &xs, &ys, opts.subset / 2);
+        let sums = sums.as_ref();
         // Seed: the tile centre, then spiralling candidates until one the rule
         // accepts. A match rejected only for its σ hands its guess on to its
         // neighbours, but as a seed it may be anywhere: on a featureless patch
@@ -402,7 +404,7 @@ impl TileJob<'_> {
             let Some(hit) = hit else { continue };
             let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
             let k = j * tw + i;
-            match self.refine(px, py, init, &mut scratch) {
+            match self.refine((px, py), init, &mut scratch, sums) {
                 Some(p) if judge(&p, &opts.acceptance).is_ok() => {
                     done[k] = true;
                     work.keep(k, p, &opts.acceptance);
@@ -450,7 +452,7 @@ impl TileJob<'_> {
                     vx,
                     vy,
                 ];
-                if let Some(p) = self.refine(px, py, init, &mut scratch) {
+                if let Some(p) = self.refine((px, py), init, &mut scratch, sums) {
                     work.keep(k, p, &opts.acceptance);
                 }
             }

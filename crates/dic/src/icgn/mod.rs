@@ -17,10 +17,13 @@ use nalgebra::{Matrix3, SMatrix, SVector};
 use crate::bspline::{BSpline, Degree, warped_corners};
 use crate::image::Image;
 use crate::lanes::{V, lane_sums};
+pub(crate) use sums::GridSums;
+use sums::SubsetSums;
 
 mod mismatch;
 mod noise;
 mod rounding;
+mod sums;
 pub use mismatch::*;
 pub use noise::*;
 pub use rounding::*;
@@ -683,7 +686,7 @@ pub fn prepare(
     subset: Subset,
     shape: Shape,
 ) -> Option<Prepared> {
-    prepare_reusing(reference, x, y, subset, shape, None)
+    prepare_reusing(reference, x, y, subset, shape, None, None)
 }
 
 /// [`prepare`] in the buffers of the subset `scratch` holds from the last
@@ -697,29 +700,18 @@ pub(crate) fn prepare_in(
     subset: Subset,
     shape: Shape,
     scratch: &mut Scratch,
+    grid: Option<&GridSums>,
 ) -> Option<Prepared> {
-    prepare_reusing(reference, x, y, subset, shape, scratch.spare.take())
+    let sums = grid
+        .filter(|_| subset.half_w == subset.half_h)
+        .and_then(|g| g.at(x, y, subset.half_w));
+    prepare_reusing(reference, x, y, subset, shape, scratch.spare.take(), sums)
 }
 
-/// Hands the buffers of a subset done with back to `scratch`, for [`prepare_in`].
-pub(crate) fn recycle(prepared: Prepared, scratch: &mut Scratch) {
-    scratch.spare = Some(prepared.rs);
-}
-
+/// The reference-only sums of a subset, pixel by pixel (the sums of a field's grid
+/// are made together: [`GridSums`]): Σf, Σ J and Σ J·f, then the Hessian's moments.
 #[inline(always)]
-fn prepare_reusing(
-    reference: &Reference,
-    x: usize,
-    y: usize,
-    subset: Subset,
-    shape: Shape,
-    spare: Option<RefSubset>,
-) -> Option<Prepared> {
-    let img = reference.image();
-    if !subset.fits(x, y, img.width(), img.height()) {
-        return None;
-    }
-    let mut rs = RefSubset::new(reference, x, y, subset, spare);
+fn subset_sums(rs: &RefSubset) -> ([f64; 13], [f64; 18]) {
     let n = rs.f.len();
     // Two passes over the pixels. The first: the grey levels' sum, and the sums of
     // the steepest-descent images J = [gx, gx·dx, gx·dy, gy, gy·dx, gy·dy] alone and
@@ -773,6 +765,34 @@ fn prepare_reusing(
             yy * w[5],
         ]
     },);
+    (first, second)
+}
+
+/// Hands the buffers of a subset done with back to `scratch`, for [`prepare_in`].
+pub(crate) fn recycle(prepared: Prepared, scratch: &mut Scratch) {
+    scratch.spare = Some(prepared.rs);
+}
+
+#[inline(always)]
+fn prepare_reusing(
+    reference: &Reference,
+    x: usize,
+    y: usize,
+    subset: Subset,
+    shape: Shape,
+    spare: Option<RefSubset>,
+    sums: Option<&SubsetSums>,
+) -> Option<Prepared> {
+    let img = reference.image();
+    if !subset.fits(x, y, img.width(), img.height()) {
+        return None;
+    }
+    let mut rs = RefSubset::new(reference, x, y, subset, spare);
+    let n = rs.f.len();
+    let (first, second) = match sums {
+        Some(s) => (s.first, s.second),
+        None => subset_sums(&rs),
+    };
     let mom: [[f64; 6]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| second[6 * a + b]));
     let mean = first[0] / n as f64;
     rs.sum_gx2 = mom[0][0];
