@@ -265,35 +265,62 @@ impl pulp::WithSimd for Separable<'_> {
                 held[slot] = r;
                 let src = &c[r * w..(r + 1) * w];
                 let row = &mut rows[slot * w..(slot + 1) * w];
-                row.fill(0.0);
                 let p = pad as usize;
                 ext[p..p + w].copy_from_slice(src);
                 for i in (0..p).chain(p + w..w + 2 * p) {
                     ext[i] = src[mirror(i as isize - pad, w)];
                 }
-                for (i, wi) in wx.iter().enumerate() {
-                    let from = (pad + shift - 2 + i as isize) as usize;
-                    for (d, e) in row.iter_mut().zip(&ext[from..from + w]) {
-                        *d += wi * e;
+                // A vector of outputs at a time, the six taps summed in registers
+                // and stored once (the same sums, in the same order, as a pass over
+                // the row per tap adding into it).
+                let from = (pad + shift - 2) as usize;
+                let taps = &ext[from..from + w + TAPS - 1];
+                let whole = w / SEPARABLE_CHUNK * SEPARABLE_CHUNK;
+                for (k, d) in row[..whole].chunks_exact_mut(SEPARABLE_CHUNK).enumerate() {
+                    let at = k * SEPARABLE_CHUNK;
+                    let mut acc = [0.0; SEPARABLE_CHUNK];
+                    for (i, wi) in wx.iter().enumerate() {
+                        let e: &[f64; SEPARABLE_CHUNK] = taps[at + i..at + i + SEPARABLE_CHUNK]
+                            .try_into()
+                            .expect("SEPARABLE_CHUNK values");
+                        for l in 0..SEPARABLE_CHUNK {
+                            acc[l] += wi * e[l];
+                        }
                     }
+                    d.copy_from_slice(&acc);
+                }
+                for (x, d) in row.iter_mut().enumerate().skip(whole) {
+                    *d = wx
+                        .iter()
+                        .enumerate()
+                        .fold(0.0, |a, (i, wi)| a + wi * taps[x + i]);
                 }
             }
-            // The first tap is written, not added: `out` is fresh zeroed memory, and
-            // a read before the first write maps the shared zero page, whose
-            // replacement at the write costs every other core a TLB flush (an
-            // inter-processor interrupt per page, a third of a step-10 field's time).
-            for (j, (wj, &r)) in wy.iter().zip(&need).enumerate() {
-                let slot = r % ROW_SLOTS;
-                let src = &rows[slot * w..(slot + 1) * w];
-                if j == 0 {
-                    for (d, s) in dst.iter_mut().zip(src) {
-                        *d = wj * s;
-                    }
-                } else {
-                    for (d, s) in dst.iter_mut().zip(src) {
-                        *d += wj * s;
+            // Each output once, the six rows' products summed in registers: `out` is
+            // fresh zeroed memory, and a read before the first write maps the shared
+            // zero page, whose replacement at the write costs every other core a TLB
+            // flush (an inter-processor interrupt per page, a third of a step-10
+            // field's time).
+            let src: [&[f64]; TAPS] = std::array::from_fn(|j| {
+                let slot = need[j] % ROW_SLOTS;
+                &rows[slot * w..(slot + 1) * w]
+            });
+            let whole = w / SEPARABLE_CHUNK * SEPARABLE_CHUNK;
+            for (k, d) in dst[..whole].chunks_exact_mut(SEPARABLE_CHUNK).enumerate() {
+                let at = k * SEPARABLE_CHUNK;
+                let mut acc = [0.0; SEPARABLE_CHUNK];
+                for (wj, s) in wy.iter().zip(&src) {
+                    let s: &[f64; SEPARABLE_CHUNK] = s[at..at + SEPARABLE_CHUNK]
+                        .try_into()
+                        .expect("SEPARABLE_CHUNK values");
+                    for l in 0..SEPARABLE_CHUNK {
+                        acc[l] += wj * s[l];
                     }
                 }
+                d.copy_from_slice(&acc);
+            }
+            for (x, d) in dst.iter_mut().enumerate().skip(whole) {
+                *d = wy.iter().zip(&src).fold(0.0, |a, (wj, s)| a + wj * s[x]);
             }
         }
     }
@@ -358,6 +385,9 @@ const TILE: usize = 8;
 
 /// Pixels from which [`BSpline::with_degree`] prefilters the rows in parallel.
 const PARALLEL_PIXELS: usize = 1 << 16;
+
+/// Outputs [`BSpline::separable`] sums side by side: two vectors of f64 on AVX-512.
+const SEPARABLE_CHUNK: usize = 16;
 
 /// Output rows per band of [`BSpline::separable`] on a large image: each band
 /// filters the five rows around it again along x, 8 % more work, for bands that
