@@ -679,20 +679,25 @@ impl BSpline {
             && iy0 >= 2
             && ix0 + nw as isize + 3 <= self.width as isize
             && iy0 + nh as isize + 3 <= self.height as isize;
-        if !inner {
-            for j in 0..nh as isize {
-                for i in 0..nw as isize {
-                    out.push(self.combine(ix0 + i, iy0 + j, wx, wy));
-                }
-            }
-            return;
-        }
         tmp.clear();
-        tmp.resize((nh + TAPS - 1) * nw, 0.0);
+        // The rows filtered along x, then room for one row of coefficients.
+        tmp.resize((nh + TAPS - 1) * nw + nw + TAPS - 1, 0.0);
+        let (rows, edge) = tmp.split_at_mut((nh + TAPS - 1) * nw);
+        // A block reaching past an edge reads its rows' coefficients through the
+        // mirror, then is filtered as an inner one (the same sums in the same order
+        // as `combine` at each pixel).
         for r in 0..nh + TAPS - 1 {
-            let base = (iy0 as usize - 2 + r) * self.width + ix0 as usize - 2;
-            let src = &self.c[base..base + nw + TAPS - 1];
-            let dst = &mut tmp[r * nw..(r + 1) * nw];
+            let src = if inner {
+                let base = (iy0 as usize - 2 + r) * self.width + ix0 as usize - 2;
+                &self.c[base..base + nw + TAPS - 1]
+            } else {
+                let y = iy0 - 2 + r as isize;
+                for (i, e) in edge.iter_mut().enumerate() {
+                    *e = self.coef(ix0 - 2 + i as isize, y);
+                }
+                &edge[..]
+            };
+            let dst = &mut rows[r * nw..(r + 1) * nw];
             for (i, d) in dst.iter_mut().enumerate() {
                 let s = &src[i..i + TAPS];
                 *d = wx[0] * s[0]
@@ -1297,8 +1302,8 @@ mod tests {
         let d = s.degree();
         let (wx, wy) = (d.weights(0.3), d.weights(0.8));
         let (mut tmp, mut out) = (Vec::new(), Vec::new());
-        // Inside (separable path) and touching the border (point-by-point path).
-        for (fx, fy) in [(30.0, 25.0), (4.0, 3.0)] {
+        // Inside, touching the border, and over two corners (the mirror's rows).
+        for (fx, fy) in [(30.0, 25.0), (4.0, 3.0), (0.0, 49.0), (58.0, 1.0)] {
             s.translated_block(fx, fy, 5, 3, &wx, &wy, &mut tmp, &mut out);
             assert_eq!(out.len(), 11 * 7);
             let mut k = 0;
