@@ -5,9 +5,10 @@
 //! grid is cut into tiles, each grown from its own seed, in parallel with rayon; the
 //! tiling does not depend on the number of threads, so results are reproducible.
 //!
-//! Every point is computed by [`measure`], as in the point mode: a point whose predicted
-//! σ is too large for the rule is tried again with larger subsets (the self-adaptive
-//! subset, [`FieldOptions::adaptive_subset`]; each result records its subset size).
+//! Every point is computed by [`measure`](crate::accept::measure), as in the point
+//! mode: a point whose predicted σ is too large for the rule is tried again with larger
+//! subsets (the self-adaptive subset, [`FieldOptions::adaptive_subset`]; each result
+//! records its subset size).
 //! Every computed point goes through [`judge`], the rule of the point mode: a point it
 //! rejects is not reported, and is counted in [`Field::dropped`]; one that did not
 //! converge or has a low ZNCC is not used as a starting guess either. (A neighbour's guess lets IC-GN converge where the point mode's
@@ -140,7 +141,7 @@ fn propagates(verdict: Result<(), Rejection>) -> bool {
 
 /// Fewest tiles along each axis of a grid with at least [`MIN_TILE`] points per tile
 /// there: 16 tiles of equal size share out evenly over 1, 2, 4, 8 or 16 threads, and
-/// over 3 within a tile.
+/// over 3 to within one tile.
 pub const MIN_TILES_PER_SIDE: usize = 4;
 
 /// Fewest grid points along a tile's side from the cut into [`MIN_TILES_PER_SIDE`]
@@ -345,7 +346,7 @@ impl TileJob<'_> {
         (self.x0 + gx * self.step, self.y0 + gy * self.step)
     }
 
-    /// One point measured from `init` ([`measure`]).
+    /// One point measured from `init` ([`measure_on_grid`], with the tile's `sums`).
     fn refine(
         &self,
         (px, py): (usize, usize),

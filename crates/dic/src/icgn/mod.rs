@@ -40,7 +40,7 @@ pub enum Shape {
 /// The stopping tolerance of a measurement (field and point mode), pixels: the
 /// iteration stops when an update moves no subset corner by more than this. Started
 /// from a neighbour's solution (the field) or from the integer search (point mode),
-/// the iteration contracts fast (Gauss-Newton, mixed by [`Anderson`] where it does
+/// the iteration contracts fast (Gauss-Newton, mixed by Anderson acceleration where it does
 /// not), and what is left after a 5e-4 px update is far below σ. The field's results
 /// are unchanged to 1e-5 px from those at 1e-4 px, with a third of the iterations;
 /// point mode's (1,024 points of 512 x 512 speckle, 3 seeds) within 2.2e-5 px of
@@ -556,7 +556,9 @@ pub const RESIDUAL_CORRELATION_PX: usize = 2;
 /// In single precision (twice the lanes of a vector): the scores' rounding (6e-8 of
 /// each) and the sums' (a lane adds some 80 products) move the meat by a few parts
 /// in a million, where its own sampling error over a subset's thousand residuals is
-/// a few per cent.
+/// a few per cent. The scores are displacements (their weighted products sum to σ²,
+/// pixels squared), so their size does not follow the images' grey-level units: a σ
+/// of 1e-6 to 1 px puts them some ten orders of magnitude inside f32's range.
 #[inline(always)]
 fn meat(u: &[f32], v: &[f32], nw: usize, nh: usize) -> (f64, f64) {
     pulp::Arch::new().dispatch(Meat { u, v, nw, nh })
