@@ -213,10 +213,37 @@ fn prefilter_line(d: &mut [f64], start: usize, n: usize, s: usize, z: f64) {
     }
 }
 
-/// [`BSpline::separable`] compiled for the machine's vector units: each tap a pass
-/// over a whole (mirror-padded) row, so that no sum runs in a fixed order.
-/// It writes the output's rows `y0..` into `out` (a band of whole rows: the bands
-/// of a large image are made in parallel).
+/// `dst[x] = Σ_i w_i·lines_i[x]`, the sum in the order of i, written once: a vector
+/// of outputs at a time, its six products summed in registers ([`Separable`]'s
+/// passes along x, with `lines_i` the padded row shifted by i, and along y).
+#[inline(always)]
+fn weighted_lines(dst: &mut [f64], w: &[f64; TAPS], lines: &[&[f64]; TAPS]) {
+    let whole = dst.len() / SEPARABLE_CHUNK * SEPARABLE_CHUNK;
+    for (k, d) in dst[..whole].chunks_exact_mut(SEPARABLE_CHUNK).enumerate() {
+        let at = k * SEPARABLE_CHUNK;
+        let mut acc = [0.0; SEPARABLE_CHUNK];
+        for (wi, line) in w.iter().zip(lines) {
+            let v: &[f64; SEPARABLE_CHUNK] = line[at..at + SEPARABLE_CHUNK]
+                .try_into()
+                .expect("SEPARABLE_CHUNK values");
+            for l in 0..SEPARABLE_CHUNK {
+                acc[l] += wi * v[l];
+            }
+        }
+        d.copy_from_slice(&acc);
+    }
+    for (x, d) in dst.iter_mut().enumerate().skip(whole) {
+        *d = w
+            .iter()
+            .zip(lines)
+            .fold(0.0, |a, (wi, line)| a + wi * line[x]);
+    }
+}
+
+/// [`BSpline::separable`] compiled for the machine's vector units: each row filtered
+/// along x (mirror-padded), then each output row from six of them, both by
+/// [`weighted_lines`]. It writes the output's rows `y0..` into `out` (a band of whole
+/// rows: the bands of a large image are made in parallel).
 struct Separable<'a> {
     c: &'a [f64],
     w: usize,
@@ -270,58 +297,19 @@ impl pulp::WithSimd for Separable<'_> {
                 for i in (0..p).chain(p + w..w + 2 * p) {
                     ext[i] = src[mirror(i as isize - pad, w)];
                 }
-                // A vector of outputs at a time, the six taps summed in registers
-                // and stored once (the same sums, in the same order, as a pass over
-                // the row per tap adding into it).
                 let from = (pad + shift - 2) as usize;
-                let taps = &ext[from..from + w + TAPS - 1];
-                let whole = w / SEPARABLE_CHUNK * SEPARABLE_CHUNK;
-                for (k, d) in row[..whole].chunks_exact_mut(SEPARABLE_CHUNK).enumerate() {
-                    let at = k * SEPARABLE_CHUNK;
-                    let mut acc = [0.0; SEPARABLE_CHUNK];
-                    for (i, wi) in wx.iter().enumerate() {
-                        let e: &[f64; SEPARABLE_CHUNK] = taps[at + i..at + i + SEPARABLE_CHUNK]
-                            .try_into()
-                            .expect("SEPARABLE_CHUNK values");
-                        for l in 0..SEPARABLE_CHUNK {
-                            acc[l] += wi * e[l];
-                        }
-                    }
-                    d.copy_from_slice(&acc);
-                }
-                for (x, d) in row.iter_mut().enumerate().skip(whole) {
-                    *d = wx
-                        .iter()
-                        .enumerate()
-                        .fold(0.0, |a, (i, wi)| a + wi * taps[x + i]);
-                }
+                let taps: [&[f64]; TAPS] = std::array::from_fn(|i| &ext[from + i..from + i + w]);
+                weighted_lines(row, wx, &taps);
             }
-            // Each output once, the six rows' products summed in registers: `out` is
-            // fresh zeroed memory, and a read before the first write maps the shared
-            // zero page, whose replacement at the write costs every other core a TLB
-            // flush (an inter-processor interrupt per page, a third of a step-10
-            // field's time).
+            // `out` is fresh zeroed memory, written once and never read first: a read
+            // before the first write maps the shared zero page, whose replacement at
+            // the write costs every other core a TLB flush (an inter-processor
+            // interrupt per page, a third of a step-10 field's time).
             let src: [&[f64]; TAPS] = std::array::from_fn(|j| {
                 let slot = need[j] % ROW_SLOTS;
                 &rows[slot * w..(slot + 1) * w]
             });
-            let whole = w / SEPARABLE_CHUNK * SEPARABLE_CHUNK;
-            for (k, d) in dst[..whole].chunks_exact_mut(SEPARABLE_CHUNK).enumerate() {
-                let at = k * SEPARABLE_CHUNK;
-                let mut acc = [0.0; SEPARABLE_CHUNK];
-                for (wj, s) in wy.iter().zip(&src) {
-                    let s: &[f64; SEPARABLE_CHUNK] = s[at..at + SEPARABLE_CHUNK]
-                        .try_into()
-                        .expect("SEPARABLE_CHUNK values");
-                    for l in 0..SEPARABLE_CHUNK {
-                        acc[l] += wj * s[l];
-                    }
-                }
-                d.copy_from_slice(&acc);
-            }
-            for (x, d) in dst.iter_mut().enumerate().skip(whole) {
-                *d = wy.iter().zip(&src).fold(0.0, |a, (wj, s)| a + wj * s[x]);
-            }
+            weighted_lines(dst, wy, &src);
         }
     }
 }
@@ -386,7 +374,7 @@ const TILE: usize = 8;
 /// Pixels from which [`BSpline::with_degree`] prefilters the rows in parallel.
 const PARALLEL_PIXELS: usize = 1 << 16;
 
-/// Outputs [`BSpline::separable`] sums side by side: two vectors of f64 on AVX-512.
+/// Outputs [`weighted_lines`] sums side by side: two vectors of f64 on AVX-512.
 const SEPARABLE_CHUNK: usize = 16;
 
 /// Output rows per band of [`BSpline::separable`] on a large image: each band

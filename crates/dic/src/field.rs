@@ -379,9 +379,8 @@ impl TileJob<'_> {
         let mut scratch = Scratch::default();
         let mut done = vec![false; tw * th];
         // The reference-only sums of the tile's subsets, made together.
-        let xs: Vec<usize> = (gx0..gx1).map(|i| self.grid(i, 0).0).collect();
-        let ys: Vec<usize> = (gy0..gy1).map(|j| self.grid(0, j).1).collect();
-        let sums = GridSums::new(self.r, &xs, &ys, opts.subset / 2);
+        let origin = self.grid(gx0, gy0);
+        let sums = GridSums::new(self.r, origin, self.step, (tw, th), opts.subset / 2);
         let sums = sums.as_ref();
         // Seed: the tile centre, then spiralling candidates until one the rule
         // accepts. A match rejected only for its σ hands its guess on to its

@@ -28,27 +28,35 @@ pub(crate) struct SubsetSums {
 }
 
 /// [`SubsetSums`] of the square subsets of half side `half` centred at every point
-/// (xs\[i\], ys\[j\]) of a grid.
+/// `(x0 + i·step, y0 + j·step)`, i < nx, j < ny, of a grid.
 #[derive(Debug, Clone)]
 pub(crate) struct GridSums {
-    xs: Vec<usize>,
-    ys: Vec<usize>,
+    origin: (usize, usize),
+    step: usize,
+    count: (usize, usize),
     half: usize,
     sums: Vec<SubsetSums>,
 }
 
 impl GridSums {
-    /// The sums of the grid `xs` x `ys` (each ascending) of `reference`, subsets of
-    /// half side `half`; `None` when a subset leaves the image or the grid is empty.
+    /// The sums of the grid of `count` points (x, y) from `origin`, `step` apart, of
+    /// `reference`, subsets of half side `half`; `None` when a subset leaves the
+    /// image, the grid is empty or the step is 0.
     pub(crate) fn new(
         reference: &Reference,
-        xs: &[usize],
-        ys: &[usize],
+        origin: (usize, usize),
+        step: usize,
+        count: (usize, usize),
         half: usize,
     ) -> Option<Self> {
         let (w, h) = (reference.image.width(), reference.image.height());
-        let (&x_first, &x_last) = (xs.first()?, xs.last()?);
-        let (&y_first, &y_last) = (ys.first()?, ys.last()?);
+        if step == 0 || count.0 == 0 || count.1 == 0 {
+            return None;
+        }
+        let xs: Vec<usize> = (0..count.0).map(|i| origin.0 + i * step).collect();
+        let ys = (0..count.1).map(|j| origin.1 + j * step);
+        let (x_first, x_last) = (origin.0, origin.0 + (count.0 - 1) * step);
+        let (y_first, y_last) = (origin.1, origin.1 + (count.1 - 1) * step);
         if x_first < half || y_first < half || x_last + half >= w || y_last + half >= h {
             return None;
         }
@@ -58,7 +66,7 @@ impl GridSums {
         let mut rows = vec![[0.0; ROW]; (y_hi - y_lo + 1) * xs.len()];
         for (r, out) in rows.chunks_exact_mut(xs.len()).enumerate() {
             let line = (y_lo + r) * w;
-            for (o, &cx) in out.iter_mut().zip(xs) {
+            for (o, &cx) in out.iter_mut().zip(&xs) {
                 let mut s = [0.0; ROW];
                 for x in cx - half..=cx + half {
                     let k = line + x;
@@ -94,8 +102,8 @@ impl GridSums {
             }
         }
         // Each point's rows, weighted by dy and dy².
-        let mut sums = Vec::with_capacity(xs.len() * ys.len());
-        for &cy in ys {
+        let mut sums = Vec::with_capacity(count.0 * count.1);
+        for cy in ys {
             for i in 0..xs.len() {
                 let mut first = [0.0; 13];
                 let mut second = [0.0; 18];
@@ -125,8 +133,9 @@ impl GridSums {
             }
         }
         Some(GridSums {
-            xs: xs.to_vec(),
-            ys: ys.to_vec(),
+            origin,
+            step,
+            count,
             half,
             sums,
         })
@@ -135,17 +144,11 @@ impl GridSums {
     /// The sums of the subset of half side `half` centred at (x, y), if it is one of
     /// the grid's.
     pub(crate) fn at(&self, x: usize, y: usize, half: usize) -> Option<&SubsetSums> {
-        if half != self.half {
-            return None;
-        }
-        let i = x.checked_sub(*self.xs.first()?)?;
-        let j = y.checked_sub(*self.ys.first()?)?;
-        // The grid's points are evenly spaced.
-        let step_x = self.xs.get(1).map_or(1, |b| b - self.xs[0]).max(1);
-        let step_y = self.ys.get(1).map_or(1, |b| b - self.ys[0]).max(1);
-        let (i, j) = (i / step_x, j / step_y);
-        (self.xs.get(i) == Some(&x) && self.ys.get(j) == Some(&y))
-            .then(|| &self.sums[j * self.xs.len() + i])
+        let (dx, dy) = (x.checked_sub(self.origin.0)?, y.checked_sub(self.origin.1)?);
+        let (i, j) = (dx / self.step, dy / self.step);
+        let on_grid = dx % self.step == 0 && dy % self.step == 0;
+        (half == self.half && on_grid && i < self.count.0 && j < self.count.1)
+            .then(|| &self.sums[j * self.count.0 + i])
     }
 }
 
@@ -166,7 +169,7 @@ mod tests {
         for (half, step) in [(16, 1), (16, 2), (10, 3), (16, 10), (5, 2)] {
             let xs: Vec<usize> = (half + 1..120 - half - 1).step_by(step).collect();
             let ys: Vec<usize> = (half + 2..100 - half - 1).step_by(step).collect();
-            let grid = GridSums::new(&r, &xs, &ys, half).unwrap();
+            let grid = GridSums::new(&r, (xs[0], ys[0]), step, (xs.len(), ys.len()), half).unwrap();
             for &y in &ys {
                 for &x in &xs {
                     let rs = RefSubset::new(&r, x, y, Subset::square(2 * half + 1), None);
@@ -195,7 +198,7 @@ mod tests {
             assert!(grid.at(xs[0] - 1, ys[0], half).is_none());
         }
         // A subset that leaves the image: no grid.
-        assert!(GridSums::new(&r, &[10], &[50], 16).is_none());
-        assert!(GridSums::new(&r, &[], &[50], 16).is_none());
+        assert!(GridSums::new(&r, (10, 50), 1, (1, 1), 16).is_none());
+        assert!(GridSums::new(&r, (30, 50), 1, (0, 1), 16).is_none());
     }
 }
