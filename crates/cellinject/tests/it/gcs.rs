@@ -362,9 +362,11 @@ fn a_link_cut_mid_run_stops_in_the_safe_state_with_the_reason_recorded() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    // Cut once the run is under way (its record says running: the stacks identified
-    // again over the wire, the workflow begun), read from the records as the run
-    // writes them, however long that takes on a loaded machine.
+    // Cut once the run is under way (its record says running), read from the records
+    // as the run writes them, however long that takes on a loaded machine (the fixed
+    // 22 s this replaces was meant to reach the first cells, but over the real-time
+    // wire the first cell starts about 3 min in, measured alone: it cut before any
+    // cell too).
     let under_way = |v: &Value| v["run"]["status"] == "running";
     let deadline = std::time::Instant::now() + Duration::from_secs(300);
     loop {
