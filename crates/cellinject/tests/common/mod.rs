@@ -31,3 +31,34 @@ pub fn run(dir: &Path, args: &[&str]) -> Output {
 pub fn err(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
+
+/// The JSON document `cellinject ARGS` (run in `dir`) prints, if it exits 0 with one:
+/// the records read while a run writes them (`runs show`, `runs list`).
+pub fn json(dir: &Path, args: &[&str]) -> Option<serde_json::Value> {
+    let o = run(dir, args);
+    (o.status.code() == Some(0))
+        .then(|| serde_json::from_slice(&o.stdout).ok())
+        .flatten()
+}
+
+/// Polls `look` every `every` until it gives something, failing the test with `what`
+/// and the last look after `limit`: a wait on what the run records, not a fixed sleep.
+pub fn poll<T, L: std::fmt::Debug>(
+    limit: std::time::Duration,
+    every: std::time::Duration,
+    what: &str,
+    mut look: impl FnMut() -> Result<T, L>,
+) -> T {
+    let t0 = std::time::Instant::now();
+    loop {
+        match look() {
+            Ok(v) => return v,
+            Err(last) => assert!(
+                t0.elapsed() < limit,
+                "{what} within {} s; last seen: {last:?}",
+                limit.as_secs()
+            ),
+        }
+        std::thread::sleep(every);
+    }
+}

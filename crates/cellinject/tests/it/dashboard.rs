@@ -267,21 +267,15 @@ fn the_end_of_the_server_aborts_and_records_the_run_going() {
         if let Some(sig) = signal {
             // Signalled once the run is recorded as going (polled from the records,
             // not a fixed wait).
-            let t0 = Instant::now();
-            loop {
-                let o = run(&d, &["runs", "list", "--format", "json"]);
-                let runs: Option<serde_json::Value> = (o.status.code() == Some(0))
-                    .then(|| serde_json::from_slice(&o.stdout).ok())
-                    .flatten();
-                if runs.as_ref().is_some_and(|r| r[0]["status"] == "running") {
-                    break;
-                }
-                assert!(
-                    t0.elapsed() < Duration::from_secs(60),
-                    "{name}: no run recorded as running: {runs:?}"
-                );
-                std::thread::sleep(Duration::from_millis(100));
-            }
+            common::poll(
+                Duration::from_secs(60),
+                Duration::from_millis(100),
+                &format!("{name}: the run recorded as running"),
+                || match common::json(&d, &["runs", "list", "--format", "json"]) {
+                    Some(r) if r[0]["status"] == "running" => Ok(()),
+                    other => Err(other),
+                },
+            );
             let k = Command::new("kill")
                 .arg(sig)
                 .arg(s.child.id().to_string())

@@ -367,28 +367,21 @@ fn a_link_cut_mid_run_stops_in_the_safe_state_with_the_reason_recorded() {
     // 22 s this replaces was meant to reach the first cells, but over the real-time
     // wire the first cell starts about 3 min in, measured alone: it cut before any
     // cell too).
-    let under_way = |v: &Value| v["run"]["status"] == "running";
-    let deadline = std::time::Instant::now() + Duration::from_secs(300);
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            panic!("the run ended ({status}) before it was recorded as running");
-        }
-        let o = common::cmd(&d)
-            .args(["runs", "show", "--db", "r.sqlite"])
-            .output()
-            .unwrap();
-        let shown = (o.status.code() == Some(0))
-            .then(|| serde_json::from_slice::<Value>(&o.stdout).ok())
-            .flatten();
-        if shown.as_ref().is_some_and(under_way) {
-            break;
-        }
-        assert!(
-            std::time::Instant::now() < deadline,
-            "no run recorded as running within 300 s: {shown:?}"
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    }
+    common::poll(
+        Duration::from_secs(300),
+        Duration::from_millis(200),
+        "the run recorded as running",
+        || {
+            if let Some(status) = child.try_wait().unwrap() {
+                panic!("the run ended ({status}) before it was recorded as running");
+            }
+            let shown = common::json(&d, &["runs", "show", "--db", "r.sqlite"]);
+            match shown {
+                Some(v) if v["run"]["status"] == "running" => Ok(()),
+                other => Err(other),
+            }
+        },
+    );
     p.cut();
     let out = child.wait_with_output().unwrap();
     let stderr = err(&out);

@@ -680,10 +680,7 @@ fn a_run_killed_at_any_moment_resumes_without_touching_a_cell_twice() {
 
 /// `runs show` of `db` as JSON, once the run is recorded.
 fn show(d: &Path, db: &str) -> Option<Value> {
-    let o = run(d, &["runs", "show", "--db", db]);
-    (o.status.code() == Some(0))
-        .then(|| serde_json::from_slice(&o.stdout).ok())
-        .flatten()
+    common::json(d, &["runs", "show", "--db", db])
 }
 
 /// A run over two fields of view killed (SIGKILL) in the middle of a field's cells, and
