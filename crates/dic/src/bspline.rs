@@ -326,7 +326,14 @@ const ROW_SLOTS: usize = 2 * TAPS;
 /// block one value at a time. Row by row with an index per value, the transposes of
 /// the splines' row prefilter took three times as long as the prefilter itself.
 pub(crate) fn transpose(a: &[f64], w: usize, h: usize) -> Vec<f64> {
-    pulp::Arch::new().dispatch(Transpose { a, w, h })
+    let mut out = vec![0.0; w * h];
+    transpose_into(a, w, h, &mut out);
+    out
+}
+
+/// [`transpose`] into `out` (`w·h` values, each overwritten): no allocation.
+pub(crate) fn transpose_into(a: &[f64], w: usize, h: usize, out: &mut [f64]) {
+    pulp::Arch::new().dispatch(Transpose { a, w, h, out })
 }
 
 /// [`transpose`] compiled for the machine's vector units.
@@ -334,15 +341,16 @@ struct Transpose<'a> {
     a: &'a [f64],
     w: usize,
     h: usize,
+    out: &'a mut [f64],
 }
 
 impl pulp::WithSimd for Transpose<'_> {
-    type Output = Vec<f64>;
+    type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
-        let Transpose { a, w, h } = self;
-        let mut out = vec![0.0; w * h];
+        let Transpose { a, w, h, out } = self;
+        let out = &mut out[..w * h];
         let (wb, hb) = (w / TILE * TILE, h / TILE * TILE);
         for y0 in (0..hb).step_by(TILE) {
             for x0 in (0..wb).step_by(TILE) {
@@ -364,7 +372,6 @@ impl pulp::WithSimd for Transpose<'_> {
                 out[x * h + y] = a[y * w + x];
             }
         }
-        out
     }
 }
 
@@ -498,18 +505,27 @@ fn prefilter(d: &mut [f64], start: usize, n: usize, s: usize, degree: Degree) {
 /// in `d`: side by side in the vector registers (the lines are the columns of the
 /// transpose), where one line alone waits on each step of the recursion.
 pub(crate) fn prefilter_lines(d: &mut [f64], n: usize, degree: Degree) {
+    let mut t = Vec::new();
+    prefilter_lines_in(d, n, degree, &mut t);
+}
+
+/// [`prefilter_lines`] with `t` as the transpose's buffer (resized; its contents
+/// are overwritten): no allocation once it is large enough.
+pub(crate) fn prefilter_lines_in(d: &mut [f64], n: usize, degree: Degree, t: &mut Vec<f64>) {
     if n == 0 {
         return;
     }
     let count = d.len() / n;
-    let mut t = transpose(&d[..count * n], n, count);
+    let d = &mut d[..count * n];
+    t.resize(count * n, 0.0);
+    transpose_into(d, n, count, t);
     pulp::Arch::new().dispatch(Columns {
-        c: &mut t,
+        c: &mut t[..],
         w: count,
         h: n,
         degree,
     });
-    d[..count * n].copy_from_slice(&transpose(&t, count, n));
+    transpose_into(t, count, n, d);
 }
 
 /// `floor` without a library call (baseline x86-64 has no rounding instruction).
@@ -559,6 +575,26 @@ impl BSpline {
         } else {
             prefilter_lines(&mut c, w, degree);
         }
+        BSpline::from_filtered_rows(w, h, c, degree)
+    }
+
+    /// [`BSpline::from_values`] of a small array (a window of a subset, prefiltered
+    /// on this thread), with `t` as the buffer of the rows' transpose: no
+    /// allocation once `t` is large enough.
+    pub(crate) fn from_values_in(
+        w: usize,
+        h: usize,
+        mut c: Vec<f64>,
+        degree: Degree,
+        t: &mut Vec<f64>,
+    ) -> Self {
+        debug_assert_eq!(c.len(), w * h);
+        prefilter_lines_in(&mut c, w, degree, t);
+        BSpline::from_filtered_rows(w, h, c, degree)
+    }
+
+    /// The spline of values whose rows are already prefiltered: the columns next.
+    fn from_filtered_rows(w: usize, h: usize, mut c: Vec<f64>, degree: Degree) -> Self {
         pulp::Arch::new().dispatch(Columns {
             c: &mut c,
             w,
@@ -662,13 +698,12 @@ impl BSpline {
         let (nw, nh) = (2 * hw + 1, 2 * hh + 1);
         let ix0 = (fx - self.origin.0) as isize - hw as isize;
         let iy0 = (fy - self.origin.1) as isize - hh as isize;
-        out.clear();
         let inner = ix0 >= 2
             && iy0 >= 2
             && ix0 + nw as isize + 3 <= self.width as isize
             && iy0 + nh as isize + 3 <= self.height as isize;
-        tmp.clear();
-        // The rows filtered along x, then room for one row of coefficients.
+        // The rows filtered along x, then room for one row of coefficients (every
+        // value read is written first: resized, not cleared).
         tmp.resize((nh + TAPS - 1) * nw + nw + TAPS - 1, 0.0);
         let (rows, edge) = tmp.split_at_mut((nh + TAPS - 1) * nw);
         // A block reaching past an edge reads its rows' coefficients through the
@@ -696,6 +731,7 @@ impl BSpline {
                     + wx[5] * s[5];
             }
         }
+        // Every value is written: resized, not cleared.
         out.resize(nw * nh, 0.0);
         for (j, dst) in out.chunks_exact_mut(nw).enumerate() {
             let rows: [&[f64]; TAPS] =

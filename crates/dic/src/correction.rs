@@ -139,12 +139,26 @@ impl<'a> Corrections<'a> {
                 (&columns[..], h, w)
             };
             let last = ((b + 1) * BLOCK).min(count);
-            pulp::Arch::new().dispatch(MismatchTable {
+            let table = pulp::Arch::new().dispatch(MismatchTable {
                 lines: &lines[b * BLOCK * n..last * n],
                 n,
                 t,
                 degree: self.degree,
-            })
+            });
+            if axis == 0 {
+                table
+            } else {
+                // The y table's block back in the image's orientation (`h` rows of
+                // the block's columns), so that a subset reads it row by row.
+                let cols = last - b * BLOCK;
+                let mut rows = vec![0.0f32; table.len()];
+                for (c, line) in table.chunks_exact(n).enumerate() {
+                    for (y, e) in line.iter().enumerate() {
+                        rows[y * cols + c] = *e;
+                    }
+                }
+                rows
+            }
         }))
     }
 
@@ -185,16 +199,24 @@ impl<'a> Corrections<'a> {
                         }
                     }
                 } else {
-                    // Column x0 + i is line x0 + i of the y table.
-                    for i in 0..nw {
+                    // Columns x0..x0 + nw, block by block: each block holds its
+                    // columns row by row.
+                    let mut i = 0;
+                    while i < nw {
                         let line = x0 + i;
                         let Some(block) = self.block(1, phase, line / BLOCK) else {
                             break;
                         };
-                        let start = (line % BLOCK) * h + y0;
-                        for (j, e) in block[start..start + nh].iter().enumerate() {
-                            out[j * nw + i] += weight * f64::from(*e);
+                        let cols = block.len() / h;
+                        let (c0, take) = (line % BLOCK, (cols - line % BLOCK).min(nw - i));
+                        for (j, row) in out.chunks_exact_mut(nw).enumerate() {
+                            let start = (y0 + j) * cols + c0;
+                            let src = &block[start..start + take];
+                            for (o, e) in row[i..i + take].iter_mut().zip(src) {
+                                *o += weight * f64::from(*e);
+                            }
                         }
+                        i += take;
                     }
                 }
             }

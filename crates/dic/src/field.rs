@@ -402,7 +402,8 @@ impl TileJob<'_> {
                 opts.search_radius as i64,
             );
             let Some(hit) = hit else { continue };
-            let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
+            let (u, v) = hit.refined();
+            let init = [u, 0.0, 0.0, v, 0.0, 0.0];
             let k = j * tw + i;
             match self.refine((px, py), init, &mut scratch, sums) {
                 Some(p) if judge(&p, &opts.acceptance).is_ok() => {

@@ -297,7 +297,10 @@ pub fn correlate_points(
             let (xi, yi) = (x.round() as i64, y.round() as i64);
             let m = (opts.subset / 2) as i64;
             let hit = search::search_pyramid(&pr, &pc, xi, yi, m, opts.search_radius as i64)?;
-            let init = [hit.u as f64, 0.0, 0.0, hit.v as f64, 0.0, 0.0];
+            // From the correlation's sub-pixel peak: a step of IC-GN fewer than
+            // from the whole pixel.
+            let (u, v) = hit.refined();
+            let init = [u, 0.0, 0.0, v, 0.0, 0.0];
             let mut res = accept::measure(
                 &r,
                 &s,

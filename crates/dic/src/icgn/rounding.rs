@@ -104,11 +104,13 @@ pub(crate) fn rounding_error_translated(
         for v in exact.iter_mut() {
             *v = (*v / q).round() * q - *v;
         }
+        // Finite: a NaN or an infinity makes the (vectorised) sum of v·0 one.
+        let [check] = lane_sums!(exact.len(), |a| [a.of(&exact) * 0.0]);
         let (ww, wh) = (2 * (hw + pad) + 1, 2 * (hh + pad) + 1);
-        if exact.len() != ww * wh || !exact.iter().all(|v| v.is_finite()) {
+        if exact.len() != ww * wh || check != 0.0 {
             return None;
         }
-        let residual = BSpline::from_values(ww, wh, exact, d);
+        let residual = BSpline::from_values_in(ww, wh, exact, d, &mut scratch.tmp);
         // Subset pixel dx lies at window position hw + pad + dx + tu.
         let mut e = std::mem::take(&mut scratch.mismatch);
         residual.translated_block(
