@@ -1,4 +1,5 @@
-//! `cellinject emulate gcs`: the twin behind an emulated PI GCS 2.0 controller.
+//! `cellinject emulate gcs`: the twin behind an emulated PI GCS 2.0 controller;
+//! `cellinject emulate sensapex`: Sensapex devices over SMCP1.
 
 use std::net::TcpListener;
 use std::path::PathBuf;
@@ -19,6 +20,39 @@ pub enum EmulateCommand {
         after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml --seed 2\n  cellinject experiment repeatability --backend gcs://127.0.0.1:50000\n\nPositions are µm of stack extension (the stack's sensor), voltages V. Closed loop: ONT? is 1 once the position has stayed within ±0.02 µm of the target for 20 ms; #5 reports an axis moving while its servo is on and it is not on target. Errors: 1 syntax, 2 unknown command, 5 MOV with servo off, 7 target beyond TMN?/TMX? or a closed-loop move the safety envelope stopped, 10 stopped (#24, HLT, STP), 15 unknown axis, 17 value out of range (SVA outside 0..Vmax, refused by the safety envelope, or with the servo on)."
     )]
     Gcs(GcsArgs),
+    /// Sensapex devices (uMp manipulators, uMs stages, uMv pressure controllers)
+    /// speaking SMCP1 over UDP, as Sensapex's own SDK (libum) drives them; in
+    /// wall-clock time, until killed (or `--serve-for` ends).
+    #[command(
+        after_help = "Examples:\n  cellinject emulate sensapex\n  cellinject emulate sensapex --devices ump:1,ump4:2,ums:21,umv:31 --group 1 --verbose\n\nThen, with Sensapex's Python client (pip install sensapex):\n  from sensapex import UMP\n  ump = UMP.get_ump(address=b\"127.0.0.1\", group=0); print(ump.list_devices())\n\nSensapex's client treats device ids 20-29 as stages and ids of 30 and above as not positionable (pressure controllers). Positions are nm on the wire (µm in the client), pressures Pa on the wire (kPa in the client). docs/sensapex.md says what the emulator speaks."
+    )]
+    Sensapex(SensapexArgs),
+}
+
+/// Options of `emulate sensapex`.
+#[derive(Debug, Args)]
+pub struct SensapexArgs {
+    /// Address to listen on (loopback unless told otherwise); the port is 55555 + the
+    /// group, where Sensapex's client sends.
+    #[arg(long, default_value = "127.0.0.1", value_name = "HOST")]
+    bind: String,
+    /// Device group 0..10 (UDP port 55555 + group).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10))]
+    group: u16,
+    /// The devices: KIND:ID pairs, KIND one of ump (3 axes), ump4 (4 axes), ums
+    /// (stage), umv (pressure), ID 1..254.
+    #[arg(
+        long,
+        default_value = "ump:1,ums:21,umv:31",
+        value_name = "KIND:ID,..."
+    )]
+    devices: String,
+    /// Log every datagram, decoded, on standard error.
+    #[arg(long)]
+    verbose: bool,
+    /// Stop serving after this many seconds (default: until killed).
+    #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
+    serve_for: Option<f64>,
 }
 
 /// Options of `emulate gcs`.
@@ -58,14 +92,66 @@ fn bind(arg: &str, addr: &str) -> Result<TcpListener> {
         .map_err(|e| InputError(format!("{arg} {addr}: cannot listen: {e}")).into())
 }
 
+fn check_serve_for(serve_for: Option<f64>) -> Result<()> {
+    match serve_for {
+        Some(t) if !(t.is_finite() && t > 0.0 && t <= 1e7) => {
+            Err(InputError(format!("--serve-for must lie in (0, 1e7] s, got {t}")).into())
+        }
+        _ => Ok(()),
+    }
+}
+
+/// `cellinject emulate sensapex`.
+fn sensapex(a: &SensapexArgs) -> Result<()> {
+    use cellinject_sensapex::{emulator, protocol};
+    check_serve_for(a.serve_for)?;
+    let devices =
+        emulator::parse_devices(&a.devices).map_err(|e| InputError(format!("--devices: {e}")))?;
+    let ip: std::net::IpAddr = a
+        .bind
+        .parse()
+        .map_err(|_| InputError(format!("--bind {}: not an IP address", a.bind)))?;
+    let port = protocol::PORT + a.group;
+    let socket = std::net::UdpSocket::bind((ip, port)).map_err(|e| {
+        InputError(format!(
+            "--bind {ip} --group {}: cannot listen on UDP port {port}: {e}",
+            a.group
+        ))
+    })?;
+    let log: emulator::Log = if a.verbose {
+        Some(Box::new(|line: &str| eprintln!("{line}")))
+    } else {
+        None
+    };
+    let running = emulator::serve(socket, &devices, log)
+        .map_err(|e| anyhow::anyhow!("cannot start the emulator: {e}"))?;
+    outln!(
+        "Sensapex SMCP1 devices on udp://{} (group {}): {}",
+        running.addr(),
+        a.group,
+        devices
+            .iter()
+            .map(|d| format!("{} {}", d.kind.name(), d.id))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    match a.serve_for {
+        Some(t) => {
+            std::thread::sleep(std::time::Duration::from_secs_f64(t));
+            running.stop();
+        }
+        None => running.wait(),
+    }
+    Ok(())
+}
+
 /// `cellinject emulate ...`.
 pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
-    let EmulateCommand::Gcs(a) = cmd;
-    if let Some(t) = a.serve_for
-        && !(t.is_finite() && t > 0.0 && t <= 1e7)
-    {
-        return Err(InputError(format!("--serve-for must lie in (0, 1e7] s, got {t}")).into());
-    }
+    let a = match cmd {
+        EmulateCommand::Gcs(a) => a,
+        EmulateCommand::Sensapex(a) => return sensapex(a),
+    };
+    check_serve_for(a.serve_for)?;
     let faults = a
         .fault
         .iter()

@@ -172,7 +172,7 @@ enum Command {
     /// Emulated hardware backed by the twin, for drivers and third-party clients.
     #[command(
         subcommand,
-        after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml"
+        after_help = "Examples:\n  cellinject emulate gcs\n  cellinject emulate gcs --bind 127.0.0.1:5000 --plate plate.toml\n  cellinject emulate sensapex --devices ump:1,ums:21,umv:31"
     )]
     Emulate(emulate::EmulateCommand),
     /// The bench as a rig file (one TOML naming each device's driver): check what it holds and whether each device answers.

@@ -338,6 +338,9 @@ fn baseline(path: &[String]) -> Vec<&'static str> {
         ],
         ["runs", "show"] | ["runs", "list"] | ["runs", "export"] => vec!["--db", "nr.sqlite"],
         ["emulate", "gcs"] => vec!["--bind", "127.0.0.1:0", "--serve-for", "0.3"],
+        // A group of its own (UDP 55564): the Python suite's emulator takes the first
+        // free one from 0.
+        ["emulate", "sensapex"] => vec!["--group", "9", "--serve-for", "0.3"],
         ["serve"] => vec![
             "--bind",
             "127.0.0.1:0",
