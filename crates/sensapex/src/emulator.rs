@@ -397,6 +397,8 @@ struct World {
     origin: Instant,
     last_tick: f64,
     notify_id: u16,
+    /// Datagrams received.
+    received: u64,
 }
 
 impl World {
@@ -447,6 +449,21 @@ impl Running {
             .map(|d| d.position(t))
     }
 
+    /// Datagrams received so far.
+    pub fn received(&self) -> u64 {
+        self.world
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .received
+    }
+
+    /// A pressure controller's channel (0..7): its set point (Pa) and valve.
+    pub fn channel(&self, id: u16, channel: usize) -> Option<(f64, i32)> {
+        let w = self.world.lock().unwrap_or_else(|e| e.into_inner());
+        let d = w.devices.iter().find(|d| d.spec.id == id)?;
+        Some((*d.set_point.get(channel)?, d.valve[channel]))
+    }
+
     /// Stops the emulator and waits for its thread.
     pub fn stop(mut self) {
         self.shutdown();
@@ -483,6 +500,7 @@ pub fn serve(socket: UdpSocket, devices: &[DeviceSpec], log: Log) -> std::io::Re
         origin: Instant::now(),
         last_tick: 0.0,
         notify_id: 0,
+        received: 0,
     }));
     let stop = Arc::new(AtomicBool::new(false));
     let handle = {
@@ -505,6 +523,7 @@ fn run(socket: UdpSocket, world: Arc<Mutex<World>>, stop: Arc<AtomicBool>, mut l
     while !stop.load(Ordering::Relaxed) {
         if let Ok((n, from)) = socket.recv_from(&mut buf) {
             let mut w = world.lock().unwrap_or_else(|e| e.into_inner());
+            w.received += 1;
             match Frame::decode(&buf[..n]) {
                 Ok(f) => {
                     if let Some(l) = log.as_mut() {

@@ -1,0 +1,253 @@
+//! The driver against the emulator, in process: every command, a lost datagram, a
+//! device that stops answering, a move stopped halfway, a pressure refused before
+//! anything is sent.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use cellinject_hw::{HwError, Injector, Stage};
+use cellinject_sensapex::emulator::{self, Running};
+use cellinject_sensapex::{Link, Model, Positioner, PressureChannel, SensapexError, SharedLink};
+
+fn emulator() -> Running {
+    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let devices = emulator::parse_devices("ump:1,ump4:2,ums:21,umv:31").unwrap();
+    emulator::serve(socket, &devices, None).unwrap()
+}
+
+fn link(to: SocketAddr) -> SharedLink {
+    Arc::new(Mutex::new(Link::to(to).unwrap()))
+}
+
+fn wait_idle(s: &mut Positioner) -> Duration {
+    let t = Instant::now();
+    while s.is_busy().unwrap() {
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "still busy after 10 s"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    t.elapsed()
+}
+
+#[test]
+fn discovery_finds_every_device_and_positions_start_at_the_origin() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    assert_eq!(l.lock().unwrap().discover().unwrap(), vec![1, 2, 21, 31]);
+    let mut m = Positioner::open(&l, 1, Model::Manipulator, &[], 1e-3).unwrap();
+    assert_eq!(m.axes(), 3);
+    assert_eq!(m.positions().unwrap(), vec![0.0; 3]);
+    assert_eq!(m.travel(0), (-0.01, 0.01));
+    let d4 = Positioner::open(&l, 2, Model::Manipulator, &[], 1e-3).unwrap();
+    assert_eq!(d4.axes(), 4);
+    let s = Positioner::open(&l, 21, Model::Stage, &[0.0, 0.0, 0.0], 1e-3).unwrap();
+    assert_eq!(s.travel(2), (0.0, 0.025));
+}
+
+/// A goto: busy while it moves, idle after, and within a nanometre of its target; a
+/// second axis commanded while the first moves carries the first along.
+#[test]
+fn moves_end_on_target_and_are_busy_only_while_moving() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    let mut m = Positioner::open(&l, 1, Model::Manipulator, &[], 1e-3).unwrap();
+    m.move_to(0, 200e-6).unwrap();
+    assert!(m.is_busy().unwrap());
+    m.move_to(2, -50e-6).unwrap();
+    let took = wait_idle(&mut m);
+    // 200 µm at 1 mm/s: at least 0.2 s.
+    assert!(took >= Duration::from_millis(150), "{took:?}");
+    let p = m.positions().unwrap();
+    assert!((p[0] - 200e-6).abs() <= 1e-9, "{p:?}");
+    assert!((p[2] + 50e-6).abs() <= 1e-9, "{p:?}");
+    assert_eq!(p[1], 0.0);
+    let on = emu.positions(1).unwrap();
+    assert!((on[0] - 10_200_000.0).abs() < 1.0, "{on:?}");
+}
+
+#[test]
+fn a_move_stopped_halfway_ends_between_start_and_target() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    let mut s = Positioner::open(&l, 21, Model::Stage, &[], 1e-3).unwrap();
+    s.move_to(0, 2e-3).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    s.stop().unwrap();
+    assert!(!s.is_busy().unwrap());
+    std::thread::sleep(Duration::from_millis(100));
+    let x = s.position(0).unwrap();
+    assert!(x > 100e-6 && x < 1e-3, "{x}");
+}
+
+#[test]
+fn moves_beyond_the_travel_are_refused_before_anything_is_sent() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    let mut m = Positioner::open(&l, 1, Model::Manipulator, &[], 1e-3).unwrap();
+    let before = emu.received();
+    assert!(matches!(
+        m.move_to(0, 0.011),
+        Err(HwError::OutOfRange { .. })
+    ));
+    assert!(matches!(
+        m.move_to(0, f64::NAN),
+        Err(HwError::NotFinite { .. })
+    ));
+    assert!(matches!(m.move_to(3, 0.0), Err(HwError::OutOfRange { .. })));
+    assert_eq!(emu.received(), before);
+}
+
+/// A device that stops answering is a timeout naming it and its address, after
+/// the three sends, never a hang; it is used again once it answers.
+#[test]
+fn a_device_that_stops_answering_is_a_timeout_that_names_it() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    l.lock().unwrap().set_timeout(Duration::from_millis(50));
+    let mut m = Positioner::open(&l, 1, Model::Manipulator, &[], 1e-3).unwrap();
+    emu.mute(1, true);
+    let t = Instant::now();
+    let e = m.positions().unwrap_err();
+    let took = t.elapsed();
+    assert!(
+        matches!(
+            e,
+            SensapexError::Timeout {
+                device: 1,
+                sends: 3,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let text = e.to_string();
+    assert!(
+        text.contains("device 1") && text.contains(&emu.addr().to_string()),
+        "{text}"
+    );
+    assert!(
+        took >= Duration::from_millis(140) && took < Duration::from_secs(1),
+        "{took:?}"
+    );
+    match m.move_to(0, 1e-6) {
+        Err(HwError::Timeout { device, .. }) => assert!(device.contains("device 1"), "{device}"),
+        other => panic!("{other:?}"),
+    }
+    emu.mute(1, false);
+    assert_eq!(m.positions().unwrap().len(), 3);
+}
+
+/// A proxy that drops the first datagram from the client: the retransmission with
+/// the same message id gets through, and the request succeeds.
+#[test]
+fn a_lost_datagram_is_sent_again() {
+    let emu = emulator();
+    let proxy = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let to = proxy.local_addr().unwrap();
+    let upstream = emu.addr();
+    let dropped = Arc::new(Mutex::new(0));
+    {
+        let dropped = dropped.clone();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 1500];
+            let mut client = None;
+            proxy
+                .set_read_timeout(Some(Duration::from_millis(20)))
+                .unwrap();
+            for _ in 0..500 {
+                let Ok((n, from)) = proxy.recv_from(&mut buf) else {
+                    continue;
+                };
+                if from == upstream {
+                    if let Some(c) = client {
+                        let _ = proxy.send_to(&buf[..n], c);
+                    }
+                } else {
+                    client = Some(from);
+                    let mut d = dropped.lock().unwrap();
+                    if *d == 0 {
+                        *d += 1;
+                        continue;
+                    }
+                    let _ = proxy.send_to(&buf[..n], upstream);
+                }
+            }
+        });
+    }
+    let l = link(to);
+    l.lock().unwrap().set_timeout(Duration::from_millis(50));
+    let r = l
+        .lock()
+        .unwrap()
+        .request(
+            1,
+            cellinject_sensapex::protocol::cmd::GET_POSITIONS,
+            &[],
+            true,
+        )
+        .unwrap();
+    assert_eq!(r, vec![10_000_000; 3]);
+    assert_eq!(*dropped.lock().unwrap(), 1);
+}
+
+#[test]
+fn a_pulse_opens_the_valve_at_the_pressure_and_closes_it_after() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    let mut inj = PressureChannel::open(&l, 31, 2, 50_000.0).unwrap();
+    assert_eq!(inj.max_pressure(), 50_000.0);
+    let t = Instant::now();
+    std::thread::scope(|s| {
+        let seen = s.spawn(|| {
+            std::thread::sleep(Duration::from_millis(60));
+            emu.channel(31, 1)
+        });
+        inj.pulse(12_000.0, 0.15).unwrap();
+        assert_eq!(
+            seen.join().unwrap(),
+            Some((12_000.0, 1)),
+            "during the pulse"
+        );
+    });
+    assert!(t.elapsed() >= Duration::from_millis(150));
+    assert_eq!(emu.channel(31, 1), Some((0.0, 0)), "after the pulse");
+    // Above the limit: refused before anything is sent.
+    let before = emu.received();
+    assert!(matches!(
+        inj.pulse(50_001.0, 0.1),
+        Err(HwError::OutOfRange {
+            what: "pressure",
+            ..
+        })
+    ));
+    assert!(matches!(
+        inj.pulse(f64::NAN, 0.1),
+        Err(HwError::NotFinite { .. })
+    ));
+    assert_eq!(emu.received(), before);
+    assert!(inj.measure().unwrap().abs() < 12_000.0);
+}
+
+#[test]
+fn a_refused_command_is_an_error_not_a_timeout() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    // A pressure command to a manipulator.
+    let e = l
+        .lock()
+        .unwrap()
+        .request(
+            1,
+            cellinject_sensapex::protocol::cmd::UMV_GET_VALVE,
+            &[0],
+            true,
+        )
+        .unwrap_err();
+    assert!(matches!(e, SensapexError::Refused { device: 1, .. }), "{e}");
+    assert!(PressureChannel::open(&l, 1, 1, 1e4).is_err());
+}
