@@ -68,13 +68,78 @@ pub enum CameraDriver {
 }
 
 /// The driver of a stage, the injector or the optics.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum DeviceDriver {
     /// The twin's device.
     Twin,
     /// The device of a bench endpoint, its `HOST:PORT`.
     Bench(String),
+    /// A Sensapex device over SMCP1 (`sensapex://`, `sensapex-ums://`,
+    /// `sensapex-pressure://`).
+    Sensapex(SensapexDevice),
 }
+
+/// Which Sensapex device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SensapexKind {
+    /// A uMp micromanipulator (`sensapex://`): a stage.
+    Manipulator,
+    /// A uMs stage (`sensapex-ums://`).
+    Stage,
+    /// A channel of a uMv / uMc pressure controller (`sensapex-pressure://`): the
+    /// injector.
+    Pressure,
+}
+
+impl SensapexKind {
+    /// The driver's scheme.
+    pub fn scheme(self) -> &'static str {
+        match self {
+            SensapexKind::Manipulator => "sensapex",
+            SensapexKind::Stage => "sensapex-ums",
+            SensapexKind::Pressure => "sensapex-pressure",
+        }
+    }
+}
+
+/// A Sensapex device: `SCHEME://ADDRESS?dev=N[&group=G][&channel=C]`, with the
+/// stage's optional `origin` (m) and `speed` (m/s).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensapexDevice {
+    /// Which device.
+    pub kind: SensapexKind,
+    /// The devices' IP address: a device's own, the link-local broadcast
+    /// 169.254.255.255, or 127.0.0.1 for `cellinject emulate sensapex`.
+    pub address: std::net::IpAddr,
+    /// Group 0..10 (UDP port 55555 + group).
+    pub group: u16,
+    /// Device id 1..254.
+    pub dev: u16,
+    /// Pressure channel 1..8 (pressure controllers only).
+    pub channel: Option<u8>,
+    /// The device's coordinates of stage position 0, m, one per axis (empty: the
+    /// middle of each axis's travel).
+    pub origin: Vec<f64>,
+    /// Speed of the stage's moves, m/s.
+    pub speed: f64,
+}
+
+impl SensapexDevice {
+    /// The driver as written (without `origin` and `speed`).
+    pub fn url(&self) -> String {
+        let mut u = format!("{}://{}?dev={}", self.kind.scheme(), self.address, self.dev);
+        if self.group != 0 {
+            u += &format!("&group={}", self.group);
+        }
+        if let Some(c) = self.channel {
+            u += &format!("&channel={c}");
+        }
+        u
+    }
+}
+
+/// Speed of a Sensapex stage's moves when `speed` is not given, m/s.
+pub const DEFAULT_SENSAPEX_SPEED: f64 = 1e-3;
 
 /// A parsed rig file.
 #[derive(Debug, Clone, PartialEq)]
@@ -391,14 +456,62 @@ fn read_device(
     };
     let driver = t.string("driver")?;
     let key = t.key("driver");
+    // The Sensapex devices this section may name.
+    let fits: &[SensapexKind] = match name {
+        "macro" | "feeder" => &[SensapexKind::Manipulator, SensapexKind::Stage],
+        "injector" => &[SensapexKind::Pressure],
+        _ => &[],
+    };
     let device = if driver == "twin" {
         DeviceDriver::Twin
     } else if let Some(addr) = bench_address(&key, &driver)? {
         DeviceDriver::Bench(addr)
+    } else if let Some(mut s) = sensapex(&key, &driver)? {
+        if !fits.contains(&s.kind) {
+            let what = if name == "injector" || name == "optics" {
+                name.to_string()
+            } else {
+                format!("{parent_name}.{name}")
+            };
+            return Err(ConfigError::Invalid {
+                key,
+                reason: format!(
+                    "`{driver}`: a {} is not a device for [{what}] ({})",
+                    s.kind.scheme(),
+                    match name {
+                        "injector" => "sensapex-pressure://ADDRESS?dev=N&channel=C",
+                        "optics" => "twin or bench://HOST:PORT",
+                        _ => "sensapex://ADDRESS?dev=N or sensapex-ums://ADDRESS?dev=N",
+                    }
+                ),
+            });
+        }
+        if s.kind != SensapexKind::Pressure {
+            if let Some(o) = t.opt_array::<3>("origin")? {
+                s.origin = o.to_vec();
+            }
+            if let Some(v) = t.opt_number("speed")? {
+                if !(v.is_finite() && v > 0.0 && v <= 0.01) {
+                    return Err(ConfigError::Invalid {
+                        key: t.key("speed"),
+                        reason: format!("a Sensapex stage's speed lies in (0, 0.01] m/s, got {v}"),
+                    });
+                }
+                s.speed = v;
+            }
+        }
+        DeviceDriver::Sensapex(s)
     } else {
+        let more = match name {
+            "macro" | "feeder" => ", sensapex://ADDRESS?dev=N or sensapex-ums://ADDRESS?dev=N",
+            "injector" => " or sensapex-pressure://ADDRESS?dev=N&channel=C",
+            _ => "",
+        };
         return Err(ConfigError::Invalid {
             key,
-            reason: format!("`{driver}` is not a driver of this device: twin or bench://HOST:PORT"),
+            reason: format!(
+                "`{driver}` is not a driver of this device: twin, bench://HOST:PORT{more}"
+            ),
         });
     };
     if (device == DeviceDriver::Twin) != twin {
@@ -406,6 +519,82 @@ fn read_device(
     }
     t.finish()?;
     Ok(device)
+}
+
+/// `sensapex[-ums|-pressure]://ADDRESS?dev=N[&group=G][&channel=C]`, or `None`
+/// for another driver.
+fn sensapex(key: &str, driver: &str) -> Result<Option<SensapexDevice>, ConfigError> {
+    let (kind, rest) = if let Some(r) = driver.strip_prefix("sensapex://") {
+        (SensapexKind::Manipulator, r)
+    } else if let Some(r) = driver.strip_prefix("sensapex-ums://") {
+        (SensapexKind::Stage, r)
+    } else if let Some(r) = driver.strip_prefix("sensapex-pressure://") {
+        (SensapexKind::Pressure, r)
+    } else {
+        return Ok(None);
+    };
+    let bad = |reason: String| ConfigError::Invalid {
+        key: key.to_string(),
+        reason: format!("`{driver}`: {reason}"),
+    };
+    let (host, query) = rest.split_once('?').unwrap_or((rest, ""));
+    let address: std::net::IpAddr = host.trim_end_matches('/').parse().map_err(|_| {
+        bad(format!(
+            "`{host}` is not an IP address (a device's, 169.254.255.255, or 127.0.0.1 for an emulator)"
+        ))
+    })?;
+    let (mut dev, mut group, mut channel) = (None, 0u16, None);
+    for pair in query.split('&').filter(|p| !p.is_empty()) {
+        let (k, v) = pair.split_once('=').unwrap_or((pair, ""));
+        match k {
+            "dev" => {
+                dev = Some(
+                    v.parse::<u16>()
+                        .ok()
+                        .filter(|d| (1..=254).contains(d))
+                        .ok_or_else(|| bad(format!("dev={v}: a device id is 1..254")))?,
+                );
+            }
+            "group" => {
+                group = v
+                    .parse::<u16>()
+                    .ok()
+                    .filter(|g| *g <= 10)
+                    .ok_or_else(|| bad(format!("group={v}: a group is 0..10")))?;
+            }
+            "channel" if kind == SensapexKind::Pressure => {
+                channel = Some(
+                    v.parse::<u8>()
+                        .ok()
+                        .filter(|c| (1..=8).contains(c))
+                        .ok_or_else(|| bad(format!("channel={v}: a channel is 1..8")))?,
+                );
+            }
+            other => {
+                return Err(bad(format!(
+                    "unknown parameter `{other}` (dev, group{})",
+                    if kind == SensapexKind::Pressure {
+                        ", channel"
+                    } else {
+                        ""
+                    }
+                )));
+            }
+        }
+    }
+    let dev = dev.ok_or_else(|| bad("needs the device id: ?dev=N".into()))?;
+    if kind == SensapexKind::Pressure && channel.is_none() {
+        return Err(bad("needs the pressure channel: &channel=C (1..8)".into()));
+    }
+    Ok(Some(SensapexDevice {
+        kind,
+        address,
+        group,
+        dev,
+        channel,
+        origin: Vec::new(),
+        speed: DEFAULT_SENSAPEX_SPEED,
+    }))
 }
 
 #[cfg(test)]
@@ -468,6 +657,117 @@ driver = "bench://127.0.0.1:50001"
             }
         );
         assert_eq!(r.optics, DeviceDriver::Bench("127.0.0.1:50001".into()));
+    }
+
+    /// Sensapex devices for the stages and the injector: addresses, ids, groups,
+    /// channels and the stages' origin and speed; each fault names its key and says
+    /// what fits.
+    #[test]
+    fn sensapex_devices_parse_and_their_faults_name_the_key() {
+        let bench = GCS
+            .replace(
+                "[stage.macro]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[stage.macro]\ndriver = \"sensapex://127.0.0.1?dev=1\"\norigin = [0.01, 0.01, 0.005]\nspeed = 0.002",
+            )
+            .replace(
+                "[stage.feeder]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[stage.feeder]\ndriver = \"sensapex-ums://169.254.255.255?dev=21&group=3\"",
+            )
+            .replace(
+                "[injector]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[injector]\ndriver = \"sensapex-pressure://127.0.0.1?dev=31&channel=2\"",
+            );
+        let r = parse(&bench).expect("valid");
+        let DeviceDriver::Sensapex(m) = &r.stage_macro else {
+            panic!("{:?}", r.stage_macro)
+        };
+        assert_eq!(
+            (m.kind, m.dev, m.group, m.channel),
+            (SensapexKind::Manipulator, 1, 0, None)
+        );
+        assert_eq!(
+            (m.origin.clone(), m.speed),
+            (vec![0.01, 0.01, 0.005], 0.002)
+        );
+        assert_eq!(m.url(), "sensapex://127.0.0.1?dev=1");
+        let DeviceDriver::Sensapex(f) = &r.stage_feeder else {
+            panic!()
+        };
+        assert_eq!(
+            (f.kind, f.group, f.speed),
+            (SensapexKind::Stage, 3, DEFAULT_SENSAPEX_SPEED)
+        );
+        assert_eq!(f.url(), "sensapex-ums://169.254.255.255?dev=21&group=3");
+        let DeviceDriver::Sensapex(i) = &r.injector else {
+            panic!()
+        };
+        assert_eq!(
+            (i.kind, i.dev, i.channel),
+            (SensapexKind::Pressure, 31, Some(2))
+        );
+        let with = |from: &str, to: &str| {
+            let t = bench.replace(from, to);
+            assert_ne!(t, bench, "{from}");
+            parse(&t).expect_err(to).to_string()
+        };
+        for (from, to, says) in [
+            (
+                "sensapex://127.0.0.1?dev=1",
+                "sensapex://127.0.0.1",
+                "?dev=N",
+            ),
+            (
+                "sensapex://127.0.0.1?dev=1",
+                "sensapex://localhost?dev=1",
+                "not an IP address",
+            ),
+            (
+                "sensapex://127.0.0.1?dev=1",
+                "sensapex://127.0.0.1?dev=300",
+                "1..254",
+            ),
+            (
+                "sensapex://127.0.0.1?dev=1",
+                "sensapex://127.0.0.1?dev=1&group=11",
+                "0..10",
+            ),
+            (
+                "sensapex://127.0.0.1?dev=1",
+                "sensapex://127.0.0.1?dev=1&channel=1",
+                "unknown parameter `channel`",
+            ),
+            (
+                "sensapex://127.0.0.1?dev=1",
+                "sensapex-pressure://127.0.0.1?dev=1&channel=1",
+                "not a device for [stage.macro]",
+            ),
+            ("channel=2", "channel=9", "1..8"),
+            ("&channel=2", "", "&channel=C"),
+            (
+                "sensapex-pressure://127.0.0.1?dev=31&channel=2",
+                "sensapex://127.0.0.1?dev=31",
+                "not a device for [injector]",
+            ),
+            ("speed = 0.002", "speed = -1", "(0, 0.01] m/s"),
+            (
+                "origin = [0.01, 0.01, 0.005]",
+                "origin = [0.01]",
+                "stage.macro.origin",
+            ),
+            (
+                "[injector]\ndriver = \"sensapex-pressure://127.0.0.1?dev=31&channel=2\"",
+                "[injector]\ndriver = \"sensapex-pressure://127.0.0.1?dev=31&channel=2\"\nspeed = 1e-3",
+                "injector.speed",
+            ),
+            (
+                "[optics]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[optics]\ndriver = \"sensapex-ums://127.0.0.1?dev=21\"",
+                "not a device for [optics]",
+            ),
+        ] {
+            let e = with(from, to);
+            assert!(e.contains(says), "{to}: {e}");
+        }
     }
 
     #[test]

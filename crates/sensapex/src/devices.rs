@@ -255,6 +255,9 @@ impl Stage for Positioner {
     }
 }
 
+/// The largest pressure a uMv / uMc channel sets, Pa (±100 kPa in Sensapex's SDK).
+pub const MAX_PRESSURE: f64 = 100e3;
+
 /// One pressure channel of a uMv / uMc as the injector: a pulse sets the channel's
 /// pressure, opens its valve for the pulse's duration, closes it and sets 0.
 pub struct PressureChannel {
@@ -267,7 +270,8 @@ pub struct PressureChannel {
 impl PressureChannel {
     /// Channel `channel` (1..8, as Sensapex numbers them) of `device`, refusing
     /// pressures above `max_pressure` (Pa, the injector's limit from the rig's
-    /// description) before anything is sent. The device is asked for the
+    /// description, and at most the controller's own [`MAX_PRESSURE`]) before
+    /// anything is sent. The device is asked for the
     /// channel's valve state, so a device that does not answer is found now.
     pub fn open(
         link: &SharedLink,
@@ -279,7 +283,7 @@ impl PressureChannel {
             link: link.clone(),
             device,
             channel,
-            max_pressure,
+            max_pressure: max_pressure.min(MAX_PRESSURE),
         };
         lock(link).request(device, cmd::UMV_GET_VALVE, &[c.wire()], true)?;
         Ok(c)

@@ -212,8 +212,24 @@ struct Listener {
     id: u16,
 }
 
+/// Another model's device an emulated one stands for (the twin's stage or
+/// injector in `emulate gcs --sensapex`): its positions and moves, nm in the
+/// emulated device's coordinates, and the pulses its valves make.
+pub trait Backing: Send {
+    /// Every axis's position now, nm.
+    fn positions(&mut self) -> Vec<f64>;
+    /// Starts moves to `targets` (nm; `None`: not moved); false when the device
+    /// refused them.
+    fn start(&mut self, targets: &[Option<f64>]) -> bool;
+    /// Stops every axis.
+    fn stop(&mut self);
+    /// Whether it is still moving.
+    fn busy(&mut self) -> bool;
+    /// A valve was open for `duration` s at `pressure` Pa (just closed).
+    fn pulse(&mut self, _pressure: f64, _duration: f64) {}
+}
+
 /// One device's state.
-#[derive(Debug)]
 struct Device {
     spec: DeviceSpec,
     /// Position of each axis at rest, nm.
@@ -234,10 +250,16 @@ struct Device {
     /// Last (sender, message id) executed: a retransmission is only acknowledged.
     last_request: Option<(u16, u16, u16)>,
     muted: bool,
+    /// What moves it, when not its own simulated axes.
+    backing: Option<Box<dyn Backing>>,
+    /// Axes of the move under way (status bits).
+    commanded: u32,
+    /// When each valve opened.
+    opened: [Option<f64>; CHANNELS],
 }
 
 impl Device {
-    fn new(spec: DeviceSpec) -> Self {
+    fn new(spec: DeviceSpec, backing: Option<Box<dyn Backing>>) -> Self {
         let travel = spec.kind.travel();
         Device {
             spec,
@@ -258,10 +280,16 @@ impl Device {
             last_notify: 0.0,
             last_request: None,
             muted: false,
+            backing,
+            commanded: 0,
+            opened: [None; CHANNELS],
         }
     }
 
-    fn position(&self, t: f64) -> Vec<f64> {
+    fn position(&mut self, t: f64) -> Vec<f64> {
+        if let Some(b) = self.backing.as_mut() {
+            return b.positions();
+        }
         self.moves
             .iter()
             .zip(&self.rest)
@@ -269,7 +297,7 @@ impl Device {
             .collect()
     }
 
-    fn positions_nm(&self, t: f64) -> Vec<i32> {
+    fn positions_nm(&mut self, t: f64) -> Vec<i32> {
         self.position(t).iter().map(|p| p.round() as i32).collect()
     }
 
@@ -277,6 +305,9 @@ impl Device {
         let mut s = 0u32;
         if self.moving {
             s |= crate::protocol::status::BUSY;
+            if self.backing.is_some() {
+                s |= self.commanded;
+            }
             for (k, m) in self.moves.iter().enumerate() {
                 if m.is_some_and(|m| t >= m.start && t < m.end()) {
                     s |= crate::protocol::status::X_MOVING << k;
@@ -298,6 +329,26 @@ impl Device {
         accel: f64,
         together: bool,
     ) {
+        self.commanded = targets
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.is_some())
+            .fold(0, |m, (k, _)| m | (crate::protocol::status::X_MOVING << k));
+        if let Some(b) = self.backing.as_mut() {
+            let travel = self.spec.kind.travel();
+            let clamped: Vec<Option<f64>> = targets
+                .iter()
+                .zip(&travel)
+                .map(|(t, &(lo, hi))| t.map(|t| t.clamp(lo as f64, hi as f64)))
+                .collect();
+            let failed = clamped != targets[..clamped.len()] || !b.start(&clamped);
+            if failed {
+                self.error_state |= 0x4;
+            }
+            self.outcome = if failed { 8 } else { 0 };
+            self.moving = true;
+            return;
+        }
         let travel = self.spec.kind.travel();
         let now = self.position(t);
         let mut start = t;
@@ -340,6 +391,13 @@ impl Device {
 
     /// Decelerates every axis to rest as fast as its acceleration allows.
     fn stop(&mut self, t: f64) {
+        if let Some(b) = self.backing.as_mut() {
+            b.stop();
+            if self.moving {
+                self.outcome = 8;
+            }
+            return;
+        }
         for k in 0..self.rest.len() {
             if let Some(m) = self.moves[k] {
                 let (p, v) = (m.at(t), m.velocity(t));
@@ -375,6 +433,10 @@ impl Device {
 
     /// The move has ended: every axis at rest where it is.
     fn finish(&mut self, t: f64) {
+        if self.backing.is_some() {
+            self.moving = false;
+            return;
+        }
         self.rest = self.position(t);
         self.moves.iter_mut().for_each(|m| *m = None);
         self.moving = false;
@@ -441,10 +503,10 @@ impl Running {
 
     /// Device `id`'s positions now, nm (empty for a pressure controller).
     pub fn positions(&self, id: u16) -> Option<Vec<f64>> {
-        let w = self.world.lock().unwrap_or_else(|e| e.into_inner());
+        let mut w = self.world.lock().unwrap_or_else(|e| e.into_inner());
         let t = w.now();
         w.devices
-            .iter()
+            .iter_mut()
             .find(|d| d.spec.id == id)
             .map(|d| d.position(t))
     }
@@ -493,10 +555,23 @@ impl Drop for Running {
 /// Serves `devices` on `socket` (bound by the caller: 127.0.0.1:55555 + group for
 /// Sensapex's client) until stopped; `log` sees every datagram, decoded.
 pub fn serve(socket: UdpSocket, devices: &[DeviceSpec], log: Log) -> std::io::Result<Running> {
+    serve_backed(socket, devices.iter().map(|&s| (s, None)).collect(), log)
+}
+
+/// [`serve`], each device moved by its [`Backing`] when it has one (else by its
+/// own simulated axes).
+pub fn serve_backed(
+    socket: UdpSocket,
+    devices: Vec<(DeviceSpec, Option<Box<dyn Backing>>)>,
+    log: Log,
+) -> std::io::Result<Running> {
     socket.set_read_timeout(Some(Duration::from_millis(2)))?;
     let addr = socket.local_addr()?;
     let world = Arc::new(Mutex::new(World {
-        devices: devices.iter().map(|&s| Device::new(s)).collect(),
+        devices: devices
+            .into_iter()
+            .map(|(s, b)| Device::new(s, b))
+            .collect(),
         origin: Instant::now(),
         last_tick: 0.0,
         notify_id: 0,
@@ -790,6 +865,17 @@ fn execute(d: &mut Device, f: &Frame, t: f64) -> Result<Option<Vec<i32>>, ()> {
             match args.get(1) {
                 Some(&v) if v == 0 || v == 1 => {
                     d.valve[c] = v;
+                    match (v, d.opened[c]) {
+                        (1, None) => d.opened[c] = Some(t),
+                        (0, Some(t0)) => {
+                            d.opened[c] = None;
+                            let p = d.set_point[c];
+                            if let Some(b) = d.backing.as_mut() {
+                                b.pulse(p, t - t0);
+                            }
+                        }
+                        _ => {}
+                    }
                     Ok(None)
                 }
                 _ => Err(()),
@@ -815,13 +901,17 @@ fn tick(w: &mut World, out: &mut Vec<(SocketAddr, Frame)>) {
         if !d.moving {
             continue;
         }
-        let end = d
-            .moves
-            .iter()
-            .flatten()
-            .map(Segment::end)
-            .fold(0.0, f64::max);
-        let done = t >= end;
+        let done = match d.backing.as_mut() {
+            Some(b) => !b.busy(),
+            None => {
+                t >= d
+                    .moves
+                    .iter()
+                    .flatten()
+                    .map(Segment::end)
+                    .fold(0.0, f64::max)
+            }
+        };
         let Some(l) = d.listener.filter(|_| !d.muted) else {
             if done {
                 d.finish(t);

@@ -41,6 +41,7 @@ fn driver_text(rig: &RigFile, section: &str) -> String {
     let dev = |d: &DeviceDriver| match d {
         DeviceDriver::Twin => "twin".to_string(),
         DeviceDriver::Bench(a) => format!("bench://{a}"),
+        DeviceDriver::Sensapex(s) => s.url(),
     };
     match section {
         "piezo" => match &rig.piezo {
@@ -236,17 +237,30 @@ fn real(d: &Description, rig: &RigFile) -> Vec<Result<String, String>> {
         match driver {
             DeviceDriver::Bench(a) => endpoints.get(a).map_err(|e| e.to_string()),
             DeviceDriver::Twin => Err("the twin's device on a real bench".into()),
+            DeviceDriver::Sensapex(s) => Err(format!("{} is not a bench endpoint", s.url())),
         }
     };
-    let stage = bench(&rig.stage_macro)
-        .and_then(|b| b.stage().map_err(|e| e.to_string()))
-        .and_then(|mut s| position(&mut s));
-    let feeder = bench(&rig.stage_feeder)
-        .and_then(|b| b.feeder().map_err(|e| e.to_string()))
-        .and_then(|mut s| position(&mut s));
-    let injector = bench(&rig.injector)
-        .and_then(|b| b.injector().map_err(|e| e.to_string()))
-        .and_then(|i| pressure(&i));
+    let mut links = crate::sensapex::Links::default();
+    let mut stage_of = |driver: &DeviceDriver, feeder: bool| match driver {
+        DeviceDriver::Sensapex(s) => links
+            .stage(s)
+            .map_err(|e| e.to_string())
+            .and_then(|mut s| position(s.as_mut())),
+        other => bench(other)
+            .and_then(|b| if feeder { b.feeder() } else { b.stage() }.map_err(|e| e.to_string()))
+            .and_then(|mut s| position(&mut s)),
+    };
+    let stage = stage_of(&rig.stage_macro, false);
+    let feeder = stage_of(&rig.stage_feeder, true);
+    let injector = match &rig.injector {
+        DeviceDriver::Sensapex(s) => links
+            .injector(s, d.rig.injector_max_pressure)
+            .map_err(|e| e.to_string())
+            .and_then(|i| pressure(i.as_ref())),
+        other => bench(other)
+            .and_then(|b| b.injector().map_err(|e| e.to_string()))
+            .and_then(|i| pressure(&i)),
+    };
     let optics = bench(&rig.optics)
         .and_then(|b| b.optics().map_err(|e| e.to_string()))
         .and_then(|o| zoom(&o));

@@ -31,6 +31,7 @@ pub mod calibration;
 mod check;
 pub mod report;
 pub mod run;
+mod sensapex;
 
 pub use check::{Answer, CheckReport, DeviceReport, check, text as check_text};
 
@@ -63,14 +64,14 @@ impl SessionError {
     }
 }
 
-fn refused(what: impl Into<String>, reason: impl ToString) -> SessionError {
+pub(crate) fn refused(what: impl Into<String>, reason: impl ToString) -> SessionError {
     SessionError::Refused {
         what: what.into(),
         reason: reason.to_string(),
     }
 }
 
-fn device(device: impl Into<String>, reason: impl ToString) -> SessionError {
+pub(crate) fn device(device: impl Into<String>, reason: impl ToString) -> SessionError {
     SessionError::Device {
         device: device.into(),
         reason: reason.to_string(),
@@ -289,12 +290,20 @@ impl Endpoints {
         .into_iter()
         .find_map(|d| match d {
             DeviceDriver::Bench(a) => Some(a.clone()),
-            DeviceDriver::Twin => None,
+            DeviceDriver::Twin | DeviceDriver::Sensapex(_) => None,
+        })
+        .or_else(|| {
+            [&rig.camera_top, &rig.camera_side]
+                .into_iter()
+                .find_map(|c| match c {
+                    CameraDriver::Bench(a) => Some(a.clone()),
+                    _ => None,
+                })
         })
         .ok_or_else(|| {
             refused(
                 "the rig",
-                "a real bench needs a bench:// endpoint for its stages, injector and optics",
+                "a real bench needs a bench:// endpoint (for its clock and zoom) on one of its devices",
             )
         })?;
         self.get(&addr)
@@ -328,19 +337,31 @@ fn real_devices(
     };
     let top = camera("camera.top", &rig.camera_top, ViewName::Top)?;
     let side = camera("camera.side", &rig.camera_side, ViewName::Side)?;
+    let mut sensapex = sensapex::Links::default();
     let mut bench_of = |driver: &DeviceDriver| match driver {
         DeviceDriver::Bench(a) => Ok((endpoints.get(a)?, format!("bench://{a}"))),
-        DeviceDriver::Twin => Err(refused(
+        DeviceDriver::Twin | DeviceDriver::Sensapex(_) => Err(refused(
             "the rig",
             "the twin's devices exist only with the twin's stacks",
         )),
     };
-    let (b, n) = bench_of(&rig.stage_macro)?;
-    let stage = Box::new(b.stage().map_err(|e| device(n, e))?) as Box<dyn Stage>;
-    let (b, n) = bench_of(&rig.stage_feeder)?;
-    let feeder = Box::new(b.feeder().map_err(|e| device(n, e))?) as Box<dyn Stage>;
-    let (b, n) = bench_of(&rig.injector)?;
-    let injector = Box::new(b.injector().map_err(|e| device(n, e))?) as Box<dyn Injector>;
+    let mut stage_of = |driver: &DeviceDriver, feeder: bool| match driver {
+        DeviceDriver::Sensapex(s) => sensapex.stage(s),
+        other => {
+            let (b, n) = bench_of(other)?;
+            let s = if feeder { b.feeder() } else { b.stage() };
+            Ok(Box::new(s.map_err(|e| device(n, e))?) as Box<dyn Stage>)
+        }
+    };
+    let stage = stage_of(&rig.stage_macro, false)?;
+    let feeder = stage_of(&rig.stage_feeder, true)?;
+    let injector = match &rig.injector {
+        DeviceDriver::Sensapex(s) => sensapex.injector(s, d.rig.injector_max_pressure)?,
+        other => {
+            let (b, n) = bench_of(other)?;
+            Box::new(b.injector().map_err(|e| device(n, e))?) as Box<dyn Injector>
+        }
+    };
     let (b, n) = bench_of(&rig.optics)?;
     let optics = Box::new(b.optics().map_err(|e| device(n, e))?) as Box<dyn Optics>;
     let clock =

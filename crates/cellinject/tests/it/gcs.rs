@@ -248,6 +248,75 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     drop(emu);
 }
 
+/// Sensapex devices (an in-process SMCP1 emulator on the first free group) for the
+/// stages and the injector beside the GCS controller and its bench endpoint: `rig
+/// check` finds every device; when the manipulator stops answering, `run --rig` fails
+/// within 2 s with exit 1 naming its id and address, and leaves no database.
+#[test]
+fn a_sensapex_device_that_does_not_answer_fails_the_run_fast_naming_it() {
+    use cellinject_sensapex::emulator;
+    let d = dir("sensapex-rig");
+    plate(&d);
+    let (sx, group) = (0..=10u16)
+        .find_map(|g| {
+            let s = std::net::UdpSocket::bind(("127.0.0.1", 55555 + g)).ok()?;
+            let devices = emulator::parse_devices("ump:1,ums:21,umv:31").unwrap();
+            Some((emulator::serve(s, &devices, None).unwrap(), g))
+        })
+        .expect("a free UDP port in 55555..55565");
+    let emu = Emulator::start(&d, &["--plate", "p.toml"]);
+    let mut rig = rig_file(&format!("gcs://{}", emu.gcs), &emu.bench);
+    for (section, driver) in [
+        (
+            "stage.macro",
+            format!("sensapex://127.0.0.1?dev=1&group={group}"),
+        ),
+        (
+            "stage.feeder",
+            format!("sensapex-ums://127.0.0.1?dev=21&group={group}"),
+        ),
+        (
+            "injector",
+            format!("sensapex-pressure://127.0.0.1?dev=31&channel=1&group={group}"),
+        ),
+    ] {
+        rig = rig.replace(
+            &format!("[{section}]\ndriver = \"bench://{}\"", emu.bench),
+            &format!("[{section}]\ndriver = \"{driver}\""),
+        );
+    }
+    assert_eq!(rig.matches("sensapex").count(), 3, "{rig}");
+    fs::write(d.join("sx.toml"), &rig).unwrap();
+    let check = ok(&run(
+        &d,
+        &["rig", "check", "--rig", "sx.toml", "--format", "json"],
+    ));
+    let devices = check["devices"].as_array().unwrap();
+    assert!(devices.iter().all(|x| x["answers"] == true), "{check}");
+    sx.mute(1, true);
+    let t = std::time::Instant::now();
+    let o = run(
+        &d,
+        &[
+            "run",
+            "--rig",
+            "sx.toml",
+            "--plate",
+            "p.toml",
+            "--db",
+            "sx.sqlite",
+        ],
+    );
+    let took = t.elapsed();
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    let e = err(&o);
+    let at = format!("127.0.0.1:{}", 55555 + group);
+    assert!(e.contains("device 1") && e.contains(&at), "{e}");
+    assert!(took < Duration::from_secs(2), "{took:?}");
+    assert!(!d.join("sx.sqlite").exists());
+    drop(emu);
+}
+
 /// A rig file naming the controller at `backend` and every other device at the bench
 /// endpoint `bench`.
 fn rig_file(backend: &str, bench: &str) -> String {
