@@ -85,6 +85,14 @@ pub struct GcsArgs {
     /// Stop serving after this many seconds (default: until killed).
     #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
     serve_for: Option<f64>,
+    /// Also serve the twin's stages and injector as Sensapex devices over SMCP1, from
+    /// the same world (KIND:ID pairs: ump, the macro stage; ums, the feeder stage;
+    /// umv, the injector), on UDP port 55555 + --sensapex-group of the --bind host.
+    #[arg(long, value_name = "KIND:ID,...")]
+    sensapex: Option<String>,
+    /// The Sensapex devices' group 0..10.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10))]
+    sensapex_group: u16,
 }
 
 fn bind(arg: &str, addr: &str) -> Result<TcpListener> {
@@ -168,6 +176,13 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
         Some(p) => crate::run::resolve_faults(&a.fault, &faults, p)?,
         None => Vec::new(),
     };
+    let sensapex_specs = match &a.sensapex {
+        Some(s) => Some(
+            cellinject_sensapex::emulator::parse_devices(s)
+                .map_err(|e| InputError(format!("--sensapex: {e}")))?,
+        ),
+        None => None,
+    };
     let gcs = bind("--bind", &a.bind)?;
     let gcs_addr = gcs.local_addr()?;
     let bench_addr = match a.bench.as_deref() {
@@ -201,6 +216,30 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
         let o = cellinject_core::inject::Options::default();
         t.world.stage.place(1, o.focus + o.lift);
     }
+    let sensapex = match &sensapex_specs {
+        Some(specs) => {
+            let backed = cellinject_gcs_emulator::sensapex::backed(&twin, specs)
+                .map_err(|e| InputError(format!("--sensapex: {e}")))?;
+            let port = cellinject_sensapex::protocol::PORT + a.sensapex_group;
+            let socket = std::net::UdpSocket::bind((gcs_addr.ip(), port)).map_err(|e| {
+                InputError(format!(
+                    "--sensapex-group {}: cannot listen on UDP {}:{port}: {e}",
+                    a.sensapex_group,
+                    gcs_addr.ip()
+                ))
+            })?;
+            let log: cellinject_sensapex::emulator::Log = if a.verbose {
+                Some(Box::new(|line: &str| eprintln!("sensapex {line}")))
+            } else {
+                None
+            };
+            Some(
+                cellinject_sensapex::emulator::serve_backed(socket, backed, log)
+                    .map_err(|e| anyhow::anyhow!("cannot start the Sensapex emulator: {e}"))?,
+            )
+        }
+        None => None,
+    };
     let running = cellinject_gcs_emulator::start(&twin, gcs, bench, a.verbose)
         .map_err(|e| anyhow::anyhow!("cannot start the emulator: {e}"))?;
     outln!(
@@ -211,6 +250,18 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
             .map(|b| format!("; bench endpoint on {b}"))
             .unwrap_or_default()
     );
+    if let (Some(s), Some(specs)) = (&sensapex, &sensapex_specs) {
+        outln!(
+            "Sensapex SMCP1 devices on udp://{} (group {}): {}",
+            s.addr(),
+            a.sensapex_group,
+            specs
+                .iter()
+                .map(|d| format!("{} {}", d.kind.name(), d.id))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     match a.serve_for {
         Some(t) => {
             std::thread::sleep(std::time::Duration::from_secs_f64(t));

@@ -35,6 +35,7 @@
 
 pub mod bench;
 pub mod controller;
+pub mod sensapex;
 pub mod server;
 
 pub use controller::{Controller, IDN};

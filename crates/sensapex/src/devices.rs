@@ -259,7 +259,7 @@ impl Stage for Positioner {
 pub const MAX_PRESSURE: f64 = 100e3;
 
 /// One pressure channel of a uMv / uMc as the injector: a pulse sets the channel's
-/// pressure, opens its valve for the pulse's duration, closes it and sets 0.
+/// pressure, opens its valve for the pulse's duration, closes it, then sets 0.
 pub struct PressureChannel {
     link: SharedLink,
     device: u16,
@@ -311,20 +311,18 @@ impl PressureChannel {
         }
     }
 
-    fn set(&mut self, pressure: i32, valve: i32) -> Result<(), SensapexError> {
+    /// Opens the valve at `pressure` (the set point first), or closes it and sets
+    /// `pressure` (the valve first: nothing is pushed at the falling set point).
+    fn set(&mut self, pressure: i32, open: bool) -> Result<(), SensapexError> {
         let mut link = lock(&self.link);
-        link.request(
-            self.device,
-            cmd::UMV_SET_PRESSURE,
-            &[self.wire(), pressure],
-            false,
-        )?;
-        link.request(
-            self.device,
-            cmd::UMV_SET_VALVE,
-            &[self.wire(), valve],
-            false,
-        )?;
+        let (c, dev) = (self.wire(), self.device);
+        if open {
+            link.request(dev, cmd::UMV_SET_PRESSURE, &[c, pressure], false)?;
+            link.request(dev, cmd::UMV_SET_VALVE, &[c, 1], false)?;
+        } else {
+            link.request(dev, cmd::UMV_SET_VALVE, &[c, 0], false)?;
+            link.request(dev, cmd::UMV_SET_PRESSURE, &[c, pressure], false)?;
+        }
         Ok(())
     }
 }
@@ -337,9 +335,9 @@ impl Injector for PressureChannel {
     fn pulse(&mut self, pressure: f64, duration: f64) -> Result<(), HwError> {
         check_range("pressure", pressure, 0.0, self.max_pressure)?;
         check_range("pulse duration", duration, 0.0, 10.0)?;
-        self.set(pressure.round() as i32, 1).map_err(hw_error)?;
+        self.set(pressure.round() as i32, true).map_err(hw_error)?;
         std::thread::sleep(Duration::from_secs_f64(duration));
-        let closed = self.set(0, 0);
+        let closed = self.set(0, false);
         if closed.is_err() {
             // Once more: a valve left open keeps pushing.
             let _ =

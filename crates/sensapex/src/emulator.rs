@@ -216,18 +216,27 @@ struct Listener {
 /// injector in `emulate gcs --sensapex`): its positions and moves, nm in the
 /// emulated device's coordinates, and the pulses its valves make.
 pub trait Backing: Send {
-    /// Every axis's position now, nm.
-    fn positions(&mut self) -> Vec<f64>;
+    /// Every axis's position now, nm (none: a pressure controller's).
+    fn positions(&mut self) -> Vec<f64> {
+        Vec::new()
+    }
     /// Starts moves to `targets` (nm; `None`: not moved); false when the device
-    /// refused them.
-    fn start(&mut self, targets: &[Option<f64>]) -> bool;
+    /// refused them (a pressure controller refuses every move).
+    fn start(&mut self, _targets: &[Option<f64>]) -> bool {
+        false
+    }
     /// Stops every axis.
-    fn stop(&mut self);
+    fn stop(&mut self) {}
     /// Whether it is still moving.
-    fn busy(&mut self) -> bool;
+    fn busy(&mut self) -> bool {
+        false
+    }
     /// A valve was open for `duration` s at `pressure` Pa (just closed).
     fn pulse(&mut self, _pressure: f64, _duration: f64) {}
 }
+
+/// A device to emulate, with what moves it (its own simulated axes when `None`).
+pub type Emulated = (DeviceSpec, Option<Box<dyn Backing>>);
 
 /// One device's state.
 struct Device {
@@ -562,7 +571,7 @@ pub fn serve(socket: UdpSocket, devices: &[DeviceSpec], log: Log) -> std::io::Re
 /// own simulated axes).
 pub fn serve_backed(
     socket: UdpSocket,
-    devices: Vec<(DeviceSpec, Option<Box<dyn Backing>>)>,
+    devices: Vec<Emulated>,
     log: Log,
 ) -> std::io::Result<Running> {
     socket.set_read_timeout(Some(Duration::from_millis(2)))?;

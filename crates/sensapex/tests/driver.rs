@@ -251,3 +251,40 @@ fn a_refused_command_is_an_error_not_a_timeout() {
     assert!(matches!(e, SensapexError::Refused { device: 1, .. }), "{e}");
     assert!(PressureChannel::open(&l, 1, 1, 1e4).is_err());
 }
+
+/// What a backed uMv channel passes on: the valve's opening as one pulse at the set
+/// point, for as long as it stayed open (the set point falls only after the valve
+/// closed).
+#[test]
+fn a_backed_channel_sees_the_pulse_at_its_pressure_for_its_duration() {
+    use cellinject_sensapex::emulator::{Backing, DeviceSpec, Kind};
+    type Pulses = Arc<Mutex<Vec<(f64, f64)>>>;
+    struct Recorder(Pulses);
+    impl Backing for Recorder {
+        fn pulse(&mut self, pressure: f64, duration: f64) {
+            self.0.lock().unwrap().push((pressure, duration));
+        }
+    }
+    let pulses = Pulses::default();
+    let spec = DeviceSpec {
+        id: 31,
+        kind: Kind::Pressure,
+    };
+    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let emu = emulator::serve_backed(
+        socket,
+        vec![(
+            spec,
+            Some(Box::new(Recorder(pulses.clone())) as Box<dyn Backing>),
+        )],
+        None,
+    )
+    .unwrap();
+    let l = link(emu.addr());
+    let mut inj = PressureChannel::open(&l, 31, 1, 80_000.0).unwrap();
+    inj.pulse(30_000.0, 0.1).unwrap();
+    let p = pulses.lock().unwrap().clone();
+    assert_eq!(p.len(), 1, "{p:?}");
+    assert_eq!(p[0].0, 30_000.0);
+    assert!(p[0].1 >= 0.1 && p[0].1 < 0.2, "{p:?}");
+}
