@@ -242,17 +242,11 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
     };
     let running = cellinject_gcs_emulator::start(&twin, gcs, bench, a.verbose)
         .map_err(|e| anyhow::anyhow!("cannot start the emulator: {e}"))?;
-    outln!(
-        "GCS 2.0 controller on {} (axes 1, 2, 3 = A1, A2, A3; µm, V){}",
-        running.gcs,
-        running
-            .bench
-            .map(|b| format!("; bench endpoint on {b}"))
-            .unwrap_or_default()
-    );
-    if let (Some(s), Some(specs)) = (&sensapex, &sensapex_specs) {
-        outln!(
-            "Sensapex SMCP1 devices on udp://{} (group {}): {}",
+    // One line, one write: a reader that takes the first line and closes the pipe
+    // does not end the emulator.
+    let sensapex_line = match (&sensapex, &sensapex_specs) {
+        (Some(s), Some(specs)) => format!(
+            "; Sensapex SMCP1 devices on udp://{} (group {}): {}",
             s.addr(),
             a.sensapex_group,
             specs
@@ -260,8 +254,17 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
                 .map(|d| format!("{} {}", d.kind.name(), d.id))
                 .collect::<Vec<_>>()
                 .join(", ")
-        );
-    }
+        ),
+        _ => String::new(),
+    };
+    outln!(
+        "GCS 2.0 controller on {} (axes 1, 2, 3 = A1, A2, A3; µm, V){}{sensapex_line}",
+        running.gcs,
+        running
+            .bench
+            .map(|b| format!("; bench endpoint on {b}"))
+            .unwrap_or_default()
+    );
     match a.serve_for {
         Some(t) => {
             std::thread::sleep(std::time::Duration::from_secs_f64(t));

@@ -46,6 +46,12 @@ struct Emulator {
 
 impl Emulator {
     fn start(dir: &Path, extra: &[&str]) -> Self {
+        Emulator::try_start(dir, extra).expect("the emulator did not start")
+    }
+
+    /// The emulator, or `None` when it exits before saying where it listens (a port
+    /// taken).
+    fn try_start(dir: &Path, extra: &[&str]) -> Option<Self> {
         let mut child = Command::new(env!("CARGO_BIN_EXE_cellinject"))
             .current_dir(dir)
             .args(["emulate", "gcs", "--bind", "127.0.0.1:0"])
@@ -58,6 +64,10 @@ impl Emulator {
         BufReader::new(child.stdout.take().unwrap())
             .read_line(&mut line)
             .unwrap();
+        if line.is_empty() {
+            let _ = child.wait();
+            return None;
+        }
         let addrs: Vec<String> = line
             .split_whitespace()
             .filter(|w| w.starts_with("127.0.0.1:"))
@@ -68,7 +78,7 @@ impl Emulator {
             .collect();
         let [gcs, bench] = <[String; 2]>::try_from(addrs)
             .unwrap_or_else(|_| panic!("not two addresses in {line:?}"));
-        Emulator { child, gcs, bench }
+        Some(Emulator { child, gcs, bench })
     }
 }
 
@@ -203,8 +213,11 @@ fn calibrations_and_experiments_over_gcs_match_the_twin() {
 
 /// The injection workflow on an emulator with the plate: the same cells injected as on
 /// the twin (a blocked doublet may go either way with the survey's noise), every
-/// injected cell alive with its dose. Its bench named by a rig file (the calibrations
-/// of the test above take the shorthands).
+/// injected cell alive with its dose, each once. Its bench named by a rig file with
+/// no bench endpoint for the stages or the injector: the macro stage, the feeder and
+/// the injector are Sensapex devices over SMCP1 (`emulate gcs --sensapex`; the
+/// calibrations of the test above take the shorthands, every device on the bench
+/// endpoint).
 #[test]
 fn a_run_over_gcs_injects_what_the_twin_injects() {
     let d = dir("match-run");
@@ -219,9 +232,9 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
         let d = d.clone();
         std::thread::spawn(move || run(&d, &injection("t.sqlite", &[])))
     };
-    let emu = Emulator::start(&d, &["--plate", "p.toml"]);
+    let (emu, group) = with_sensapex(&d);
     let backend = format!("gcs://{}", emu.gcs);
-    let rig = rig_file(&backend, &emu.bench);
+    let rig = sensapex_rig(&rig_file(&backend, &emu.bench), &emu.bench, group);
     fs::write(d.join("bench.toml"), &rig).unwrap();
     let check = ok(&run(
         &d,
@@ -238,6 +251,16 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     let inj = |v: &Value| v["injected"].as_i64().unwrap();
     assert!((inj(&g) - inj(&t)).abs() <= 1, "gcs {g}, twin {t}");
     assert!(inj(&g) >= 3, "{g}");
+    let wells: Vec<&Value> = g["attempts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|a| a["outcome"] == "injected")
+        .map(|a| &a["well"])
+        .collect();
+    for (k, w) in wells.iter().enumerate() {
+        assert!(!wells[..k].contains(w), "well {w} injected twice: {g}");
+    }
     for a in g["attempts"].as_array().unwrap() {
         assert!(a["tip_error_m"].is_null(), "no truth over the wire");
         if a["outcome"] == "injected" {
@@ -265,27 +288,11 @@ fn a_sensapex_device_that_does_not_answer_fails_the_run_fast_naming_it() {
         })
         .expect("a free UDP port in 55555..55565");
     let emu = Emulator::start(&d, &["--plate", "p.toml"]);
-    let mut rig = rig_file(&format!("gcs://{}", emu.gcs), &emu.bench);
-    for (section, driver) in [
-        (
-            "stage.macro",
-            format!("sensapex://127.0.0.1?dev=1&group={group}"),
-        ),
-        (
-            "stage.feeder",
-            format!("sensapex-ums://127.0.0.1?dev=21&group={group}"),
-        ),
-        (
-            "injector",
-            format!("sensapex-pressure://127.0.0.1?dev=31&channel=1&group={group}"),
-        ),
-    ] {
-        rig = rig.replace(
-            &format!("[{section}]\ndriver = \"bench://{}\"", emu.bench),
-            &format!("[{section}]\ndriver = \"{driver}\""),
-        );
-    }
-    assert_eq!(rig.matches("sensapex").count(), 3, "{rig}");
+    let rig = sensapex_rig(
+        &rig_file(&format!("gcs://{}", emu.gcs), &emu.bench),
+        &emu.bench,
+        group,
+    );
     fs::write(d.join("sx.toml"), &rig).unwrap();
     let check = ok(&run(
         &d,
@@ -315,6 +322,48 @@ fn a_sensapex_device_that_does_not_answer_fails_the_run_fast_naming_it() {
     assert!(took < Duration::from_secs(2), "{took:?}");
     assert!(!d.join("sx.sqlite").exists());
     drop(emu);
+}
+
+/// `cellinject emulate gcs --plate p.toml --sensapex ump:1,ums:21,umv:31` on the
+/// first Sensapex group whose port is free (other tests hold some), and the group.
+fn with_sensapex(d: &Path) -> (Emulator, u16) {
+    for group in 0..=10u16 {
+        if std::net::UdpSocket::bind(("127.0.0.1", 55555 + group)).is_err() {
+            continue;
+        }
+        let g = group.to_string();
+        let extra = ["--plate", "p.toml", "--sensapex", "ump:1,ums:21,umv:31"];
+        if let Some(e) = Emulator::try_start(d, &[&extra[..], &["--sensapex-group", &g]].concat()) {
+            return (e, group);
+        }
+    }
+    panic!("no free Sensapex group (UDP 55555..55565)");
+}
+
+/// `rig` with the stages and the injector on the Sensapex devices of `group`.
+fn sensapex_rig(rig: &str, bench: &str, group: u16) -> String {
+    let mut rig = rig.to_string();
+    for (section, driver) in [
+        (
+            "stage.macro",
+            format!("sensapex://127.0.0.1?dev=1&group={group}"),
+        ),
+        (
+            "stage.feeder",
+            format!("sensapex-ums://127.0.0.1?dev=21&group={group}"),
+        ),
+        (
+            "injector",
+            format!("sensapex-pressure://127.0.0.1?dev=31&channel=1&group={group}"),
+        ),
+    ] {
+        rig = rig.replace(
+            &format!("[{section}]\ndriver = \"bench://{bench}\""),
+            &format!("[{section}]\ndriver = \"{driver}\""),
+        );
+    }
+    assert_eq!(rig.matches("sensapex").count(), 3, "{rig}");
+    rig
 }
 
 /// A rig file naming the controller at `backend` and every other device at the bench
