@@ -50,9 +50,33 @@ pub struct SensapexArgs {
     /// Log every datagram, decoded, on standard error.
     #[arg(long)]
     verbose: bool,
+    /// A fault switch: device ID answers nothing from START to END seconds after the
+    /// emulator starts (for good without END), as if its cable were pulled; repeat
+    /// for more.
+    #[arg(long, value_name = "ID@START[..END]")]
+    silence: Vec<String>,
     /// Stop serving after this many seconds (default: until killed).
     #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
     serve_for: Option<f64>,
+}
+
+/// The `--silence` switches, each checked against the devices' ids.
+fn silences(
+    arg: &str,
+    given: &[String],
+    devices: &[cellinject_sensapex::emulator::DeviceSpec],
+) -> Result<Vec<(u16, f64, Option<f64>)>> {
+    given
+        .iter()
+        .map(|s| {
+            let (id, from, until) = cellinject_sensapex::emulator::parse_silence(s)
+                .map_err(|e| InputError(format!("{arg}: {e}")))?;
+            if !devices.iter().any(|d| d.id == id) {
+                return Err(InputError(format!("{arg} {s}: there is no device {id}")).into());
+            }
+            Ok((id, from, until))
+        })
+        .collect()
 }
 
 /// Options of `emulate gcs`.
@@ -93,6 +117,9 @@ pub struct GcsArgs {
     /// The Sensapex devices' group 0..10.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10))]
     sensapex_group: u16,
+    /// A fault switch on a Sensapex device (as `emulate sensapex --silence`).
+    #[arg(long, value_name = "ID@START[..END]")]
+    sensapex_silence: Vec<String>,
 }
 
 fn bind(arg: &str, addr: &str) -> Result<TcpListener> {
@@ -115,6 +142,7 @@ fn sensapex(a: &SensapexArgs) -> Result<()> {
     check_serve_for(a.serve_for)?;
     let devices =
         emulator::parse_devices(&a.devices).map_err(|e| InputError(format!("--devices: {e}")))?;
+    let silent = silences("--silence", &a.silence, &devices)?;
     let ip: std::net::IpAddr = a
         .bind
         .parse()
@@ -133,6 +161,9 @@ fn sensapex(a: &SensapexArgs) -> Result<()> {
     };
     let running = emulator::serve(socket, &devices, log)
         .map_err(|e| anyhow::anyhow!("cannot start the emulator: {e}"))?;
+    for (id, from, until) in silent {
+        running.silence(id, from, until);
+    }
     outln!(
         "Sensapex SMCP1 devices on udp://{} (group {}): {}",
         running.addr(),
@@ -181,7 +212,17 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
             cellinject_sensapex::emulator::parse_devices(s)
                 .map_err(|e| InputError(format!("--sensapex: {e}")))?,
         ),
+        None if !a.sensapex_silence.is_empty() => {
+            return Err(InputError(
+                "--sensapex-silence acts on the Sensapex devices: give --sensapex".into(),
+            )
+            .into());
+        }
         None => None,
+    };
+    let silent = match &sensapex_specs {
+        Some(specs) => silences("--sensapex-silence", &a.sensapex_silence, specs)?,
+        None => Vec::new(),
     };
     let gcs = bind("--bind", &a.bind)?;
     let gcs_addr = gcs.local_addr()?;
@@ -233,10 +274,12 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
             } else {
                 None
             };
-            Some(
-                cellinject_sensapex::emulator::serve_backed(socket, backed, log)
-                    .map_err(|e| anyhow::anyhow!("cannot start the Sensapex emulator: {e}"))?,
-            )
+            let r = cellinject_sensapex::emulator::serve_backed(socket, backed, log)
+                .map_err(|e| anyhow::anyhow!("cannot start the Sensapex emulator: {e}"))?;
+            for &(id, from, until) in &silent {
+                r.silence(id, from, until);
+            }
+            Some(r)
         }
         None => None,
     };

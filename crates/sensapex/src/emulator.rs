@@ -33,7 +33,8 @@
 //! [`NOTIFY_EVERY`], and at the end the exact final position, `STATUS_CHANGED` 0 and
 //! `GOTO_POS_COMPLETED` (0, or 8 when the move failed or was stopped), in that order,
 //! which is what libum's drive status reads. Anything else is answered with the
-//! ERROR option. A device [`Emulator::mute`]d answers nothing (a cable pulled).
+//! ERROR option. A device [`Running::mute`]d, or in one of its
+//! [`Running::silence`]s, answers nothing (a cable pulled).
 
 use std::collections::HashMap;
 use std::net::{SocketAddr, UdpSocket};
@@ -137,6 +138,31 @@ pub fn parse_devices(s: &str) -> Result<Vec<DeviceSpec>, String> {
         return Err("no device given (e.g. ump:1,ums:21,umv:31)".into());
     }
     Ok(out)
+}
+
+/// Parses a fault switch `ID@START[..END]`: device ID silent from START to END s
+/// after the emulator starts (for good without END).
+pub fn parse_silence(s: &str) -> Result<(u16, f64, Option<f64>), String> {
+    let bad = || format!("`{s}`: a silence is ID@START[..END], seconds, e.g. 1@60..75");
+    let (id, window) = s.split_once('@').ok_or_else(bad)?;
+    let id: u16 = id.trim().parse().map_err(|_| bad())?;
+    let (from, until) = match window.split_once("..") {
+        Some((a, b)) => (a, Some(b)),
+        None => (window, None),
+    };
+    let num = |v: &str| -> Result<f64, String> {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite() && *x >= 0.0)
+            .ok_or_else(bad)
+    };
+    let from = num(from)?;
+    let until = until.map(num).transpose()?;
+    if until.is_some_and(|u| u <= from) {
+        return Err(format!("`{s}`: the silence must end after it starts"));
+    }
+    Ok((id, from, until))
 }
 
 /// One axis's trapezoidal move, nm and s.
@@ -259,6 +285,8 @@ struct Device {
     /// Last (sender, message id) executed: a retransmission is only acknowledged.
     last_request: Option<(u16, u16, u16)>,
     muted: bool,
+    /// Windows of the emulator's clock (s) in which it answers nothing.
+    silences: Vec<(f64, f64)>,
     /// What moves it, when not its own simulated axes.
     backing: Option<Box<dyn Backing>>,
     /// Axes of the move under way (status bits).
@@ -289,10 +317,16 @@ impl Device {
             last_notify: 0.0,
             last_request: None,
             muted: false,
+            silences: Vec::new(),
             backing,
             commanded: 0,
             opened: [None; CHANNELS],
         }
+    }
+
+    /// Whether it answers nothing at `t` (muted, or in a silence).
+    fn silent(&self, t: f64) -> bool {
+        self.muted || self.silences.iter().any(|&(a, b)| t >= a && t < b)
     }
 
     fn position(&mut self, t: f64) -> Vec<f64> {
@@ -510,6 +544,20 @@ impl Running {
         }
     }
 
+    /// Device `id` answers nothing from `from` to `until` (s after the emulator
+    /// started; `None`: for good), as if its cable were pulled then; false when there
+    /// is no such device.
+    pub fn silence(&self, id: u16, from: f64, until: Option<f64>) -> bool {
+        let mut w = self.world.lock().unwrap_or_else(|e| e.into_inner());
+        match w.devices.iter_mut().find(|d| d.spec.id == id) {
+            Some(d) => {
+                d.silences.push((from, until.unwrap_or(f64::INFINITY)));
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Device `id`'s positions now, nm (empty for a pressure controller).
     pub fn positions(&self, id: u16) -> Option<Vec<f64>> {
         let mut w = self.world.lock().unwrap_or_else(|e| e.into_inner());
@@ -668,7 +716,7 @@ fn handle(w: &mut World, f: &Frame, from: SocketAddr, out: &mut Vec<(SocketAddr,
     let t = w.now();
     let broadcast = f.receiver == ALL_DEVICES || f.receiver == 0x7ff;
     for d in w.devices.iter_mut() {
-        if d.muted || !(broadcast || f.receiver == d.spec.id) {
+        if d.silent(t) || !(broadcast || f.receiver == d.spec.id) {
             continue;
         }
         d.listener = Some(Listener {
@@ -745,12 +793,6 @@ fn execute(d: &mut Device, f: &Frame, t: f64) -> Result<Option<Vec<i32>>, ()> {
     let args = f.all_ints();
     let axes = d.rest.len();
     let positional = axes > 0;
-    let channel = |args: &[i32]| -> Result<usize, ()> {
-        match args.first() {
-            Some(&c) if (0..CHANNELS as i32).contains(&c) => Ok(c as usize),
-            _ => Err(()),
-        }
-    };
     match f.kind {
         cmd::PING => Ok(None),
         cmd::STOP => {
@@ -852,8 +894,21 @@ fn execute(d: &mut Device, f: &Frame, t: f64) -> Result<Option<Vec<i32>>, ()> {
             }
             _ => Err(()),
         },
-        cmd::UMV_SET_PRESSURE if d.spec.kind == Kind::Pressure => {
-            let c = channel(&args)?;
+        cmd::UMV_SET_PRESSURE..=cmd::UMV_MEASURE_PRESSURE if d.spec.kind == Kind::Pressure => {
+            pressure(d, f.kind, &args, t)
+        }
+        _ => Err(()),
+    }
+}
+
+/// A uMv's commands ([`execute`]'s): set points, valves and the measured pressure.
+fn pressure(d: &mut Device, kind: u16, args: &[i32], t: f64) -> Result<Option<Vec<i32>>, ()> {
+    let c = match args.first() {
+        Some(&c) if (0..CHANNELS as i32).contains(&c) => c as usize,
+        _ => return Err(()),
+    };
+    match kind {
+        cmd::UMV_SET_PRESSURE => {
             let p = *args.get(1).ok_or(())?;
             if p.abs() > MAX_PRESSURE {
                 return Err(());
@@ -861,39 +916,27 @@ fn execute(d: &mut Device, f: &Frame, t: f64) -> Result<Option<Vec<i32>>, ()> {
             d.set_point[c] = f64::from(p);
             Ok(None)
         }
-        cmd::UMV_GET_PRESSURE if d.spec.kind == Kind::Pressure => {
-            let c = channel(&args)?;
-            Ok(Some(vec![c as i32, d.set_point[c].round() as i32]))
-        }
-        cmd::UMV_MEASURE_PRESSURE if d.spec.kind == Kind::Pressure => {
-            let c = channel(&args)?;
-            Ok(Some(vec![c as i32, d.pressure[c].round() as i32]))
-        }
-        cmd::UMV_SET_VALVE if d.spec.kind == Kind::Pressure => {
-            let c = channel(&args)?;
-            match args.get(1) {
-                Some(&v) if v == 0 || v == 1 => {
-                    d.valve[c] = v;
-                    match (v, d.opened[c]) {
-                        (1, None) => d.opened[c] = Some(t),
-                        (0, Some(t0)) => {
-                            d.opened[c] = None;
-                            let p = d.set_point[c];
-                            if let Some(b) = d.backing.as_mut() {
-                                b.pulse(p, t - t0);
-                            }
+        cmd::UMV_GET_PRESSURE => Ok(Some(vec![c as i32, d.set_point[c].round() as i32])),
+        cmd::UMV_MEASURE_PRESSURE => Ok(Some(vec![c as i32, d.pressure[c].round() as i32])),
+        cmd::UMV_SET_VALVE => match args.get(1) {
+            Some(&v) if v == 0 || v == 1 => {
+                d.valve[c] = v;
+                match (v, d.opened[c]) {
+                    (1, None) => d.opened[c] = Some(t),
+                    (0, Some(t0)) => {
+                        d.opened[c] = None;
+                        let p = d.set_point[c];
+                        if let Some(b) = d.backing.as_mut() {
+                            b.pulse(p, t - t0);
                         }
-                        _ => {}
                     }
-                    Ok(None)
+                    _ => {}
                 }
-                _ => Err(()),
+                Ok(None)
             }
-        }
-        cmd::UMV_GET_VALVE if d.spec.kind == Kind::Pressure => {
-            let c = channel(&args)?;
-            Ok(Some(vec![c as i32, d.valve[c]]))
-        }
+            _ => Err(()),
+        },
+        cmd::UMV_GET_VALVE => Ok(Some(vec![c as i32, d.valve[c]])),
         _ => Err(()),
     }
 }
@@ -921,7 +964,7 @@ fn tick(w: &mut World, out: &mut Vec<(SocketAddr, Frame)>) {
                     .fold(0.0, f64::max)
             }
         };
-        let Some(l) = d.listener.filter(|_| !d.muted) else {
+        let Some(l) = d.listener.filter(|_| !d.silent(t)) else {
             if done {
                 d.finish(t);
             }
@@ -964,6 +1007,17 @@ mod tests {
         ] {
             let e = parse_devices(bad).unwrap_err();
             assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn silences_parse_and_bad_ones_say_the_form() {
+        assert_eq!(parse_silence("1@60..75"), Ok((1, 60.0, Some(75.0))));
+        assert_eq!(parse_silence("31@2.5"), Ok((31, 2.5, None)));
+        for bad in [
+            "1", "x@1", "1@", "1@-1", "1@nan", "1@5..5", "1@5..2", "1@1..x",
+        ] {
+            assert!(parse_silence(bad).is_err(), "{bad}");
         }
     }
 
