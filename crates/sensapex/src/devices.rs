@@ -28,7 +28,8 @@ pub fn hw_error(e: SensapexError) -> HwError {
             ..
         } => HwError::Timeout {
             device: format!("Sensapex device {device} at {address}"),
-            seconds,
+            // Shown as written: milliseconds are enough.
+            seconds: (seconds * 1e3).round() / 1e3,
         },
         SensapexError::Refused {
             device, address, ..

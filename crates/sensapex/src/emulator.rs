@@ -4,8 +4,8 @@
 //! SMCP1 client can be exercised without hardware.
 //!
 //! What it speaks (`inc/smcp1.h`; every request is acknowledged when it asks for an
-//! ACK, a retransmission of the same message is acknowledged again and not executed
-//! twice):
+//! ACK, a retransmission of the same command is acknowledged again and not executed
+//! twice, a retransmitted query is answered again):
 //!
 //! - `PING` (0), to a device or to every device (0xff): ACK (and the request echoed
 //!   when a response is asked for): what discovery needs;
@@ -726,8 +726,9 @@ fn handle(w: &mut World, f: &Frame, from: SocketAddr, out: &mut Vec<(SocketAddr,
         let key = (f.sender, f.message_id, f.kind);
         let repeat = d.last_request == Some(key);
         d.last_request = Some(key);
-        let answer = if repeat && f.kind != cmd::GET_POSITIONS && f.kind != cmd::PING {
-            // A retransmission: acknowledged, not executed again.
+        // A retransmission of a command is acknowledged, not executed again; a
+        // query (it asks for a response) is answered again.
+        let answer = if repeat && f.options & opt::REQ_RESP == 0 {
             Ok(None)
         } else {
             execute(d, f, t)

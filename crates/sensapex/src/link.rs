@@ -18,8 +18,24 @@ use crate::protocol::{ALL_DEVICES, Frame, FrameError, MAX_DATAGRAM, PORT, cmd, o
 pub const SENDS: u32 = 3;
 /// How long each send waits for its reply by default (Sensapex's Python client).
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(200);
-/// Our SMCP1 id: a PC's ids are above 0x200.
-pub const OWN_ID: u16 = 0x0230;
+/// The lowest of our SMCP1 ids: a PC's ids are above 0x200. Each link takes one of
+/// the next 0xfd at random (as libum does), and starts its message ids at random: a
+/// device that saw another process's request does not take ours for its
+/// retransmission.
+pub const OWN_ID: u16 = 0x0201;
+
+/// A number that differs from process to process and from link to link.
+fn entropy() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.write_u32(std::process::id());
+    h.finish()
+}
 /// Receiver ids a notification for a PC may carry: every control unit or PC.
 const PCS: [u16; 3] = [0x01ff, 0x02ff, 0x03ff];
 
@@ -115,6 +131,7 @@ pub struct Link {
     target: SocketAddr,
     /// Where each device answered from (unicast after the first reply).
     learned: HashMap<u16, SocketAddr>,
+    own_id: u16,
     message_id: u16,
     timeout: Duration,
     notes: HashMap<u16, Notes>,
@@ -143,11 +160,13 @@ impl Link {
     }
 
     fn on(socket: UdpSocket, target: SocketAddr) -> Link {
+        let e = entropy();
         Link {
             socket,
             target,
             learned: HashMap::new(),
-            message_id: 0,
+            own_id: OWN_ID + (e % 0xfd) as u16,
+            message_id: (e >> 16) as u16,
             timeout: DEFAULT_TIMEOUT,
             notes: HashMap::new(),
         }
@@ -180,6 +199,11 @@ impl Link {
     /// Sets how long each send waits for its reply (at least 1 ms).
     pub fn set_timeout(&mut self, t: Duration) {
         self.timeout = t.max(Duration::from_millis(1));
+    }
+
+    /// Our SMCP1 id on this link.
+    pub fn own_id(&self) -> u16 {
+        self.own_id
     }
 
     /// What the notifications said of `device` so far (after [`Link::poll`]).
@@ -224,7 +248,8 @@ impl Link {
         let f: Result<Frame, FrameError> = Frame::decode(&buf[..n]);
         let Ok(f) = f else { return Ok(None) };
         self.learned.insert(f.sender, from);
-        if f.options & opt::NOTIFY != 0 && (f.receiver == OWN_ID || PCS.contains(&f.receiver)) {
+        if f.options & opt::NOTIFY != 0 && (f.receiver == self.own_id || PCS.contains(&f.receiver))
+        {
             let values = f.ints(0);
             let notes = self.notes.entry(f.sender).or_default();
             match f.kind {
@@ -244,7 +269,7 @@ impl Link {
             }
             return Ok(None);
         }
-        if f.receiver != OWN_ID {
+        if f.receiver != self.own_id {
             return Ok(None);
         }
         Ok(Some(f))
@@ -290,7 +315,7 @@ impl Link {
         options: u32,
     ) -> Result<Vec<i32>, SensapexError> {
         let id = self.next_id();
-        let mut f = Frame::request(kind, OWN_ID, device, id, options, &[]);
+        let mut f = Frame::request(kind, self.own_id, device, id, options, &[]);
         f.blocks = blocks
             .iter()
             .filter(|b| !b.is_empty())
@@ -362,7 +387,7 @@ impl Link {
     /// The devices that answer a PING to every device within the link's timeout.
     pub fn discover(&mut self) -> Result<Vec<u16>, SensapexError> {
         let id = self.next_id();
-        let f = Frame::request(cmd::PING, OWN_ID, ALL_DEVICES, id, opt::REQ_ACK, &[]);
+        let f = Frame::request(cmd::PING, self.own_id, ALL_DEVICES, id, opt::REQ_ACK, &[]);
         self.socket
             .send_to(&f.encode(), self.target)
             .map_err(|source| SensapexError::Io {

@@ -288,3 +288,54 @@ fn a_backed_channel_sees_the_pulse_at_its_pressure_for_its_duration() {
     assert_eq!(p[0].0, 30_000.0);
     assert!(p[0].1 >= 0.1 && p[0].1 < 0.2, "{p:?}");
 }
+
+/// A request sent twice with one message id (a retransmission): a query is answered
+/// both times; a goto moves once (the second is only acknowledged).
+#[test]
+fn a_retransmitted_query_is_answered_again_and_a_goto_not_repeated() {
+    use cellinject_sensapex::Frame;
+    use cellinject_sensapex::protocol::{cmd, opt, param};
+    let emu = emulator();
+    let s = UdpSocket::bind("127.0.0.1:0").unwrap();
+    s.set_read_timeout(Some(Duration::from_millis(300)))
+        .unwrap();
+    let replies = |f: &Frame| {
+        s.send_to(&f.encode(), emu.addr()).unwrap();
+        let mut got = Vec::new();
+        let mut buf = [0u8; 1500];
+        while let Ok((n, _)) = s.recv_from(&mut buf) {
+            let r = Frame::decode(&buf[..n]).unwrap();
+            if r.message_id == f.message_id && r.kind == f.kind {
+                got.push(r);
+            }
+        }
+        got
+    };
+    let q = Frame::request(
+        cmd::GET_PARAMETER,
+        0x250,
+        1,
+        7,
+        opt::REQ_ACK | opt::REQ_RESP,
+        &[param::AXIS_COUNT as i32],
+    );
+    for _ in 0..2 {
+        let r = replies(&q);
+        assert!(r.iter().any(|r| r.options & opt::ACK != 0), "{r:?}");
+        assert!(r.iter().any(|r| r.ints(0) == vec![0x105, 3]), "{r:?}");
+    }
+    let step = Frame::request(
+        cmd::TAKE_STEP,
+        0x250,
+        1,
+        8,
+        opt::REQ_ACK,
+        &[5000, 0, 0, 0, 1000, 0, 0, 0, 0],
+    );
+    for _ in 0..2 {
+        replies(&step);
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    let x = emu.positions(1).unwrap()[0];
+    assert!((x - 10_005_000.0).abs() < 1.0, "stepped once: {x}");
+}

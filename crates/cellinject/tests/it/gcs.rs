@@ -217,7 +217,9 @@ fn calibrations_and_experiments_over_gcs_match_the_twin() {
 /// no bench endpoint for the stages or the injector: the macro stage, the feeder and
 /// the injector are Sensapex devices over SMCP1 (`emulate gcs --sensapex`; the
 /// calibrations of the test above take the shorthands, every device on the bench
-/// endpoint).
+/// endpoint), reached through a relay that can silence the manipulator: silenced once
+/// the run is under way, it stops the run (exit 1, recorded `stopped` naming the
+/// device, the pipette withdrawn); answering again, the run resumes and finishes.
 #[test]
 fn a_run_over_gcs_injects_what_the_twin_injects() {
     let d = dir("match-run");
@@ -234,7 +236,14 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     };
     let (emu, group) = with_sensapex(&d);
     let backend = format!("gcs://{}", emu.gcs);
-    let rig = sensapex_rig(&rig_file(&backend, &emu.bench), &emu.bench, group);
+    let relay = Relay::start(group);
+    let rig = sensapex_rig(&rig_file(&backend, &emu.bench), &emu.bench, group)
+        .replace("sensapex://127.0.0.1?", "sensapex://127.0.0.2?")
+        .replace("sensapex-ums://127.0.0.1?", "sensapex-ums://127.0.0.2?")
+        .replace(
+            "sensapex-pressure://127.0.0.1?",
+            "sensapex-pressure://127.0.0.2?",
+        );
     fs::write(d.join("bench.toml"), &rig).unwrap();
     let check = ok(&run(
         &d,
@@ -243,7 +252,45 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     let devices = check["devices"].as_array().unwrap();
     assert_eq!(devices.len(), 7, "{check}");
     assert!(devices.iter().all(|x| x["answers"] == true), "{check}");
-    let o = run(&d, &injection("g.sqlite", &["--rig", "bench.toml"]));
+    // The manipulator falls silent once the run is under way.
+    let mut child = common::cmd(&d)
+        .args(injection("g.sqlite", &["--rig", "bench.toml"]))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    common::poll(
+        Duration::from_secs(300),
+        Duration::from_millis(200),
+        "the run recorded as running",
+        || {
+            if let Some(status) = child.try_wait().unwrap() {
+                panic!("the run ended ({status}) before it was recorded as running");
+            }
+            match common::json(&d, &["runs", "show", "--db", "g.sqlite"]) {
+                Some(v) if v["run"]["status"] == "running" => Ok(()),
+                other => Err(other),
+            }
+        },
+    );
+    relay.silence(true);
+    let out = child.wait_with_output().unwrap();
+    let stderr = err(&out);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let named = format!("Sensapex device 1 at 127.0.0.2:{}", 55555 + group);
+    assert!(stderr.contains(&named), "{stderr}");
+    let show = ok(&run(&d, &["runs", "show", "--db", "g.sqlite"]));
+    assert_eq!(show["run"]["status"], "stopped", "{show}");
+    assert!(
+        show["run"]["stopped"].as_str().unwrap().contains(&named),
+        "{show}"
+    );
+    // Answering again: the run resumes and finishes the plate.
+    relay.silence(false);
+    let o = run(
+        &d,
+        &injection("g.sqlite", &["--rig", "bench.toml", "--resume"]),
+    );
     let g = ok(&o);
     let t = ok(&twin_side.join().unwrap());
     assert_eq!(g["backend"], backend.as_str());
@@ -322,6 +369,60 @@ fn a_sensapex_device_that_does_not_answer_fails_the_run_fast_naming_it() {
     assert!(took < Duration::from_secs(2), "{took:?}");
     assert!(!d.join("sx.sqlite").exists());
     drop(emu);
+}
+
+/// A UDP relay from 127.0.0.2 to the Sensapex devices on 127.0.0.1 (same group),
+/// which can silence device 1: its datagrams, both ways, are dropped (a cable pulled).
+struct Relay {
+    silent: Arc<AtomicBool>,
+    stop: Arc<AtomicBool>,
+}
+
+impl Drop for Relay {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+impl Relay {
+    fn start(group: u16) -> Relay {
+        let port = 55555 + group;
+        let s = std::net::UdpSocket::bind(("127.0.0.2", port)).unwrap();
+        s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+        let upstream: std::net::SocketAddr = ([127, 0, 0, 1], port).into();
+        let silent = Arc::new(AtomicBool::new(false));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (quiet, end) = (silent.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 1500];
+            let mut client = None;
+            while !end.load(Ordering::SeqCst) {
+                let Ok((n, from)) = s.recv_from(&mut buf) else {
+                    continue;
+                };
+                let b = &buf[..n];
+                // Receiver id at bytes 2-3, sender id at 4-5 (big-endian).
+                let id = |at: usize| b.get(at..at + 2).map(|x| u16::from_be_bytes([x[0], x[1]]));
+                if from == upstream {
+                    let gated = quiet.load(Ordering::SeqCst) && id(4) == Some(1);
+                    if let (Some(c), false) = (client, gated) {
+                        let _ = s.send_to(b, c);
+                    }
+                } else {
+                    client = Some(from);
+                    let gated = quiet.load(Ordering::SeqCst) && id(2) == Some(1);
+                    if !gated {
+                        let _ = s.send_to(b, upstream);
+                    }
+                }
+            }
+        });
+        Relay { silent, stop }
+    }
+
+    fn silence(&self, on: bool) {
+        self.silent.store(on, Ordering::SeqCst);
+    }
 }
 
 /// `cellinject emulate gcs --plate p.toml --sensapex ump:1,ums:21,umv:31` on the
