@@ -259,20 +259,7 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    common::poll(
-        Duration::from_secs(300),
-        Duration::from_millis(200),
-        "the run recorded as running",
-        || {
-            if let Some(status) = child.try_wait().unwrap() {
-                panic!("the run ended ({status}) before it was recorded as running");
-            }
-            match common::json(&d, &["runs", "show", "--db", "g.sqlite"]) {
-                Some(v) if v["run"]["status"] == "running" => Ok(()),
-                other => Err(other),
-            }
-        },
-    );
+    wait_running(&d, &mut child, "g.sqlite");
     relay.silence(true);
     let out = child.wait_with_output().unwrap();
     let stderr = err(&out);
@@ -369,6 +356,25 @@ fn a_sensapex_device_that_does_not_answer_fails_the_run_fast_naming_it() {
     assert!(took < Duration::from_secs(2), "{took:?}");
     assert!(!d.join("sx.sqlite").exists());
     drop(emu);
+}
+
+/// Waits until the run `child` writes to `db` is recorded as running (read from the
+/// records as the run writes them, however long that takes on a loaded machine).
+fn wait_running(d: &Path, child: &mut Child, db: &str) {
+    common::poll(
+        Duration::from_secs(300),
+        Duration::from_millis(200),
+        "the run recorded as running",
+        || {
+            if let Some(status) = child.try_wait().unwrap() {
+                panic!("the run ended ({status}) before it was recorded as running");
+            }
+            match common::json(d, &["runs", "show", "--db", db]) {
+                Some(v) if v["run"]["status"] == "running" => Ok(()),
+                other => Err(other),
+            }
+        },
+    );
 }
 
 /// A UDP relay from 127.0.0.2 to the Sensapex devices on 127.0.0.1 (same group),
@@ -586,21 +592,7 @@ fn a_link_cut_mid_run_stops_in_the_safe_state_with_the_reason_recorded() {
     // 22 s this replaces was meant to reach the first cells, but over the real-time
     // wire the first cell starts about 3 min in, measured alone: it cut before any
     // cell too).
-    common::poll(
-        Duration::from_secs(300),
-        Duration::from_millis(200),
-        "the run recorded as running",
-        || {
-            if let Some(status) = child.try_wait().unwrap() {
-                panic!("the run ended ({status}) before it was recorded as running");
-            }
-            let shown = common::json(&d, &["runs", "show", "--db", "r.sqlite"]);
-            match shown {
-                Some(v) if v["run"]["status"] == "running" => Ok(()),
-                other => Err(other),
-            }
-        },
-    );
+    wait_running(&d, &mut child, "r.sqlite");
     p.cut();
     let out = child.wait_with_output().unwrap();
     let stderr = err(&out);
