@@ -136,6 +136,23 @@ fn check_serve_for(serve_for: Option<f64>) -> Result<()> {
     }
 }
 
+/// The devices as the first line lists them (`ump 1, ums 21, umv 31`).
+fn device_list(devices: &[cellinject_sensapex::emulator::DeviceSpec]) -> String {
+    devices
+        .iter()
+        .map(|d| format!("{} {}", d.kind.name(), d.id))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The SMCP1 emulator's log: every datagram on standard error, each line after
+/// `prefix`, when `verbose`.
+fn datagram_log(verbose: bool, prefix: &'static str) -> cellinject_sensapex::emulator::Log {
+    verbose.then(|| {
+        Box::new(move |line: &str| eprintln!("{prefix}{line}")) as Box<dyn FnMut(&str) + Send>
+    })
+}
+
 /// `cellinject emulate sensapex`.
 fn sensapex(a: &SensapexArgs) -> Result<()> {
     use cellinject_sensapex::{emulator, protocol};
@@ -154,12 +171,7 @@ fn sensapex(a: &SensapexArgs) -> Result<()> {
             a.group
         ))
     })?;
-    let log: emulator::Log = if a.verbose {
-        Some(Box::new(|line: &str| eprintln!("{line}")))
-    } else {
-        None
-    };
-    let running = emulator::serve(socket, &devices, log)
+    let running = emulator::serve(socket, &devices, datagram_log(a.verbose, ""))
         .map_err(|e| anyhow::anyhow!("cannot start the emulator: {e}"))?;
     for (id, from, until) in silent {
         running.silence(id, from, until);
@@ -168,11 +180,7 @@ fn sensapex(a: &SensapexArgs) -> Result<()> {
         "Sensapex SMCP1 devices on udp://{} (group {}): {}",
         running.addr(),
         a.group,
-        devices
-            .iter()
-            .map(|d| format!("{} {}", d.kind.name(), d.id))
-            .collect::<Vec<_>>()
-            .join(", ")
+        device_list(&devices)
     );
     match a.serve_for {
         Some(t) => {
@@ -269,11 +277,7 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
                     gcs_addr.ip()
                 ))
             })?;
-            let log: cellinject_sensapex::emulator::Log = if a.verbose {
-                Some(Box::new(|line: &str| eprintln!("sensapex {line}")))
-            } else {
-                None
-            };
+            let log = datagram_log(a.verbose, "sensapex ");
             let r = cellinject_sensapex::emulator::serve_backed(socket, backed, log)
                 .map_err(|e| anyhow::anyhow!("cannot start the Sensapex emulator: {e}"))?;
             for &(id, from, until) in &silent {
@@ -292,11 +296,7 @@ pub fn run(d: &Description, cmd: &EmulateCommand) -> Result<()> {
             "; Sensapex SMCP1 devices on udp://{} (group {}): {}",
             s.addr(),
             a.sensapex_group,
-            specs
-                .iter()
-                .map(|d| format!("{} {}", d.kind.name(), d.id))
-                .collect::<Vec<_>>()
-                .join(", ")
+            device_list(specs)
         ),
         _ => String::new(),
     };

@@ -20,6 +20,8 @@
 //! driver = "bench://192.168.0.20:50001"
 //! [optics]
 //! driver = "bench://192.168.0.20:50001"
+//! # or a Sensapex uMs's lens changer: driver = "sensapex-ums://169.254.255.255?dev=21"
+//! # with lenses = [2.5, 10], the magnifications of its lens positions 1 and 2
 //! ```
 //!
 //! The twin is a whole simulated bench: with `[piezo] driver = "twin"` every other
@@ -122,6 +124,9 @@ pub struct SensapexDevice {
     pub origin: Vec<f64>,
     /// Speed of the stage's moves, m/s.
     pub speed: f64,
+    /// A uMs named by `[optics]`: the magnification of its lens changer's
+    /// positions 1 and 2 (`lenses`; empty for any other section).
+    pub lenses: Vec<f64>,
 }
 
 impl SensapexDevice {
@@ -460,7 +465,8 @@ fn read_device(
     let fits: &[SensapexKind] = match name {
         "macro" | "feeder" => &[SensapexKind::Manipulator, SensapexKind::Stage],
         "injector" => &[SensapexKind::Pressure],
-        _ => &[],
+        // A uMs's lens changer: the objectives.
+        _ => &[SensapexKind::Stage],
     };
     let device = if driver == "twin" {
         DeviceDriver::Twin
@@ -480,13 +486,15 @@ fn read_device(
                     s.kind.scheme(),
                     match name {
                         "injector" => "sensapex-pressure://ADDRESS?dev=N&channel=C",
-                        "optics" => "twin or bench://HOST:PORT",
+                        "optics" => "a uMs's lens changer, sensapex-ums://ADDRESS?dev=N",
                         _ => "sensapex://ADDRESS?dev=N or sensapex-ums://ADDRESS?dev=N",
                     }
                 ),
             });
         }
-        if s.kind != SensapexKind::Pressure {
+        if name == "optics" {
+            s.lenses = lenses(&mut t)?;
+        } else if s.kind != SensapexKind::Pressure {
             if let Some(o) = t.opt_array::<3>("origin")? {
                 s.origin = o.to_vec();
             }
@@ -505,7 +513,7 @@ fn read_device(
         let more = match name {
             "macro" | "feeder" => ", sensapex://ADDRESS?dev=N or sensapex-ums://ADDRESS?dev=N",
             "injector" => " or sensapex-pressure://ADDRESS?dev=N&channel=C",
-            _ => "",
+            _ => " or sensapex-ums://ADDRESS?dev=N (a uMs's lens changer)",
         };
         return Err(ConfigError::Invalid {
             key,
@@ -519,6 +527,27 @@ fn read_device(
     }
     t.finish()?;
     Ok(device)
+}
+
+/// `[optics]`'s `lenses` for a uMs's lens changer: the magnifications of its positions
+/// 1 and 2 (0 is the empty centre), each in (0, 1000].
+fn lenses(t: &mut Section) -> Result<Vec<f64>, ConfigError> {
+    let Some(l) = t.opt_array::<2>("lenses")? else {
+        return Err(ConfigError::Invalid {
+            key: t.key("lenses"),
+            reason: "a uMs's lens changer as the optics needs the magnification of its lens positions 1 and 2: lenses = [M1, M2] (e.g. [2.5, 10])".into(),
+        });
+    };
+    if let Some(m) = l
+        .iter()
+        .find(|m| !(m.is_finite() && **m > 0.0 && **m <= 1000.0))
+    {
+        return Err(ConfigError::Invalid {
+            key: t.key("lenses"),
+            reason: format!("a magnification lies in (0, 1000], got {m}"),
+        });
+    }
+    Ok(l.to_vec())
 }
 
 /// `sensapex[-ums|-pressure]://ADDRESS?dev=N[&group=G][&channel=C]`, or `None`
@@ -594,6 +623,7 @@ fn sensapex(key: &str, driver: &str) -> Result<Option<SensapexDevice>, ConfigErr
         channel,
         origin: Vec::new(),
         speed: DEFAULT_SENSAPEX_SPEED,
+        lenses: Vec::new(),
     }))
 }
 
@@ -705,6 +735,18 @@ driver = "bench://127.0.0.1:50001"
             (i.kind, i.dev, i.channel),
             (SensapexKind::Pressure, 31, Some(2))
         );
+        // A uMs's lens changer as the objectives.
+        let lens = bench.replace(
+            "[optics]\ndriver = \"bench://127.0.0.1:50001\"",
+            "[optics]\ndriver = \"sensapex-ums://127.0.0.1?dev=21\"\nlenses = [4, 10]",
+        );
+        let DeviceDriver::Sensapex(o) = parse(&lens).expect("valid").optics else {
+            panic!("{lens}")
+        };
+        assert_eq!(
+            (o.kind, o.dev, o.lenses),
+            (SensapexKind::Stage, 21, vec![4.0, 10.0])
+        );
         let with = |from: &str, to: &str| {
             let t = bench.replace(from, to);
             assert_ne!(t, bench, "{from}");
@@ -761,8 +803,23 @@ driver = "bench://127.0.0.1:50001"
             ),
             (
                 "[optics]\ndriver = \"bench://127.0.0.1:50001\"",
-                "[optics]\ndriver = \"sensapex-ums://127.0.0.1?dev=21\"",
+                "[optics]\ndriver = \"sensapex://127.0.0.1?dev=1\"",
                 "not a device for [optics]",
+            ),
+            (
+                "[optics]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[optics]\ndriver = \"sensapex-ums://127.0.0.1?dev=21\"",
+                "optics.lenses",
+            ),
+            (
+                "[optics]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[optics]\ndriver = \"sensapex-ums://127.0.0.1?dev=21\"\nlenses = [2.5, nan]",
+                "(0, 1000], got NaN",
+            ),
+            (
+                "[optics]\ndriver = \"bench://127.0.0.1:50001\"",
+                "[optics]\ndriver = \"sensapex-ums://127.0.0.1?dev=21\"\nlenses = [2.5]",
+                "optics.lenses",
             ),
         ] {
             let e = with(from, to);

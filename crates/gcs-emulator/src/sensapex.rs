@@ -9,21 +9,26 @@
 //! stages move at their own speed and acceleration (a goto's speed is not used);
 //! a stop holds each axis where it is. A valve's opening is the injector's pulse at
 //! the channel's set point, for as long as it stayed open, given to the twin when it
-//! closes.
+//! closes. A uMs's lens changer is the twin's zoom lens: lens 1 its lowest zoom, lens
+//! 2 its highest (the centre position, no lens, leaves the zoom as it was); the twin
+//! starts at lens 1's.
 
-use cellinject_hw::{Injector, Stage};
+use cellinject_hw::{Injector, Optics, Stage};
 use cellinject_rig::Backend;
 use cellinject_sensapex::emulator::{Backing, DeviceSpec, Emulated, Kind};
 use cellinject_twin::{SharedTwin, TwinBackend};
 
 type TwinStage = <TwinBackend as Backend>::Stage;
 type TwinInjector = <TwinBackend as Backend>::Injector;
+type TwinOptics = <TwinBackend as Backend>::Optics;
 
 /// A twin stage as a Sensapex positioner.
 struct StageBacking {
     stage: TwinStage,
     /// The device's coordinate of the twin's 0 on each axis, nm.
     centre: Vec<f64>,
+    /// A uMs's lens changer: the twin's zoom lens, with lens 1's and lens 2's zoom.
+    lenses: Option<(TwinOptics, [f64; 2])>,
 }
 
 impl Backing for StageBacking {
@@ -54,6 +59,12 @@ impl Backing for StageBacking {
     fn busy(&mut self) -> bool {
         self.stage.is_busy().unwrap_or(false)
     }
+
+    fn lens(&mut self, position: i32) {
+        if let (Some((optics, zoom)), 1..=2) = (self.lenses.as_mut(), position) {
+            let _ = optics.set_zoom(zoom[position as usize - 1]);
+        }
+    }
 }
 
 /// The twin's injector as a uMv's channels.
@@ -78,6 +89,7 @@ pub fn backed(twin: &SharedTwin, specs: &[DeviceSpec]) -> Result<Vec<Emulated>, 
         Some(devices.feeder),
         Some(devices.injector),
     );
+    let mut optics = Some(devices.optics);
     let centre = |kind: Kind| -> Vec<f64> {
         kind.travel()
             .iter()
@@ -97,6 +109,7 @@ pub fn backed(twin: &SharedTwin, specs: &[DeviceSpec]) -> Result<Vec<Emulated>, 
             Kind::Manipulator { axes: 3 } => Box::new(StageBacking {
                 stage: stage.take().ok_or_else(|| taken("macro stage"))?,
                 centre: centre(s.kind),
+                lenses: None,
             }),
             Kind::Manipulator { .. } => {
                 return Err(format!(
@@ -104,10 +117,19 @@ pub fn backed(twin: &SharedTwin, specs: &[DeviceSpec]) -> Result<Vec<Emulated>, 
                     s.id
                 ));
             }
-            Kind::Stage => Box::new(StageBacking {
-                stage: feeder.take().ok_or_else(|| taken("feeder stage"))?,
-                centre: centre(s.kind),
-            }),
+            Kind::Stage => {
+                let mut b = StageBacking {
+                    stage: feeder.take().ok_or_else(|| taken("feeder stage"))?,
+                    centre: centre(s.kind),
+                    lenses: optics.take().map(|o| {
+                        let (lo, hi) = o.zoom_range();
+                        (o, [lo, hi])
+                    }),
+                };
+                // The emulated uMs starts at lens 1.
+                b.lens(1);
+                Box::new(b)
+            }
             Kind::Pressure => Box::new(InjectorBacking {
                 injector: injector.take().ok_or_else(|| taken("injector"))?,
             }),

@@ -1,12 +1,13 @@
 //! Sensapex devices behind cellinject's hardware traits: a uMp or uMs as a
 //! [`Stage`] ([`Positioner`]: positions in m, relative to an origin in the device's
 //! own coordinates), a uMv / uMc pressure channel as an [`Injector`]
-//! ([`PressureChannel`]: Pa, the valve open for the pulse's duration).
+//! ([`PressureChannel`]: Pa, the valve open for the pulse's duration), a uMs's lens
+//! changer as the [`Optics`] ([`LensChanger`]: one magnification per lens position).
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use cellinject_hw::{HwError, Injector, Stage, check_range};
+use cellinject_hw::{HwError, Injector, Optics, Stage, check_range};
 
 use crate::link::{Link, SensapexError};
 use crate::protocol::{ARG_UNDEF, cmd, opt, param};
@@ -345,5 +346,122 @@ impl Injector for PressureChannel {
                 lock(&self.link).request(self.device, cmd::UMV_SET_VALVE, &[self.wire(), 0], false);
         }
         closed.map_err(hw_error)
+    }
+}
+
+/// How long a lens change may take before it is an error, s (the uMs lifts the
+/// objective, turns the changer and dips back: seconds).
+pub const LENS_CHANGE_TIMEOUT: f64 = 30.0;
+
+/// A uMs's lens changer as the microscope's optics: lens position k (1 or 2; 0 is the
+/// empty centre) has magnification `lenses[k - 1]`. A zoom is set by moving to the
+/// lens of that magnification (within 0.1 %); any other zoom is refused, naming the
+/// lenses.
+pub struct LensChanger {
+    link: SharedLink,
+    device: u16,
+    lenses: Vec<f64>,
+    /// The lens position now (0: the centre, no lens).
+    position: i32,
+}
+
+impl LensChanger {
+    /// The lens changer of uMs `device` on `link`, whose positions 1, 2, ... carry
+    /// lenses of magnification `lenses`; its position is read now, so a device that
+    /// does not answer is found before anything moves.
+    pub fn open(
+        link: &SharedLink,
+        device: u16,
+        lenses: &[f64],
+    ) -> Result<LensChanger, SensapexError> {
+        let mut l = LensChanger {
+            link: link.clone(),
+            device,
+            lenses: lenses.to_vec(),
+            position: 0,
+        };
+        l.position = l.read()?;
+        Ok(l)
+    }
+
+    /// The lens position the device reports (0: the centre or unknown).
+    pub fn read(&mut self) -> Result<i32, SensapexError> {
+        let r = lock(&self.link).request(self.device, cmd::UMS_GET_LENS_POSITION, &[], true)?;
+        match r.first() {
+            Some(&p) if (-1..=9).contains(&p) => Ok(p.max(0)),
+            _ => Err(SensapexError::BadReply {
+                device: self.device,
+                command: "UMS_GET_LENS_POSITION",
+                reason: format!("{r:?}"),
+            }),
+        }
+    }
+
+    fn lens_list(&self) -> String {
+        self.lenses
+            .iter()
+            .enumerate()
+            .map(|(k, m)| format!("lens {} = {m}x", k + 1))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    fn name(&self) -> String {
+        format!("Sensapex stage {} lens changer", self.device)
+    }
+}
+
+impl Optics for LensChanger {
+    fn zoom(&self) -> f64 {
+        usize::try_from(self.position - 1)
+            .ok()
+            .and_then(|k| self.lenses.get(k).copied())
+            .unwrap_or(f64::NAN)
+    }
+
+    fn zoom_range(&self) -> (f64, f64) {
+        let lo = self.lenses.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = self
+            .lenses
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        (lo, hi)
+    }
+
+    fn set_zoom(&mut self, zoom: f64) -> Result<(), HwError> {
+        let (lo, hi) = self.zoom_range();
+        check_range("zoom", zoom, lo, hi)?;
+        let Some(k) = self
+            .lenses
+            .iter()
+            .position(|m| (m - zoom).abs() <= 1e-3 * m)
+        else {
+            return Err(HwError::Device {
+                device: self.name(),
+                message: format!("no lens of magnification {zoom}x ({})", self.lens_list()),
+            });
+        };
+        let target = k as i32 + 1;
+        if self.position == target {
+            return Ok(());
+        }
+        lock(&self.link)
+            .request(self.device, cmd::UMS_SET_LENS_POSITION, &[target], false)
+            .map_err(hw_error)?;
+        let start = Instant::now();
+        loop {
+            self.position = self.read().map_err(hw_error)?;
+            if self.position == target {
+                return Ok(());
+            }
+            if start.elapsed().as_secs_f64() > LENS_CHANGE_TIMEOUT {
+                return Err(HwError::Timeout {
+                    device: format!("{} (to lens {target})", self.name()),
+                    seconds: LENS_CHANGE_TIMEOUT,
+                });
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 }

@@ -259,6 +259,8 @@ pub trait Backing: Send {
     }
     /// A valve was open for `duration` s at `pressure` Pa (just closed).
     fn pulse(&mut self, _pressure: f64, _duration: f64) {}
+    /// A uMs's lens changer moved to `position` (1 or 2; 0 the empty centre).
+    fn lens(&mut self, _position: i32) {}
 }
 
 /// A device to emulate, with what moves it (its own simulated axes when `None`).
@@ -891,6 +893,9 @@ fn execute(d: &mut Device, f: &Frame, t: f64) -> Result<Option<Vec<i32>>, ()> {
         cmd::UMS_SET_LENS_POSITION if d.spec.kind == Kind::Stage => match args.first() {
             Some(&l) if (0..=2).contains(&l) => {
                 d.lens = l;
+                if let Some(b) = d.backing.as_mut() {
+                    b.lens(l);
+                }
                 Ok(None)
             }
             _ => Err(()),

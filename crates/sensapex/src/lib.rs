@@ -14,6 +14,6 @@ pub mod emulator;
 pub mod link;
 pub mod protocol;
 
-pub use devices::{Model, Positioner, PressureChannel, SharedLink};
+pub use devices::{LensChanger, Model, Positioner, PressureChannel, SharedLink};
 pub use link::{Link, SensapexError};
 pub use protocol::{Frame, FrameError, SubBlock};

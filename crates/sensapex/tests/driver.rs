@@ -8,9 +8,11 @@ use std::net::{SocketAddr, UdpSocket};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use cellinject_hw::{HwError, Injector, Stage};
+use cellinject_hw::{HwError, Injector, Optics, Stage};
 use cellinject_sensapex::emulator::{self, Running};
-use cellinject_sensapex::{Link, Model, Positioner, PressureChannel, SensapexError, SharedLink};
+use cellinject_sensapex::{
+    LensChanger, Link, Model, Positioner, PressureChannel, SensapexError, SharedLink,
+};
 
 fn emulator() -> Running {
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
@@ -338,4 +340,42 @@ fn a_retransmitted_query_is_answered_again_and_a_goto_not_repeated() {
     std::thread::sleep(Duration::from_millis(200));
     let x = emu.positions(1).unwrap()[0];
     assert!((x - 10_005_000.0).abs() < 1.0, "stepped once: {x}");
+}
+
+/// A uMs's lens changer as the optics: a zoom is a lens (the device then reports that
+/// lens to a second client); a zoom no lens has, outside the lenses' range or NaN is
+/// refused naming the lenses; a uMp has no lens changer.
+#[test]
+fn the_lens_changer_sets_a_zoom_by_its_lens_and_refuses_any_other() {
+    let emu = emulator();
+    let l = link(emu.addr());
+    let mut o = LensChanger::open(&l, 21, &[4.0, 10.0]).unwrap();
+    assert_eq!((o.zoom(), o.zoom_range()), (4.0, (4.0, 10.0)));
+    o.set_zoom(10.0).unwrap();
+    assert_eq!(o.zoom(), 10.0);
+    let other = link(emu.addr());
+    assert_eq!(
+        LensChanger::open(&other, 21, &[4.0, 10.0])
+            .unwrap()
+            .read()
+            .unwrap(),
+        2
+    );
+    let e = o.set_zoom(5.0).unwrap_err().to_string();
+    assert!(
+        e.contains("no lens of magnification 5x (lens 1 = 4x, lens 2 = 10x)"),
+        "{e}"
+    );
+    assert!(matches!(o.set_zoom(20.0), Err(HwError::OutOfRange { .. })));
+    assert!(matches!(
+        o.set_zoom(f64::NAN),
+        Err(HwError::NotFinite { .. })
+    ));
+    assert_eq!(o.zoom(), 10.0, "unchanged by a refusal");
+    o.set_zoom(4.0 * (1.0 + 5e-4)).unwrap();
+    assert_eq!(o.zoom(), 4.0);
+    assert!(matches!(
+        LensChanger::open(&l, 1, &[4.0, 10.0]),
+        Err(SensapexError::Refused { device: 1, .. })
+    ));
 }

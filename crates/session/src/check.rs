@@ -4,10 +4,11 @@
 
 use cellinject_config::Description;
 use cellinject_config::rigfile::{CameraDriver, DeviceDriver, PiezoDriver, RigFile};
-use cellinject_gcs_emulator::bench::{Bench, ViewName};
+use cellinject_gcs_emulator::bench::ViewName;
 use cellinject_hw::{Camera, Injector, Optics, PiezoChannel, Stage};
 
-use crate::{Endpoints, SessionError, TwinOptions};
+use crate::drivers::{Drivers, SharedOptics, StageRole};
+use crate::{SessionError, TwinOptions};
 
 /// One device's answer.
 #[derive(Debug, Clone, PartialEq)]
@@ -198,7 +199,6 @@ fn twin(d: &Description, rig: &RigFile) -> Result<Vec<Result<String, String>>, S
 }
 
 fn real(d: &Description, rig: &RigFile) -> Vec<Result<String, String>> {
-    let mut endpoints = Endpoints(Vec::new());
     let piezo = match &rig.piezo {
         PiezoDriver::Gcs { url, axes } => crate::controller(url).and_then(|gcs| {
             let ranges = [0, 1, 2].map(|k| (0.0, d.rig.amplifiers[k].v_max));
@@ -218,51 +218,42 @@ fn real(d: &Description, rig: &RigFile) -> Vec<Result<String, String>> {
         let [a, b, c] = &mut p;
         voltages(&mut [a, b, c])
     });
-    let main = endpoints.first(rig).map_err(|e| e.to_string());
+    let text = |e: SessionError| e.to_string();
+    let mut drivers = Drivers::default();
+    let main = drivers.first(rig).map_err(text);
+    let optics = drivers.optics(&rig.optics).map(SharedOptics::new);
+    let pitch = d.sim.camera.pixel_size;
     let mut camera = |key: &str, driver: &CameraDriver, view: ViewName| match driver {
-        CameraDriver::Bench(a) => endpoints
-            .get(a)
-            .map_err(|e| e.to_string())
+        CameraDriver::Bench(a) => drivers
+            .endpoint(a)
+            .map_err(text)
             .and_then(|b| b.camera(view).map_err(|e| e.to_string()))
             .and_then(|mut c| frame(&mut c)),
         other => main.clone().and_then(|m| {
-            crate::own_camera(key, other, &m, d.sim.camera.pixel_size)
-                .map_err(|e| e.to_string())
+            // Without the optics, a pixel's size is unknown.
+            let size = match &optics {
+                Ok(o) => o.pixel_size(pitch),
+                Err(_) => Box::new(|| f64::NAN),
+            };
+            crate::own_camera(key, other, &m, size)
+                .map_err(text)
                 .and_then(|mut c| frame(c.as_mut()))
         }),
     };
     let top = camera("camera.top", &rig.camera_top, ViewName::Top);
     let side = camera("camera.side", &rig.camera_side, ViewName::Side);
-    let mut bench = |driver: &DeviceDriver| -> Result<Bench, String> {
-        match driver {
-            DeviceDriver::Bench(a) => endpoints.get(a).map_err(|e| e.to_string()),
-            DeviceDriver::Twin => Err("the twin's device on a real bench".into()),
-            DeviceDriver::Sensapex(s) => Err(format!("{} is not a bench endpoint", s.url())),
-        }
-    };
-    let mut links = crate::sensapex::Links::default();
-    let mut stage_of = |driver: &DeviceDriver, feeder: bool| match driver {
-        DeviceDriver::Sensapex(s) => links
-            .stage(s)
-            .map_err(|e| e.to_string())
-            .and_then(|mut s| position(s.as_mut())),
-        other => bench(other)
-            .and_then(|b| if feeder { b.feeder() } else { b.stage() }.map_err(|e| e.to_string()))
-            .and_then(|mut s| position(&mut s)),
-    };
-    let stage = stage_of(&rig.stage_macro, false);
-    let feeder = stage_of(&rig.stage_feeder, true);
-    let injector = match &rig.injector {
-        DeviceDriver::Sensapex(s) => links
-            .injector(s, d.rig.injector_max_pressure)
-            .map_err(|e| e.to_string())
-            .and_then(|i| pressure(i.as_ref())),
-        other => bench(other)
-            .and_then(|b| b.injector().map_err(|e| e.to_string()))
-            .and_then(|i| pressure(&i)),
-    };
-    let optics = bench(&rig.optics)
-        .and_then(|b| b.optics().map_err(|e| e.to_string()))
-        .and_then(|o| zoom(&o));
+    let stage = drivers
+        .stage(&rig.stage_macro, StageRole::Macro)
+        .map_err(text)
+        .and_then(|mut s| position(s.as_mut()));
+    let feeder = drivers
+        .stage(&rig.stage_feeder, StageRole::Feeder)
+        .map_err(text)
+        .and_then(|mut s| position(s.as_mut()));
+    let injector = drivers
+        .injector(&rig.injector, d.rig.injector_max_pressure)
+        .map_err(text)
+        .and_then(|i| pressure(i.as_ref()));
+    let optics = optics.map_err(text).and_then(|o| zoom(&o));
     vec![piezo, top, side, stage, feeder, injector, optics]
 }

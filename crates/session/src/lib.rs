@@ -17,18 +17,20 @@ use std::path::Path;
 use std::time::Duration;
 
 use cellinject_config::Description;
-use cellinject_config::rigfile::{self, CameraDriver, DeviceDriver, PiezoDriver, RigFile};
+use cellinject_config::rigfile::{self, CameraDriver, PiezoDriver, RigFile};
 use cellinject_gcs::Endpoint;
 use cellinject_gcs::devices::{SharedGcs, stacks};
 use cellinject_gcs_emulator::bench::{Bench, ViewName};
-use cellinject_hw::{Camera, Clock, Injector, Optics, PiezoChannel, PositionSensor, Stage};
+use cellinject_hw::{Camera, Clock, Optics, PiezoChannel, PositionSensor};
 use cellinject_model::{ACTUATOR_NAMES, Approach};
 use cellinject_rig::{Devices, DynBackend, Rig};
 use cellinject_twin::{SharedTwin, Twin, TwinParams};
+use drivers::{Drivers, SharedOptics, StageRole};
 use thiserror::Error;
 
 pub mod calibration;
 mod check;
+mod drivers;
 pub mod report;
 pub mod run;
 mod sensapex;
@@ -264,52 +266,6 @@ fn controller(url: &str) -> Result<SharedGcs, SessionError> {
     Ok(std::sync::Arc::new(std::sync::Mutex::new(gcs)))
 }
 
-/// The bench endpoints a rig names, each connected once.
-struct Endpoints(Vec<(String, Bench)>);
-
-impl Endpoints {
-    fn get(&mut self, addr: &str) -> Result<Bench, SessionError> {
-        if let Some((_, b)) = self.0.iter().find(|(a, _)| a == addr) {
-            return Ok(b.clone());
-        }
-        let b = Bench::connect(addr, Duration::from_secs(5))
-            .map_err(|e| device("the bench endpoint", e))?;
-        self.0.push((addr.to_string(), b.clone()));
-        Ok(b)
-    }
-
-    /// The bench endpoint of the first device that has one (the clock and the
-    /// cameras' zoom come from it).
-    fn first(&mut self, rig: &RigFile) -> Result<Bench, SessionError> {
-        let addr = [
-            &rig.stage_macro,
-            &rig.stage_feeder,
-            &rig.injector,
-            &rig.optics,
-        ]
-        .into_iter()
-        .find_map(|d| match d {
-            DeviceDriver::Bench(a) => Some(a.clone()),
-            DeviceDriver::Twin | DeviceDriver::Sensapex(_) => None,
-        })
-        .or_else(|| {
-            [&rig.camera_top, &rig.camera_side]
-                .into_iter()
-                .find_map(|c| match c {
-                    CameraDriver::Bench(a) => Some(a.clone()),
-                    _ => None,
-                })
-        })
-        .ok_or_else(|| {
-            refused(
-                "the rig",
-                "a real bench needs a bench:// endpoint (for its clock and zoom) on one of its devices",
-            )
-        })?;
-        self.get(&addr)
-    }
-}
-
 fn real_devices(
     d: &Description,
     rig: &RigFile,
@@ -322,48 +278,26 @@ fn real_devices(
     let axes = [axes[0].as_str(), axes[1].as_str(), axes[2].as_str()];
     let (piezo, sensors) =
         stacks(&gcs, axes, ACTUATOR_NAMES, ranges, noise).map_err(|e| device(url, e))?;
-    let mut endpoints = Endpoints(Vec::new());
-    let main = endpoints.first(rig)?;
+    let mut drivers = Drivers::default();
+    let main = drivers.first(rig)?;
+    let optics = SharedOptics::new(drivers.optics(&rig.optics)?);
     let pitch = d.sim.camera.pixel_size;
     let mut camera = |key: &str, driver: &CameraDriver, view: ViewName| match driver {
         CameraDriver::Bench(a) => {
-            let b = endpoints.get(a)?;
+            let b = drivers.endpoint(a)?;
             Ok(Box::new(
                 b.camera(view)
                     .map_err(|e| device(format!("bench://{a}"), e))?,
             ) as Box<dyn Camera>)
         }
-        other => own_camera(key, other, &main, pitch),
+        other => own_camera(key, other, &main, optics.pixel_size(pitch)),
     };
     let top = camera("camera.top", &rig.camera_top, ViewName::Top)?;
     let side = camera("camera.side", &rig.camera_side, ViewName::Side)?;
-    let mut sensapex = sensapex::Links::default();
-    let mut bench_of = |driver: &DeviceDriver| match driver {
-        DeviceDriver::Bench(a) => Ok((endpoints.get(a)?, format!("bench://{a}"))),
-        DeviceDriver::Twin | DeviceDriver::Sensapex(_) => Err(refused(
-            "the rig",
-            "the twin's devices exist only with the twin's stacks",
-        )),
-    };
-    let mut stage_of = |driver: &DeviceDriver, feeder: bool| match driver {
-        DeviceDriver::Sensapex(s) => sensapex.stage(s),
-        other => {
-            let (b, n) = bench_of(other)?;
-            let s = if feeder { b.feeder() } else { b.stage() };
-            Ok(Box::new(s.map_err(|e| device(n, e))?) as Box<dyn Stage>)
-        }
-    };
-    let stage = stage_of(&rig.stage_macro, false)?;
-    let feeder = stage_of(&rig.stage_feeder, true)?;
-    let injector = match &rig.injector {
-        DeviceDriver::Sensapex(s) => sensapex.injector(s, d.rig.injector_max_pressure)?,
-        other => {
-            let (b, n) = bench_of(other)?;
-            Box::new(b.injector().map_err(|e| device(n, e))?) as Box<dyn Injector>
-        }
-    };
-    let (b, n) = bench_of(&rig.optics)?;
-    let optics = Box::new(b.optics().map_err(|e| device(n, e))?) as Box<dyn Optics>;
+    let stage = drivers.stage(&rig.stage_macro, StageRole::Macro)?;
+    let feeder = drivers.stage(&rig.stage_feeder, StageRole::Feeder)?;
+    let injector = drivers.injector(&rig.injector, d.rig.injector_max_pressure)?;
+    let optics = Box::new(optics) as Box<dyn Optics>;
     let clock =
         Box::new(main.clock().map_err(|e| device("the bench's clock", e))?) as Box<dyn Clock>;
     Ok(Devices {
@@ -380,16 +314,14 @@ fn real_devices(
 }
 
 /// A camera of its own (not a bench endpoint's): a GenICam camera or a folder of
-/// frames. Its pixels measure the sensor's `pitch` over the bench lens's zoom in the
-/// object plane.
+/// frames, on `bench`'s clock, its pixels measuring `pixel_size()` in the object
+/// plane (the sensor's pitch over the rig's optics' zoom).
 fn own_camera(
     key: &str,
     driver: &CameraDriver,
     bench: &Bench,
-    pitch: f64,
+    pixel_size: Box<dyn Fn() -> f64 + Send>,
 ) -> Result<Box<dyn Camera>, SessionError> {
-    let lens = bench.clone();
-    let pixel_size = Box::new(move || lens.zoom().map_or(f64::NAN, |z| pitch / z));
     match driver {
         CameraDriver::Aravis(id) => {
             let clock = bench.clock().map_err(|e| {

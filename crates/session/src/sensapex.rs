@@ -1,5 +1,5 @@
 //! The Sensapex devices a rig names (`sensapex://`, `sensapex-ums://`,
-//! `sensapex-pressure://`): one SMCP1 link per address and group, shared by its
+//! `sensapex-pressure://`, and a uMs's lens changer as the optics): one SMCP1 link per address and group, shared by its
 //! devices, and each device asked one question when it is opened, so that a device
 //! that does not answer is found before anything moves (within the link's three
 //! sends, 0.6 s).
@@ -8,8 +8,8 @@ use std::net::IpAddr;
 use std::sync::{Arc, Mutex};
 
 use cellinject_config::rigfile::{SensapexDevice, SensapexKind};
-use cellinject_hw::{Injector, Stage};
-use cellinject_sensapex::{Link, Model, Positioner, PressureChannel, SharedLink};
+use cellinject_hw::{Injector, Optics, Stage};
+use cellinject_sensapex::{LensChanger, Link, Model, Positioner, PressureChannel, SharedLink};
 
 use crate::{SessionError, device};
 
@@ -59,5 +59,18 @@ impl Links {
         let c =
             PressureChannel::open(&link, s.dev, channel, max).map_err(|e| device(s.url(), e))?;
         Ok(Box::new(c))
+    }
+
+    /// A uMs's lens changer as the optics (its lenses' magnifications from the rig).
+    pub(crate) fn optics(&mut self, s: &SensapexDevice) -> Result<Box<dyn Optics>, SessionError> {
+        if s.kind != SensapexKind::Stage {
+            return Err(crate::refused(
+                "the rig",
+                format!("{}: only a uMs has a lens changer", s.url()),
+            ));
+        }
+        let link = self.link(s)?;
+        let l = LensChanger::open(&link, s.dev, &s.lenses).map_err(|e| device(s.url(), e))?;
+        Ok(Box::new(l))
     }
 }

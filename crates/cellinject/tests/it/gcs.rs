@@ -214,8 +214,9 @@ fn calibrations_and_experiments_over_gcs_match_the_twin() {
 /// The injection workflow on an emulator with the plate: the same cells injected as on
 /// the twin (a blocked doublet may go either way with the survey's noise), every
 /// injected cell alive with its dose, each once. Its bench named by a rig file with
-/// no bench endpoint for the stages or the injector: the macro stage, the feeder and
-/// the injector are Sensapex devices over SMCP1 (`emulate gcs --sensapex`; the
+/// no bench endpoint for the stages, the injector or the optics: the macro stage, the
+/// feeder, the injector and the objectives (a uMs's lens changer) are Sensapex
+/// devices over SMCP1 (`emulate gcs --sensapex`; the
 /// calibrations of the test above take the shorthands, every device on the bench
 /// endpoint), reached through a relay that can silence the manipulator: silenced once
 /// the run is under way, it stops the run (exit 1, recorded `stopped` naming the
@@ -252,6 +253,11 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     let devices = check["devices"].as_array().unwrap();
     assert_eq!(devices.len(), 7, "{check}");
     assert!(devices.iter().all(|x| x["answers"] == true), "{check}");
+    // The emulated uMs starts at lens 1.
+    assert_eq!(
+        devices[6]["detail"], "zoom 2.50x (range 2.5x to 10x)",
+        "{check}"
+    );
     // The manipulator falls silent once the run is under way.
     let mut child = common::cmd(&d)
         .args(injection("g.sqlite", &["--rig", "bench.toml"]))
@@ -272,6 +278,8 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
         show["run"]["stopped"].as_str().unwrap().contains(&named),
         "{show}"
     );
+    let a3 = a3_volts(&emu.gcs);
+    assert!(a3.abs() < 0.05, "A3 withdrawn: {a3} V; {stderr}");
     // Answering again: the run resumes and finishes the plate.
     relay.silence(false);
     let o = run(
@@ -447,29 +455,35 @@ fn with_sensapex(d: &Path) -> (Emulator, u16) {
     panic!("no free Sensapex group (UDP 55555..55565)");
 }
 
-/// `rig` with the stages and the injector on the Sensapex devices of `group`.
+/// `rig` with the stages, the injector and the optics on the Sensapex devices of
+/// `group` (the optics the uMs's lens changer: lens 1 the twin's lowest zoom, lens 2
+/// its highest).
 fn sensapex_rig(rig: &str, bench: &str, group: u16) -> String {
     let mut rig = rig.to_string();
     for (section, driver) in [
         (
             "stage.macro",
-            format!("sensapex://127.0.0.1?dev=1&group={group}"),
+            format!("\"sensapex://127.0.0.1?dev=1&group={group}\""),
         ),
         (
             "stage.feeder",
-            format!("sensapex-ums://127.0.0.1?dev=21&group={group}"),
+            format!("\"sensapex-ums://127.0.0.1?dev=21&group={group}\""),
         ),
         (
             "injector",
-            format!("sensapex-pressure://127.0.0.1?dev=31&channel=1&group={group}"),
+            format!("\"sensapex-pressure://127.0.0.1?dev=31&channel=1&group={group}\""),
+        ),
+        (
+            "optics",
+            format!("\"sensapex-ums://127.0.0.1?dev=21&group={group}\"\nlenses = [2.5, 10.0]"),
         ),
     ] {
         rig = rig.replace(
             &format!("[{section}]\ndriver = \"bench://{bench}\""),
-            &format!("[{section}]\ndriver = \"{driver}\""),
+            &format!("[{section}]\ndriver = {driver}"),
         );
     }
-    assert_eq!(rig.matches("sensapex").count(), 3, "{rig}");
+    assert_eq!(rig.matches("sensapex").count(), 4, "{rig}");
     rig
 }
 
@@ -605,23 +619,26 @@ fn a_link_cut_mid_run_stops_in_the_safe_state_with_the_reason_recorded() {
     assert!(why.contains(&p.addr), "the reason names the link: {why}");
     // The link came back (the proxy carries new connections): the stacks were
     // stopped and the pipette withdrawn.
-    let mut g = TcpStream::connect(&emu.gcs).unwrap();
-    g.set_read_timeout(Some(Duration::from_secs(3))).unwrap();
-    g.write_all(b"SVA? 1 2 3\n").unwrap();
-    let mut got = String::new();
-    let mut r = BufReader::new(g);
-    for _ in 0..3 {
-        r.read_line(&mut got).unwrap();
-    }
-    let v: Vec<f64> = got
-        .lines()
-        .map(|l| l.trim().split('=').nth(1).unwrap().parse().unwrap())
-        .collect();
-    // A3 at 0 V within 0.05 V (a nanometre of its 60 um stroke): the pipette is out.
+    let a3 = a3_volts(&emu.gcs);
     assert!(
-        v[2].abs() < 0.05,
-        "A3 withdrawn: {got:?}; run: {why}; stderr: {stderr}"
+        a3.abs() < 0.05,
+        "A3 withdrawn: {a3} V; run: {why}; stderr: {stderr}"
     );
+}
+
+/// A3's commanded voltage (`SVA? 3`) on the controller at `gcs`: at 0 V within
+/// 0.05 V (a nanometre of its 60 um stroke), the pipette is out.
+fn a3_volts(gcs: &str) -> f64 {
+    let mut g = TcpStream::connect(gcs).unwrap();
+    g.set_read_timeout(Some(Duration::from_secs(3))).unwrap();
+    g.write_all(b"SVA? 3\n").unwrap();
+    let mut got = String::new();
+    BufReader::new(g).read_line(&mut got).unwrap();
+    got.trim()
+        .split('=')
+        .nth(1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("SVA? 3 answered {got:?}"))
 }
 
 #[test]
