@@ -2,7 +2,8 @@
 //!
 //! It builds the wheel of `python/` with maturin once (the `dev` profile by default,
 //! whose dependencies `cargo test` has just built; `CELLINJECT_WHEEL_PROFILE=release`
-//! for the optimised one), installs it into the Python environment of
+//! for the optimised one), or takes the one `CELLINJECT_WHEEL` names (`.ci/run` builds
+//! it in a phase of its own, before the tests), installs it into the Python environment of
 //! `CELLINJECT_PYTHON` (default `python3`) with pip, and runs pytest there with this
 //! crate's `cellinject` binary (`CELLINJECT_BIN`) to compare against. The environment
 //! needs maturin, numpy and pytest; `.ci/run` makes one and sets
@@ -62,20 +63,34 @@ fn the_python_package_builds_installs_and_passes_its_pytest_suite() {
     };
     let root = root();
     let wheels = std::env::temp_dir().join(format!("cellinject-wheel-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&wheels);
-    let profile = std::env::var("CELLINJECT_WHEEL_PROFILE").unwrap_or_else(|_| "dev".into());
-    run(
-        Command::new(&py)
-            .args(["-m", "maturin", "build", "--profile", &profile, "--out"])
-            .arg(&wheels)
-            .current_dir(root.join("python")),
-        "maturin build",
-    );
-    let wheel = std::fs::read_dir(&wheels)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.extension().is_some_and(|e| e == "whl"))
-        .expect("maturin wrote no wheel");
+    let wheel = match std::env::var_os("CELLINJECT_WHEEL") {
+        Some(w) => {
+            let w = PathBuf::from(w);
+            assert!(
+                w.is_file(),
+                "CELLINJECT_WHEEL={}: no such wheel",
+                w.display()
+            );
+            w
+        }
+        None => {
+            let _ = std::fs::remove_dir_all(&wheels);
+            let profile =
+                std::env::var("CELLINJECT_WHEEL_PROFILE").unwrap_or_else(|_| "dev".into());
+            run(
+                Command::new(&py)
+                    .args(["-m", "maturin", "build", "--profile", &profile, "--out"])
+                    .arg(&wheels)
+                    .current_dir(root.join("python")),
+                "maturin build",
+            );
+            std::fs::read_dir(&wheels)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .find(|p| p.extension().is_some_and(|e| e == "whl"))
+                .expect("maturin wrote no wheel")
+        }
+    };
     run(
         Command::new(&py)
             .args([
