@@ -93,7 +93,14 @@ fn pressure(i: &dyn Injector) -> Result<String, String> {
 
 fn zoom(o: &dyn Optics) -> Result<String, String> {
     let (lo, hi) = o.zoom_range();
-    Ok(format!("zoom {:.2}x (range {lo}x to {hi}x)", o.zoom()))
+    let z = o.zoom();
+    // A lens changer at its empty centre has no zoom until a lens is turned in.
+    let now = if z.is_finite() {
+        format!("zoom {z:.2}x")
+    } else {
+        "no lens in place".to_string()
+    };
+    Ok(format!("{now} (range {lo}x to {hi}x)"))
 }
 
 /// Asks each device of `rig` whether it answers, in the rig file's order. A rig
@@ -256,4 +263,37 @@ fn real(d: &Description, rig: &RigFile) -> Vec<Result<String, String>> {
         .and_then(|i| pressure(i.as_ref()));
     let optics = optics.map_err(text).and_then(|o| zoom(&o));
     vec![piezo, top, side, stage, feeder, injector, optics]
+}
+
+#[cfg(test)]
+mod tests {
+    use cellinject_hw::{HwError, Optics};
+
+    struct Lens(f64);
+
+    impl Optics for Lens {
+        fn zoom(&self) -> f64 {
+            self.0
+        }
+        fn zoom_range(&self) -> (f64, f64) {
+            (4.0, 10.0)
+        }
+        fn set_zoom(&mut self, _: f64) -> Result<(), HwError> {
+            Ok(())
+        }
+    }
+
+    /// The optics' line: the zoom in place, or none when a lens changer sits at its
+    /// empty centre (its zoom is NaN), with the range either way.
+    #[test]
+    fn the_optics_line_says_the_zoom_or_that_no_lens_is_in_place() {
+        assert_eq!(
+            super::zoom(&Lens(4.0)).unwrap(),
+            "zoom 4.00x (range 4x to 10x)"
+        );
+        assert_eq!(
+            super::zoom(&Lens(f64::NAN)).unwrap(),
+            "no lens in place (range 4x to 10x)"
+        );
+    }
 }
