@@ -83,6 +83,20 @@ impl<'a> Corrections<'a> {
     /// The rounding tables are made now, in parallel; the interpolation error's
     /// when a match first needs them.
     pub fn new(reference: &'a Reference, degree: Degree, quantisation_step: f64) -> Self {
+        Self::with_rounding(
+            reference,
+            degree,
+            rounding_tables(reference, quantisation_step),
+        )
+    }
+
+    /// [`Corrections::new`] with the rounding tables already made
+    /// ([`rounding_tables`] of the same reference).
+    pub(crate) fn with_rounding(
+        reference: &'a Reference,
+        degree: Degree,
+        rounding: Vec<Vec<f32>>,
+    ) -> Self {
         let img = reference.image();
         let slots = |lines: usize| {
             (1..PHASES)
@@ -92,20 +106,6 @@ impl<'a> Corrections<'a> {
                         .collect()
                 })
                 .collect()
-        };
-        let rounding = if quantisation_step > 0.0 {
-            icgn::ROUNDING_PHASES[1..]
-                .par_iter()
-                .map(|&a| {
-                    pulp::Arch::new().dispatch(RoundingTable {
-                        reference,
-                        phase: a,
-                        step: quantisation_step,
-                    })
-                })
-                .collect()
-        } else {
-            Vec::new()
         };
         Corrections {
             reference,
@@ -306,6 +306,25 @@ fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
         }
     }
     out
+}
+
+/// The rounding tables of `reference` for a current image quantised to
+/// `quantisation_step` grey levels, one per phase of `ROUNDING_PHASES[1..]`, in
+/// parallel (empty when the step is 0: not quantised).
+pub(crate) fn rounding_tables(reference: &Reference, quantisation_step: f64) -> Vec<Vec<f32>> {
+    if quantisation_step <= 0.0 {
+        return Vec::new();
+    }
+    icgn::ROUNDING_PHASES[1..]
+        .par_iter()
+        .map(|&a| {
+            pulp::Arch::new().dispatch(RoundingTable {
+                reference,
+                phase: a,
+                step: quantisation_step,
+            })
+        })
+        .collect()
 }
 
 /// [`rounding_table`] compiled for the machine's vector units.

@@ -532,19 +532,21 @@ pub fn field_with_progress(
         pc,
         floor,
         step: q,
+        rounding,
     } = crate::Prepared::new(
         reference,
         current,
         opts.search_radius,
         opts.prefilter,
         opts.spline,
+        opts.icgn.quantisation_step,
     );
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
         quantisation_step: opts.icgn.quantisation_step.max(q),
         ..opts.icgn
     };
-    let corrections = Corrections::new(&r, opts.spline, icgn_opts.quantisation_step);
+    let corrections = Corrections::with_rounding(&r, opts.spline, rounding);
     let job = TileJob {
         r: &r,
         s: &s,

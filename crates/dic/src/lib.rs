@@ -163,7 +163,8 @@ impl Default for PointOptions {
 }
 
 /// A pair of images made ready for correlation: the reference with its gradients, the
-/// current image's spline, and both pyramids for the integer search.
+/// current image's spline, both pyramids for the integer search, and the rounding
+/// tables of the corrections ([`correction::Corrections`]).
 pub(crate) struct Prepared {
     pub(crate) r: Reference,
     pub(crate) s: BSpline,
@@ -176,18 +177,24 @@ pub(crate) struct Prepared {
     /// prefiltered ([`IcgnOptions::quantisation_step`]: the rounding is simulated on
     /// unfiltered data only).
     pub(crate) step: f64,
+    /// The rounding tables at the larger of `step` and the caller's own step
+    /// ([`correction::rounding_tables`]).
+    pub(crate) rounding: Vec<Vec<f32>>,
 }
 
 impl Prepared {
     /// Pyramid depth: enough levels that a `search_radius` jump is ~8 px at the top.
     /// A `prefilter` sigma > 0 low-passes both images first (against aliasing of
-    /// undersampled speckles, at the cost of some noise averaging).
+    /// undersampled speckles, at the cost of some noise averaging). The rounding
+    /// tables are made for the larger of the current image's quantisation step and
+    /// `min_step` (the caller's [`IcgnOptions::quantisation_step`]).
     pub(crate) fn new(
         reference: &Image,
         current: &Image,
         search_radius: usize,
         prefilter: f64,
         spline: Degree,
+        min_step: f64,
     ) -> Self {
         let (qr, qc) = rayon::join(
             || image::quantisation_variance(reference),
@@ -205,21 +212,30 @@ impl Prepared {
                 current.gaussian_blur(prefilter),
             )
         });
-        let (reference, current) = match blurred {
-            Some((r, c)) => (r, std::borrow::Cow::Owned(c)),
-            None => (reference.clone(), std::borrow::Cow::Borrowed(current)),
+        let (reference, current) = match &blurred {
+            Some((r, c)) => (r, c),
+            None => (reference, current),
         };
         let levels = (search_radius as f64 / 8.0).log2().ceil().clamp(0.0, 5.0) as usize;
-        // The two images' splines and pyramids side by side.
-        let ((pr, r), (pc, s)) = rayon::join(
+        let table_step = step.max(min_step);
+        // The reference's spline and then its rounding tables beside the current
+        // image's spline and both pyramids: the tables need only the reference's
+        // spline, and rayon hands their phases to whichever thread is free.
+        let ((r, rounding), ((pr, pc), s)) = rayon::join(
             || {
-                let pr = search::pyramid(&reference, levels);
-                (pr, Reference::with_degree(reference, spline))
+                let r = Reference::with_degree(reference.clone(), spline);
+                let rounding = correction::rounding_tables(&r, table_step);
+                (r, rounding)
             },
             || {
-                (
-                    search::pyramid(&current, levels),
-                    BSpline::with_degree(&current, spline),
+                rayon::join(
+                    || {
+                        rayon::join(
+                            || search::pyramid(reference, levels),
+                            || search::pyramid(current, levels),
+                        )
+                    },
+                    || BSpline::with_degree(current, spline),
                 )
             },
         );
@@ -230,6 +246,7 @@ impl Prepared {
             r,
             floor,
             step,
+            rounding,
         }
     }
 }
@@ -278,19 +295,21 @@ pub fn correlate_points(
         pc,
         floor,
         step,
+        rounding,
     } = Prepared::new(
         reference,
         current,
         opts.search_radius,
         opts.prefilter,
         opts.spline,
+        opts.icgn.quantisation_step,
     );
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
         quantisation_step: opts.icgn.quantisation_step.max(step),
         ..opts.icgn
     };
-    let corrections = correction::Corrections::new(&r, opts.spline, icgn_opts.quantisation_step);
+    let corrections = correction::Corrections::with_rounding(&r, opts.spline, rounding);
     Ok(points
         .par_iter()
         .map_init(icgn::Scratch::default, |scratch, &(x, y)| {
