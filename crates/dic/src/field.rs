@@ -229,24 +229,24 @@ fn inconsistent(points: &[Option<PointResult>], nx: usize, ny: usize) -> Vec<usi
         points[j as usize * nx + i as usize]
     };
     const PAIRS: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
-    let mut out = Vec::new();
-    for (k, p) in points.iter().enumerate() {
-        let Some(p) = p else { continue };
+    // Each point on its own (in parallel, in grid order).
+    let outlier = |k: usize| -> bool {
+        let Some(p) = points[k] else { return false };
         let (gx, gy) = (k % nx, k / nx);
         // In the grid at all, and none of them kept (a grid of one point has no
         // neighbour to ask).
-        let around: Vec<(i64, i64)> = (-1..=1)
-            .flat_map(|dj| (-1..=1).map(move |di| (di, dj)))
-            .filter(|&(di, dj)| {
+        let (mut in_grid, mut kept) = (0, 0);
+        for dj in -1..=1 {
+            for di in -1..=1 {
                 let (i, j) = (gx as i64 + di, gy as i64 + dj);
-                (di, dj) != (0, 0) && i >= 0 && j >= 0 && i < nx as i64 && j < ny as i64
-            })
-            .collect();
-        let alone =
-            !around.is_empty() && around.iter().all(|&(di, dj)| at(gx, gy, di, dj).is_none());
-        if alone {
-            out.push(k);
-            continue;
+                if (di, dj) != (0, 0) && i >= 0 && j >= 0 && i < nx as i64 && j < ny as i64 {
+                    in_grid += 1;
+                    kept += usize::from(at(gx, gy, di, dj).is_some());
+                }
+            }
+        }
+        if in_grid > 0 && kept == 0 {
+            return true;
         }
         let (mut us, mut vs, mut sus, mut svs) = (vec![], vec![], vec![], vec![]);
         for (di, dj) in PAIRS {
@@ -258,7 +258,7 @@ fn inconsistent(points: &[Option<PointResult>], nx: usize, ny: usize) -> Vec<usi
             }
         }
         if us.is_empty() {
-            continue;
+            return false;
         }
         let test = |own: f64, sigma: f64, values: &mut Vec<f64>, sigmas: &mut Vec<f64>| {
             let m = median(values);
@@ -267,11 +267,12 @@ fn inconsistent(points: &[Option<PointResult>], nx: usize, ny: usize) -> Vec<usi
             let eps = sigma.hypot(median(sigmas));
             (own - m).abs() > MEDIAN_TEST_THRESHOLD * (r + eps)
         };
-        if test(p.u, p.sigma_u, &mut us, &mut sus) || test(p.v, p.sigma_v, &mut vs, &mut svs) {
-            out.push(k);
-        }
-    }
-    out
+        test(p.u, p.sigma_u, &mut us, &mut sus) || test(p.v, p.sigma_v, &mut vs, &mut svs)
+    };
+    (0..points.len())
+        .into_par_iter()
+        .filter(|&k| outlier(k))
+        .collect()
 }
 
 /// One tile's propagation: what is kept, the starting guesses, what was dropped and

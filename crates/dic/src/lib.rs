@@ -196,39 +196,41 @@ impl Prepared {
         spline: Degree,
         min_step: f64,
     ) -> Self {
-        let (qr, qc) = rayon::join(
-            || image::quantisation_variance(reference),
-            || image::quantisation_variance(current),
-        );
-        let step = if prefilter > 0.0 {
-            0.0
-        } else {
-            (12.0 * qc).sqrt()
-        };
-        let floor = (qr + qc) * image::blur_noise_gain(prefilter);
         let blurred = (prefilter > 0.0).then(|| {
             (
                 reference.gaussian_blur(prefilter),
                 current.gaussian_blur(prefilter),
             )
         });
+        // The rounding noise of the images as given (before any prefilter).
+        let (given_r, given_c) = (reference, current);
         let (reference, current) = match &blurred {
             Some((r, c)) => (r, c),
             None => (reference, current),
         };
         let levels = (search_radius as f64 / 8.0).log2().ceil().clamp(0.0, 5.0) as usize;
-        let table_step = step.max(min_step);
-        // The reference's spline and then its rounding tables beside the current
+        // The current image's quantisation step and the reference's spline, then the
+        // rounding tables, beside the reference's quantisation noise, the current
         // image's spline and both pyramids: the tables need only the reference's
-        // spline, and rayon hands their phases to whichever thread is free.
-        let ((r, rounding), ((pr, pc), s)) = rayon::join(
+        // spline and the step, and rayon hands their phases to whichever thread is
+        // free.
+        let step_of = |qc: f64| {
+            if prefilter > 0.0 {
+                0.0
+            } else {
+                (12.0 * qc).sqrt()
+            }
+        };
+        let ((qc, r, rounding), (qr, ((pr, pc), s))) = rayon::join(
             || {
+                let qc = image::quantisation_variance(given_c);
                 let r = Reference::with_degree(reference.clone(), spline);
-                let rounding = correction::rounding_tables(&r, table_step);
-                (r, rounding)
+                let rounding = correction::rounding_tables(&r, step_of(qc).max(min_step));
+                (qc, r, rounding)
             },
             || {
-                rayon::join(
+                let qr = image::quantisation_variance(given_r);
+                let rest = rayon::join(
                     || {
                         rayon::join(
                             || search::pyramid(reference, levels),
@@ -236,9 +238,12 @@ impl Prepared {
                         )
                     },
                     || BSpline::with_degree(current, spline),
-                )
+                );
+                (qr, rest)
             },
         );
+        let step = step_of(qc);
+        let floor = (qr + qc) * image::blur_noise_gain(prefilter);
         Prepared {
             pr,
             pc,
