@@ -39,7 +39,7 @@ for _ in $(seq "$rounds"); do
     for side in base new; do
       bin=$base; [ "$side" = new ] && bin=$new
       summary=$("$bin" dic field --reference "$work/ref_$s.png" --current "$work/cur_$s.png" \
-        --step "$step" --subset 33 --threads 2 --out "$out/$side.csv")
+        --step "$step" --subset 33 --threads 2 --force --out "$out/$side.csv")
       pps=$(printf '%s\n' "$summary" | sed -n 's/.*(\([0-9.]*\) points\/s).*/\1/p' | head -1)
       [ -n "$pps" ] || { echo "dic_pair.sh: no points/s in $bin's summary: $summary" >&2; exit 1; }
       echo "$side $pps"

@@ -30,7 +30,7 @@ for s in 0.1 0.25 0.5; do
   ref="$work/ref_$s.png"; cur="$work/cur_$s.png"
   "$bin" dic synth --size 512,512 --shift "$s,0" --noise 2 --seed 7 --reference "$ref" --current "$cur" >/dev/null
   # cellinject
-  out=$("$bin" dic field --reference "$ref" --current "$cur" --step "$step" --subset 33 --threads 2 --out "$work/ci_$s.csv")
+  out=$("$bin" dic field --reference "$ref" --current "$cur" --step "$step" --subset 33 --threads 2 --force --out "$work/ci_$s.csv")
   pps=$(printf '%s\n' "$out" | sed -n 's/.*(\([0-9.]*\) points\/s).*/\1/p' | head -1)
   python3 - "$work/ci_$s.csv" "$s" "$pps" <<'PY'
 import csv, sys, statistics

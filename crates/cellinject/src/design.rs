@@ -487,5 +487,6 @@ fn write_front(
         staged.add(&files.front_svg, svg.as_bytes())?;
         staged.add(&files.front_png, &encode_rgb(rgb, &files.front_png)?)?;
     }
-    Ok(staged.commit()?)
+    staged.commit()?;
+    Ok(())
 }

@@ -58,6 +58,10 @@ struct Cli {
     #[arg(long, global = true, value_name = "FILE")]
     config: Option<PathBuf>,
 
+    /// Replace output files in the way without keeping them. Default: a file whose contents would change is kept beside it as FILE.~N~ (N one more than the highest there), and the command says so on standard error.
+    #[arg(long, global = true)]
+    force: bool,
+
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -358,7 +362,18 @@ fn main() -> ExitCode {
             return ExitCode::from(if e.use_stderr() { 2 } else { 0 });
         }
     };
-    match run(cli) {
+    cellinject_files::replace_existing(cli.force);
+    let result = run(cli);
+    // Files an output took the place of (their previous versions kept): said once the
+    // command is done, on standard error (standard output stays the command's own).
+    for k in cellinject_files::take_kept() {
+        eprintln!(
+            "note: `{}` was in the way: its previous version is kept as `{}` (--force replaces without keeping)",
+            k.file.display(),
+            k.kept_as.display()
+        );
+    }
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");

@@ -8,7 +8,9 @@
 //! own extensions; an image's format follows its extension; a file output's directory
 //! must exist and be writable before the work starts; a command that fails leaves no
 //! half-set of outputs behind (every file is staged as a temporary beside its target and
-//! all are renamed only once all are written).
+//! all are renamed only once all are written); a file an output takes the place of is
+//! kept beside it as `NAME.~N~` when its contents would change, unless the front end
+//! asked to replace without keeping ([`replace_existing`], the binary's `--force`).
 //!
 //! **Architecture invariant:** the only place a command's outputs are written; errors
 //! say whether the user can fix them ([`FilesError::is_input`]).
@@ -16,6 +18,123 @@
 use std::fs;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Whether outputs replace the files in their way without keeping them.
+static REPLACE: AtomicBool = AtomicBool::new(false);
+/// The files kept so far ([`take_kept`] drains it).
+static KEPT: Mutex<Vec<Kept>> = Mutex::new(Vec::new());
+
+/// A file an output took the place of, kept beside it under a name that starts with
+/// its own.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Kept {
+    /// The file the output was written to.
+    pub file: PathBuf,
+    /// Where its previous contents are now: `file` + `.~N~`, N one more than the
+    /// highest already there.
+    pub kept_as: PathBuf,
+}
+
+/// Sets what outputs do to an existing file whose contents they would change: `false`
+/// (the default) keeps it beside as `NAME.~N~` ([`Kept`]); `true` replaces it without
+/// keeping it (the user asked: `--force`). A file with the same bytes is left as it is
+/// either way (nothing would be lost).
+pub fn replace_existing(replace: bool) {
+    REPLACE.store(replace, Ordering::SeqCst);
+}
+
+/// The files kept beside their outputs since the last call, in the order written (a
+/// front end says so once its command is done).
+pub fn take_kept() -> Vec<Kept> {
+    std::mem::take(&mut *KEPT.lock().unwrap_or_else(|e| e.into_inner()))
+}
+
+/// `path`'s numbered backup name with the number `n`: `NAME.~n~` beside it.
+fn numbered(path: &Path, n: u32) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".~{n}~"));
+    path.with_file_name(name)
+}
+
+/// The highest N of the `NAME.~N~` beside `path` (0 when there is none).
+fn highest_kept(path: &Path) -> u32 {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return 0;
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let prefix = format!("{}.~", name.to_string_lossy());
+    let Ok(entries) = fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .filter_map(|e| {
+            let n = e.ok()?.file_name().to_string_lossy().into_owned();
+            n.strip_prefix(&prefix)?
+                .strip_suffix('~')?
+                .parse::<u32>()
+                .ok()
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+/// Whether the files `a` and `b` hold the same bytes (a missing one holds none).
+fn same_bytes(a: &Path, b: &Path) -> bool {
+    match (fs::metadata(a), fs::metadata(b)) {
+        (Ok(x), Ok(y)) if x.len() == y.len() => {
+            matches!((fs::read(a), fs::read(b)), (Ok(x), Ok(y)) if x == y)
+        }
+        _ => false,
+    }
+}
+
+/// Keeps the file at `path` beside it as `NAME.~N~` (a hard link, else a copy) when
+/// `staged` would change its contents; the name it is kept under, if it was.
+fn keep_previous(path: &Path, staged: &Path) -> Result<Option<PathBuf>> {
+    match fs::symlink_metadata(path) {
+        Ok(m) if m.is_file() || m.file_type().is_symlink() => {}
+        _ => return Ok(None),
+    }
+    if same_bytes(path, staged) {
+        return Ok(None);
+    }
+    let mut n = highest_kept(path) + 1;
+    loop {
+        let to = numbered(path, n);
+        let made = match fs::hard_link(path, &to) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                n += 1;
+                continue;
+            }
+            // A file system without hard links: a copy (`create_new` keeps another
+            // writer's backup of the same number).
+            Err(_) => fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&to)
+                .and_then(|mut f| {
+                    let bytes = fs::read(path)?;
+                    f.write_all(&bytes)?;
+                    f.sync_all()
+                }),
+        };
+        return match made {
+            Ok(()) => Ok(Some(to)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                n += 1;
+                continue;
+            }
+            Err(source) => Err(FilesError::Write { path: to, source }),
+        };
+    }
+}
 
 /// Why a file could not be planned, written or encoded.
 #[derive(Debug, thiserror::Error)]
@@ -321,21 +440,52 @@ impl Staged {
         Ok(())
     }
 
-    /// Renames every temporary onto its target.
-    pub fn commit(mut self) -> Result<()> {
+    /// Renames every temporary onto its target. A target that exists and would change
+    /// is kept beside it first ([`Kept`], unless [`replace_existing`] says otherwise);
+    /// returns what was kept.
+    pub fn commit(mut self) -> Result<Vec<Kept>> {
         let files = std::mem::take(&mut self.files);
+        let replace = REPLACE.load(Ordering::SeqCst);
+        let mut kept = Vec::new();
         for (i, (tmp, path)) in files.iter().enumerate() {
-            if let Err(e) = fs::rename(tmp, path) {
-                for (t, _) in &files[i..] {
-                    let _ = fs::remove_file(t);
-                }
-                return Err(FilesError::Write {
+            let keep = if replace {
+                Ok(None)
+            } else {
+                keep_previous(path, tmp)
+            };
+            let renamed = keep.and_then(|k| {
+                fs::rename(tmp, path).map_err(|e| FilesError::Write {
                     path: path.to_path_buf(),
                     source: e,
-                });
+                })?;
+                Ok(k)
+            });
+            match renamed {
+                Ok(Some(to)) => kept.push(Kept {
+                    file: path.to_path_buf(),
+                    kept_as: to,
+                }),
+                Ok(None) => {}
+                Err(e) => {
+                    for (t, _) in &files[i..] {
+                        let _ = fs::remove_file(t);
+                    }
+                    record(&kept);
+                    return Err(e);
+                }
             }
         }
-        Ok(())
+        record(&kept);
+        Ok(kept)
+    }
+}
+
+/// Adds `kept` to what [`take_kept`] returns.
+fn record(kept: &[Kept]) {
+    if !kept.is_empty() {
+        KEPT.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .extend_from_slice(kept);
     }
 }
 
@@ -351,7 +501,7 @@ impl Drop for Staged {
 pub fn write_one(path: &Path, bytes: &[u8]) -> Result<()> {
     let mut s = Staged::new();
     s.add(path, bytes)?;
-    s.commit()
+    s.commit().map(|_| ())
 }
 
 /// Encodes an image in the format its path's extension names (PNG or TIFF).
@@ -390,7 +540,7 @@ pub fn write_with_plots(
     staged.add(&files[0], main)?;
     staged.add(&files[1], svg.as_bytes())?;
     staged.add(&files[2], &encode_rgb(rgb, &files[2])?)?;
-    staged.commit()
+    staged.commit().map(|_| ())
 }
 
 /// `charts` in so many `columns`, 720 x 480 each, as SVG and as an RGB image.
@@ -594,9 +744,53 @@ mod tests {
         assert_eq!(fs::read_dir(&d).unwrap().count(), 1);
         let mut s = Staged::new();
         s.add(&a, b"new").unwrap();
-        s.commit().unwrap();
+        let kept = s.commit().unwrap();
         assert_eq!(fs::read(&a).unwrap(), b"new");
-        assert_eq!(fs::read_dir(&d).unwrap().count(), 1);
+        // The previous contents kept beside it, under a name that starts with its own.
+        let first = d.join("a.csv.~1~");
+        assert_eq!(
+            kept,
+            vec![Kept {
+                file: a.clone(),
+                kept_as: first.clone()
+            }]
+        );
+        assert_eq!(fs::read(&first).unwrap(), b"old");
+        assert_eq!(fs::read_dir(&d).unwrap().count(), 2);
+        fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_file_in_the_way_is_kept_under_the_next_number_unless_nothing_would_change() {
+        let d = dir("kept");
+        let a = d.join("plate.toml");
+        let write = |bytes: &[u8]| {
+            let mut s = Staged::new();
+            s.add(&a, bytes).unwrap();
+            s.commit().unwrap()
+        };
+        // No file in the way: nothing kept.
+        assert!(write(b"one").is_empty());
+        // The same bytes again: nothing would be lost, nothing kept.
+        assert!(write(b"one").is_empty());
+        // Other bytes: the previous version kept as .~1~, then .~2~; a gap or a
+        // stranger's name does not confuse the numbering (the next is one more than the
+        // highest).
+        assert_eq!(write(b"two")[0].kept_as, d.join("plate.toml.~1~"));
+        fs::write(d.join("plate.toml.~7~"), b"older").unwrap();
+        fs::write(d.join("plate.toml.~x~"), b"not a number").unwrap();
+        fs::write(d.join("other.toml.~9~"), b"another file's").unwrap();
+        assert_eq!(write(b"three")[0].kept_as, d.join("plate.toml.~8~"));
+        assert_eq!(fs::read(&a).unwrap(), b"three");
+        assert_eq!(fs::read(d.join("plate.toml.~1~")).unwrap(), b"one");
+        assert_eq!(fs::read(d.join("plate.toml.~8~")).unwrap(), b"two");
+        assert_eq!(fs::read(d.join("plate.toml.~7~")).unwrap(), b"older");
+        // What was kept is also there for the front end to say.
+        let said = take_kept();
+        assert!(
+            said.iter().any(|k| k.kept_as == d.join("plate.toml.~8~")),
+            "{said:?}"
+        );
         fs::remove_dir_all(&d).unwrap();
     }
 }

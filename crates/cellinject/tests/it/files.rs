@@ -638,3 +638,138 @@ fn hysteresis_identify_fit_invert_round_trip_and_refusals() {
     assert!(err(&o).contains("at least 100"), "{}", err(&o));
     let _ = fs::remove_dir_all(&d);
 }
+
+/// The files under `d`, recursively, sorted (paths relative to `d`).
+fn tree(d: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut todo = vec![d.to_path_buf()];
+    while let Some(p) = todo.pop() {
+        for e in fs::read_dir(&p).unwrap() {
+            let e = e.unwrap().path();
+            if e.is_dir() {
+                todo.push(e);
+            } else {
+                out.push(e.strip_prefix(d).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// "Files are never lost" over every command that writes files (found from the help
+/// texts, with `no_panic`'s cheap valid invocations, so a new command is covered at
+/// once): a file of the user's in the way of an output is kept beside it as
+/// `NAME.~1~`, and the command says so on standard error; with `--force` it is
+/// replaced without keeping. For an output directory, a file of the user's where the
+/// command writes one of its files.
+#[test]
+fn every_writing_command_keeps_a_file_in_its_way_unless_forced() {
+    use crate::no_panic::{baseline, bin, help, setup, subcommands};
+    let d = setup("kept");
+    let mut paths: Vec<Vec<String>> = Vec::new();
+    let mut todo: Vec<Vec<String>> = vec![Vec::new()];
+    while let Some(p) = todo.pop() {
+        for s in subcommands(&help(&d, &p)) {
+            let mut q = p.clone();
+            q.push(s);
+            todo.push(q.clone());
+            paths.push(q);
+        }
+    }
+    let mine = b"a file of the user's own\n";
+    let cases: Vec<(Vec<String>, PathBuf, usize)> = paths
+        .iter()
+        .filter_map(|p| {
+            let base = baseline(p);
+            let i = base.iter().position(|a| *a == "--out")?;
+            // Each command its own output name in the shared directory.
+            let out = PathBuf::from(format!("{}-{}", p.join("-"), base[i + 1]));
+            let mut args = p.clone();
+            args.extend(base.iter().map(|s| s.to_string()));
+            args[p.len() + i + 1] = out.display().to_string();
+            Some((args, out, p.len()))
+        })
+        .collect();
+    assert!(cases.len() >= 15, "{cases:?}");
+    let exec = |args: &[String]| {
+        let o = bin(&d).args(args).output().unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let check = |(args, out, at): &(Vec<String>, PathBuf, usize)| -> Option<String> {
+        let said = |what: &str, e: &str| Some(format!("{}: {what}\n{e}", args.join(" ")));
+        let target = if out.extension().is_some() {
+            // A file of the user's where the output goes: replaced with --force, no copy
+            // kept.
+            fs::write(d.join(out), mine).unwrap();
+            // Before the arguments (`design merge` takes files after its options).
+            let mut forced = args.clone();
+            forced.insert(*at, "--force".into());
+            let (code, e) = exec(&forced);
+            if code == Some(2) && e.contains("genicam") {
+                return None; // `camera grab` in a build without GenICam.
+            }
+            if code != Some(0) || fs::read(d.join(out)).unwrap() == mine {
+                return said("--force did not replace the file", &e);
+            }
+            if e.contains("kept as")
+                || tree(&d)
+                    .iter()
+                    .any(|f| f.starts_with(format!("{}.~", out.display())))
+            {
+                return said("--force kept a copy", &e);
+            }
+            out.clone()
+        } else {
+            // An output directory: made by a first run, one of its files then the user's.
+            let (code, e) = exec(args);
+            if code != Some(0) {
+                return said("the first run failed", &e);
+            }
+            let first = tree(&d.join(out)).into_iter().next()?;
+            out.join(first)
+        };
+        fs::write(d.join(&target), mine).unwrap();
+        let (code, e) = exec(args);
+        let kept = d.join(format!("{}.~1~", target.display()));
+        if code != Some(0) {
+            return said("the second run failed", &e);
+        }
+        if fs::read(&kept).ok().as_deref() != Some(&mine[..]) {
+            return said(
+                &format!("`{}` does not hold the user's file", kept.display()),
+                &e,
+            );
+        }
+        if fs::read(d.join(&target)).unwrap() == mine || !e.contains("kept as") {
+            return said("not written, or not said", &e);
+        }
+        None
+    };
+    // Two at a time (two cores); each case writes under its own names.
+    let queue = std::sync::Mutex::new(cases.iter());
+    let failures: Vec<String> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..2)
+            .map(|_| {
+                s.spawn(|| {
+                    let mut bad = Vec::new();
+                    // The lock released before the case runs.
+                    let next = || queue.lock().unwrap().next();
+                    while let Some(c) = next() {
+                        bad.extend(check(c));
+                    }
+                    bad
+                })
+            })
+            .collect();
+        workers
+            .into_iter()
+            .flat_map(|w| w.join().unwrap())
+            .collect()
+    });
+    let _ = fs::remove_dir_all(&d);
+    assert!(failures.is_empty(), "{}", failures.join("\n\n"));
+}
