@@ -201,8 +201,8 @@ enum Command {
         /// Run id (default: the latest).
         #[arg(long)]
         run: Option<i64>,
-        /// Directory for `report.html` (created if needed).
-        #[arg(long, value_name = "DIR", default_value = "report")]
+        /// Where the page goes: a file ending in `.html` (its directory must exist), or a directory for `report.html` (created if needed).
+        #[arg(long, value_name = "FILE.html|DIR", default_value = "report")]
         out: PathBuf,
     },
     /// Every figure of the paper's Sec. 3.2 (eqs. 37-58): paper, computed, difference.

@@ -8,25 +8,23 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use cellinject_records::{AttemptRow, RunRow};
 
-use crate::InputError;
 use cellinject_files::{Kind, Plan, write_one};
 
-/// Writes `DIR/report.html` for run `id` (or the latest) of `db`.
+/// Writes the report of run `id` (or the latest) of `db` to `out`: that file if it
+/// ends in `.html` (or `.htm`), else `out/report.html` (the directory made).
 pub fn report(db: &Path, id: Option<i64>, out: &Path) -> Result<PathBuf> {
     let records = crate::run::open_existing(db)?;
     let run = records.run(id).map_err(crate::run::records_error)?;
     let attempts = records
         .attempts(run.id)
         .map_err(crate::run::records_error)?;
-    let file = out.join("report.html");
-    if !out.is_dir() {
-        std::fs::create_dir_all(out).map_err(|e| {
-            InputError(format!(
-                "--out `{}`: cannot create the directory: {e}",
-                out.display()
-            ))
-        })?;
-    }
+    let file = if Kind::of(out) == Some(Kind::Html) {
+        out.to_path_buf()
+    } else {
+        // A file in the way is refused naming it (not a directory of that name).
+        cellinject_files::make_dir("--out", out)?;
+        out.join("report.html")
+    };
     let mut plan = Plan::new();
     plan.input("--db", db);
     plan.output("--out", &file, &[Kind::Html])?;

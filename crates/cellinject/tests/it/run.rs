@@ -104,6 +104,10 @@ fn a_small_plate_is_injected_recorded_and_a_finished_run_resumes_to_nothing() {
     let html = fs::read_to_string(d.join("rep/report.html")).unwrap();
     assert_eq!(html.matches("<circle").count(), cells);
     assert!(html.contains("Tip error at injection") && html.contains("Throughput"));
+    // `--out FILE.html`: that file, the same page (not a directory of that name).
+    let o = run(&d, &["report", "--db", "r.sqlite", "--out", "r.html"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    assert_eq!(fs::read_to_string(d.join("r.html")).unwrap(), html);
     let o = run(&d, &["report", "--db", "r.sqlite", "--out", "p.toml"]);
     assert_eq!(o.status.code(), Some(2), "{}", err(&o));
     assert!(
