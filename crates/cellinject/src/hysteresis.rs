@@ -30,6 +30,17 @@ pub enum ModelArg {
     PiAsym,
 }
 
+impl ModelArg {
+    /// The class as text says it.
+    fn name(self) -> &'static str {
+        match self {
+            ModelArg::Preisach => "Preisach",
+            ModelArg::Pi => "PI (Prandtl-Ishlinskii)",
+            ModelArg::PiAsym => "asymmetric PI (Prandtl-Ishlinskii)",
+        }
+    }
+}
+
 /// `hysteresis` subcommands.
 #[derive(Debug, Subcommand)]
 pub enum HysteresisCommand {
@@ -341,8 +352,8 @@ fn fit(
         return print_json(&o, &[&files[0], &files[1], &files[2]]);
     }
     outln!(
-        "{:?} model fitted to {} samples ({} reversals): RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
-        model,
+        "{} model fitted to {} samples ({} reversals): RMS {:.2} nm ({:.3} % of the data's span), max {:.2} nm",
+        model.name(),
         r.samples,
         r.data.reversals,
         r.rms * 1e9,

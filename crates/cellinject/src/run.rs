@@ -708,7 +708,7 @@ mod tests {
             // the side camera's measurement and the map (measured 0.03, -0.01, 0.07).
             assert!(
                 error.abs() < 0.2e-6,
-                "run {run}: focus height {:.2} um, {:.2} um from the tip's focus",
+                "run {run}: focus height {:.2} µm, {:.2} µm from the tip's focus",
                 report.focus_m * 1e6,
                 error * 1e6
             );
@@ -718,7 +718,7 @@ mod tests {
         for (run, (error, _, _)) in runs.iter().enumerate().skip(1) {
             assert!(
                 (error - runs[0].0).abs() < 0.1e-6,
-                "run {run}: the focus is {:.2} um off, the first's {:.2} um",
+                "run {run}: the focus is {:.2} µm off, the first's {:.2} µm",
                 error * 1e6,
                 runs[0].0 * 1e6
             );
@@ -756,13 +756,13 @@ mod tests {
                 );
                 assert!(
                     error.abs() < 0.2e-6,
-                    "seed {seed}, {what}: focus {:.2} um off",
+                    "seed {seed}, {what}: focus {:.2} µm off",
                     error * 1e6
                 );
             }
             assert!(
                 (a.0 - b.0).abs() < 0.1e-6,
-                "seed {seed}: focus {:.2} um off from the file, {:.2} um fresh",
+                "seed {seed}: focus {:.2} µm off from the file, {:.2} µm fresh",
                 b.0 * 1e6,
                 a.0 * 1e6
             );

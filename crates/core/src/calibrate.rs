@@ -489,7 +489,7 @@ impl ResponseCheck {
                 .map(|i| (self.measured[k][i] - self.predicted[k][i]).abs())
                 .fold(0.0, f64::max);
             format!(
-                "{} {:.3} um ({:.2} %)",
+                "{} {:.3} µm ({:.2} %)",
                 ACTUATOR_NAMES[k],
                 miss * 1e6,
                 100.0 * miss / self.stroke[k].abs().max(1e-12)

@@ -6,11 +6,13 @@ use cellinject_records::{AttemptRow, RunRow};
 pub fn run_line(r: &RunRow, a: &[AttemptRow]) -> String {
     let injected = a.iter().filter(|a| a.outcome == "injected").count();
     format!(
-        "run {}: {}, {} cells found, {} attempts, {} injected, {:.1} s {}{}",
+        "run {}: {}, {} cell{} found, {} attempt{}, {} injected, {:.1} s {}{}",
         r.id,
         r.status,
         r.cells_found,
+        if r.cells_found == 1 { "" } else { "s" },
         a.len(),
+        if a.len() == 1 { "" } else { "s" },
         injected,
         r.sim_time_s,
         if r.backend == "twin" {

@@ -197,8 +197,15 @@ impl Summary {
         let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
         let _ = writeln!(
             out,
-            "run {} {}: {} cells found, {} injected, {} failed, {} skipped, {} interrupted",
-            s.run, s.status, s.cells_found, s.injected, s.failed, s.skipped, s.interrupted
+            "run {} {}: {} cell{} found, {} injected, {} failed, {} skipped, {} interrupted",
+            s.run,
+            s.status,
+            s.cells_found,
+            if s.cells_found == 1 { "" } else { "s" },
+            s.injected,
+            s.failed,
+            s.skipped,
+            s.interrupted
         );
         let tip = if errs.is_empty() {
             "no injection".to_string()
@@ -251,7 +258,7 @@ impl Summary {
             };
             let _ = writeln!(
                 out,
-                "{} focused ({} focus frames), the floor sloping {slope} um/mm{}",
+                "{} focused ({} focus frames), the floor sloping {slope} µm/mm{}",
                 if swept.len() == 1 {
                     "1 field".to_string()
                 } else {
@@ -259,7 +266,7 @@ impl Summary {
                 },
                 swept.iter().map(|f| f.focus.frames).sum::<usize>(),
                 worst.map_or(String::new(), |w| format!(
-                    "; the floor under the cells at most {:.2} um from where the focus put it",
+                    "; the floor under the cells at most {:.2} µm from where the focus put it",
                     w * 1e6
                 ))
             );
@@ -386,7 +393,7 @@ impl Observer for Recorder<'_, '_> {
                 )
             });
             eprintln!(
-                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} um, depth {:.2} um; floor strikes {strikes}, tip lost {:.1} um, grazed {grazed}]",
+                "{:?} -> {:?}: {} [true tip {:.2}, {:.2} µm, depth {:.2} µm; floor strikes {strikes}, tip lost {:.1} µm, grazed {grazed}]",
                 t.from,
                 t.to,
                 t.reason,
@@ -463,7 +470,7 @@ impl Observer for Recorder<'_, '_> {
         tip.z -= o[1];
         if self.debug {
             eprintln!(
-                "tip - cell: ({:.2}, {:.2}) um; target ({:.2}, {:.2}) um vs true ({:.2}, {:.2})",
+                "tip - cell: ({:.2}, {:.2}) µm; target ({:.2}, {:.2}) µm vs true ({:.2}, {:.2})",
                 (tip.x - c.centre[0]) * 1e6,
                 (tip.z - c.centre[1]) * 1e6,
                 (t.x_m + self.plate.origin[0]) * 1e6,
@@ -478,7 +485,7 @@ impl Observer for Recorder<'_, '_> {
         let c = self.nearest(t)?;
         if self.debug {
             eprintln!(
-                "cell {}: punctures {}, max depth {:.2} um of r {:.2}, inside x {:.2} um, dead {:?}",
+                "cell {}: punctures {}, max depth {:.2} µm of r {:.2}, inside x {:.2} µm, dead {:?}",
                 t.index,
                 c.punctures,
                 c.max_depth * 1e6,

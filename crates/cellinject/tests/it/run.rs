@@ -18,6 +18,18 @@ fn dir(name: &str) -> PathBuf {
     common::dir("run", name)
 }
 
+/// Whether `text` writes micrometres as `um` (a number, a space, a parenthesis or a
+/// slash before it, no letter after).
+fn ascii_um(text: &str) -> bool {
+    let b = text.as_bytes();
+    text.match_indices("um").any(|(i, _)| {
+        let before = i.checked_sub(1).map(|k| b[k]);
+        let after = b.get(i + 2).copied();
+        matches!(before, Some(c) if c.is_ascii_digit() || b" (/".contains(&c))
+            && !after.is_some_and(|c| c.is_ascii_alphabetic())
+    })
+}
+
 fn plate(d: &Path) {
     let o = run(
         d,
@@ -72,6 +84,16 @@ fn a_small_plate_is_injected_recorded_and_a_finished_run_resumes_to_nothing() {
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let shown: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(shown["attempts"], s["attempts"]);
+    // The workflow's log writes micrometres as µm (SI in the numbers of the JSON).
+    let said = shown["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .chain(attempts)
+        .map(|e| e["reason"].as_str().unwrap_or_default());
+    for text in said {
+        assert!(!ascii_um(text), "`um` for µm in {text:?}");
+    }
     // Resume takes the plate and the seed from the database: others are refused.
     let o = run(&d, &["run", "--db", "r.sqlite", "--resume", "--seed", "99"]);
     assert_eq!(o.status.code(), Some(2), "{}", err(&o));
@@ -907,7 +929,7 @@ fn re_checks_of_the_calibrations_are_made_on_time_and_recorded_with_their_verdic
         );
         // The verdict says what was measured and what was done.
         let r = b["reason"].as_str().unwrap();
-        assert!(r.contains("um from where the map puts it"), "{r}");
+        assert!(r.contains("µm from where the map puts it"), "{r}");
         assert!(
             r.contains("the map holds") || r.contains("image mapped to the stage again"),
             "{r}"

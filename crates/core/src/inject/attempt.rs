@@ -139,7 +139,7 @@ impl<B: Backend> Workflow<'_, B> {
                 ..
             }) if clearance < 20e-6 => {
                 format!(
-                    "; the glass passes cell {k} {:.1} um clear",
+                    "; the glass passes cell {k} {:.1} µm clear",
                     clearance * 1e6
                 )
             }
@@ -149,7 +149,7 @@ impl<B: Backend> Workflow<'_, B> {
             Ok(w) => w.shift,
             Err(b) => {
                 return Err(Fail::Blocked(format!(
-                    "the approach is blocked by cell {} in well [{}, {}]: the pipette's glass would run {:.1} um into it{}",
+                    "the approach is blocked by cell {} in well [{}, {}]: the pipette's glass would run {:.1} µm into it{}",
                     b.by.index,
                     b.by.well[0],
                     b.by.well[1],
@@ -196,7 +196,7 @@ impl<B: Backend> Workflow<'_, B> {
             }
         }
         let why = format!(
-            "tip {:.1} um before the membrane along the pipette, {:.1} um above the focus, after {:.2} s{clears}",
+            "tip {:.1} µm before the membrane along the pipette, {:.1} µm above the focus, after {:.2} s{clears}",
             o.gap * 1e6,
             (start_height - self.focus) * 1e6,
             self.now() - t0
@@ -292,7 +292,7 @@ impl<B: Backend> Workflow<'_, B> {
             .filter(|(p, _)| (p[0] - cell_px[0]).hypot(p[1] - cell_px[1]) * pix < 0.5 * r + 5e-6)
         else {
             return Err(Fail::Cell(format!(
-                "the cell is gone: nothing within {:.1} um of where the survey saw it",
+                "the cell is gone: nothing within {:.1} µm of where the survey saw it",
                 (0.5 * r + 5e-6) * 1e6
             )));
         };
@@ -330,13 +330,13 @@ impl<B: Backend> Workflow<'_, B> {
         }
         if moved > 1.5e-6 {
             let why = format!(
-                "the cell moved {:.1} um since the survey: target follows it",
+                "the cell moved {:.1} µm since the survey: target follows it",
                 moved * 1e6
             );
             self.fire(Event::CellMoved, why, obs, Some(&mut a.transitions))
                 .map_err(Fail::Error)?;
         } else {
-            let why = format!("tip and cell found ({:.2} um from the survey)", moved * 1e6);
+            let why = format!("tip and cell found ({:.2} µm from the survey)", moved * 1e6);
             self.fire(Event::Found, why, obs, Some(&mut a.transitions))
                 .map_err(Fail::Error)?;
         }
@@ -478,7 +478,7 @@ impl<B: Backend> Workflow<'_, B> {
         }
         if lateral > 3.0 * o.align_tolerance {
             return Err(Fail::Cell(format!(
-                "alignment did not converge: {:.2} um off the cell's axis after 15 frames",
+                "alignment did not converge: {:.2} µm off the cell's axis after 15 frames",
                 lateral * 1e6
             )));
         }
@@ -524,7 +524,7 @@ impl<B: Backend> Workflow<'_, B> {
             }
             (lateral, beta) = (median(laterals), median(betas));
             backed = format!(
-                " (backed off {:.2} um along the axis: the tip stood {:.2} um from the membrane)",
+                " (backed off {:.2} µm along the axis: the tip stood {:.2} µm from the membrane)",
                 short * 1e6,
                 (along - r) * 1e6
             );
@@ -532,7 +532,7 @@ impl<B: Backend> Workflow<'_, B> {
         }
         a.measured_tip_error_m = Some(lateral);
         let why = format!(
-            "tip {:.2} um off the cell's axis, {:.2} um from its centre along it{backed}",
+            "tip {:.2} µm off the cell's axis, {:.2} µm from its centre along it{backed}",
             lateral * 1e6,
             along * 1e6
         );
@@ -598,7 +598,7 @@ impl<B: Backend> Workflow<'_, B> {
             let ext = self.servo.as_mut().expect("servo").a3(self.rig)?;
             if ext > limit + 0.2e-6 {
                 return Err(Fail::Cell(format!(
-                    "A3 overshot the depth limit ({:.2} um past it)",
+                    "A3 overshot the depth limit ({:.2} µm past it)",
                     (ext - limit) * 1e6
                 )));
             }
@@ -624,7 +624,7 @@ impl<B: Backend> Workflow<'_, B> {
                 }
                 if held >= 4 {
                     return Err(Fail::Cell(format!(
-                        "the membrane did not give (the cell was pushed {:.2} um, the tip is at the centre)",
+                        "the membrane did not give (the cell was pushed {:.2} µm, the tip is at the centre)",
                         max_push * 1e6
                     )));
                 }
@@ -659,7 +659,7 @@ impl<B: Backend> Workflow<'_, B> {
         let ext = self.servo.as_mut().expect("servo").a3(self.rig)?;
         a.depth_m = Some(ext - e3_0 - o.gap);
         let why = format!(
-            "the membrane gave {}{:.1} um into the approach (pushed {:.2} um); tip at the centre, {:.1} um past the membrane",
+            "the membrane gave {}{:.1} µm into the approach (pushed {:.2} µm); tip at the centre, {:.1} µm past the membrane",
             if unseen_give {
                 "unseen (the cell is not pushed with the tip at its centre), by "
             } else {

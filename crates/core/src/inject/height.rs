@@ -269,7 +269,7 @@ impl<B: Backend> Workflow<'_, B> {
             Ok(h) => h.above,
             Err(why) => {
                 return Ok(Err(format!(
-                    "the side camera lost the tab on a {:.0} um stage move: {why}",
+                    "the side camera lost the tab on a {:.0} µm stage move: {why}",
                     PROBE * 1e6
                 )));
             }
@@ -279,7 +279,7 @@ impl<B: Backend> Workflow<'_, B> {
         let ratio = moved * pitch / PROBE;
         if !(0.8..=1.25).contains(&ratio.abs()) {
             return Ok(Err(format!(
-                "the side camera saw {:.2} um along its columns for the stage's {:.0} um up (its columns do not run along the height)",
+                "the side camera saw {:.2} µm along its columns for the stage's {:.0} µm up (its columns do not run along the height)",
                 moved * pitch * 1e6,
                 PROBE * 1e6
             )));
@@ -343,7 +343,7 @@ impl<B: Backend> Workflow<'_, B> {
                 self.focus = self.options.focus - h.above;
                 self.focus_by = "side camera";
                 format!(
-                    "the side camera sees the tip {:.2} um {} than at the session's start: focus height {:.2} um ({:+.2} um)",
+                    "the side camera sees the tip {:.2} µm {} than at the session's start: focus height {:.2} µm ({:+.2} µm)",
                     h.above.abs() * 1e6,
                     if h.above < 0.0 { "lower" } else { "higher" },
                     self.focus * 1e6,
@@ -361,7 +361,7 @@ impl<B: Backend> Workflow<'_, B> {
     fn stage_settle(&mut self, y: f64) -> Result<Result<(), String>, WorkflowError> {
         if let Err(e) = self.rig.stage.move_to(1, y) {
             return Ok(Err(format!(
-                "the stage refused the side camera's move to {:.1} um: {e}",
+                "the stage refused the side camera's move to {:.1} µm: {e}",
                 y * 1e6
             )));
         }

@@ -536,7 +536,7 @@ impl<B: Backend> Workflow<'_, B> {
         }
         let Some(px) = self.tip_full(3)? else {
             return Ok(Err(format!(
-                "the tip was not found in the image with the stage at ({:.0}, {:.0}) um",
+                "the tip was not found in the image with the stage at ({:.0}, {:.0}) µm",
                 s[0] * 1e6,
                 s[1] * 1e6
             )));
@@ -603,7 +603,7 @@ impl<B: Backend> Workflow<'_, B> {
                 let worst =
                     off(measured[0], map.pixel_of(s0)).max(off(measured[1], map.pixel_of(s1)));
                 let said = format!(
-                    "background taken again; the resting tip is {:.2} um from where the map puts it (worst of two points {:.0} um apart)",
+                    "background taken again; the resting tip is {:.2} µm from where the map puts it (worst of two points {:.0} µm apart)",
                     worst * 1e6,
                     (s1[0] - s0[0]).hypot(s1[1] - s0[1]) * 1e6,
                 );
@@ -620,7 +620,7 @@ impl<B: Backend> Workflow<'_, B> {
                     self.fire(Event::Rechecked, r, obs, None)?;
                     return Ok(None);
                 }
-                format!("{said}, more than {:.1} um", RECHECK_TOLERANCE * 1e6)
+                format!("{said}, more than {:.1} µm", RECHECK_TOLERANCE * 1e6)
             }
         };
         let mut last = String::new();
@@ -700,7 +700,7 @@ impl<B: Backend> Workflow<'_, B> {
         let sx = b[0][0].hypot(b[1][0]);
         if (sx / scale - 1.0).abs() > 0.05 {
             return Ok(Err(format!(
-                "stage x moves the tip {:.4} px/um, the camera says {:.4}: more than 5 % apart",
+                "stage x moves the tip {:.4} px/µm, the camera says {:.4}: more than 5 % apart",
                 sx * 1e-6,
                 scale * 1e-6
             )));
@@ -752,7 +752,7 @@ impl<B: Backend> Workflow<'_, B> {
             let de = e1 - e0;
             if de.abs() < 0.3 * e {
                 return Ok(Err(format!(
-                    "{what} extended {:.2} um when asked for {:.2} um",
+                    "{what} extended {:.2} µm when asked for {:.2} µm",
                     de * 1e6,
                     e * 1e6
                 )));

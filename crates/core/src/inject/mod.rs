@@ -168,7 +168,7 @@ pub enum WorkflowError {
     /// The wells are too wide for the view: a field must show two walls along each
     /// axis (the image map's points lie on them).
     #[error(
-        "the wells' pitch ({pitch_um:.0} um) leaves fewer than two walls along {axis} in a field of {field_um:.0} um at zoom {zoom}: use a lower zoom"
+        "the wells' pitch ({pitch_um:.0} µm) leaves fewer than two walls along {axis} in a field of {field_um:.0} µm at zoom {zoom}: use a lower zoom"
     )]
     PitchTooLarge {
         /// um.
@@ -567,8 +567,9 @@ impl<'r, B: Backend> Workflow<'r, B> {
         self.fire(
             Event::Surveyed,
             format!(
-                "{} cells found on the plate ({fields} field{} of view)",
+                "{} cell{} found on the plate ({fields} field{} of view)",
                 targets.len(),
+                if targets.len() == 1 { "" } else { "s" },
                 if fields == 1 { "" } else { "s" }
             ),
             obs,
@@ -772,7 +773,7 @@ impl<B: Backend> Workflow<'_, B> {
         obs.started(&a).map_err(WorkflowError::Record)?;
         let grazed0 = obs.grazed();
         let why = format!(
-            "cell {} in well [{}, {}], {:.1} um at ({:.1}, {:.1}) um",
+            "cell {} in well [{}, {}], {:.1} µm at ({:.1}, {:.1}) µm",
             target.index,
             target.well[0],
             target.well[1],
@@ -924,7 +925,7 @@ mod tests {
         let d = super::dose_diameter(10e-6, Some(0.6e-6));
         assert_eq!((d.diameter, d.uncertain), (10e-6, Some([10e-6, 0.6e-6])));
         assert!(
-            d.note().contains("size uncertain (10.0 +- 0.6 um)"),
+            d.note().contains("size uncertain (10.0 +- 0.6 µm)"),
             "{}",
             d.note()
         );

@@ -97,7 +97,7 @@ impl Options {
             return bad(
                 "--lift",
                 self.lift,
-                "must lie in [16 um, 1 mm] (above the largest cell's radius)",
+                "must lie in [16 µm, 1 mm] (above the largest cell's radius)",
             );
         }
         if !(self.recheck_every.is_finite() && self.recheck_every >= 0.0) {

@@ -173,7 +173,7 @@ impl Dosed {
     pub(super) fn note(&self) -> String {
         match self.uncertain {
             Some([d, se]) => format!(
-                "; size uncertain ({:.1} +- {:.1} um): dosed for {:.1} um, its measured size",
+                "; size uncertain ({:.1} +- {:.1} µm): dosed for {:.1} µm, its measured size",
                 d * 1e6,
                 se * 1e6,
                 self.diameter * 1e6

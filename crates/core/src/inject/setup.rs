@@ -234,7 +234,7 @@ impl<B: Backend> Workflow<'_, B> {
             Some(h) => {
                 self.focus_by = "side camera";
                 why.push(format!(
-                    "the side camera sees the tip {:.2} um {} than at the session's start (± {:.3} um; magnification {:+.2e}; the stack sensors say {:+.2} um): focus height {:.2} um",
+                    "the side camera sees the tip {:.2} µm {} than at the session's start (± {:.3} µm; magnification {:+.2e}; the stack sensors say {:+.2} µm): focus height {:.2} µm",
                     h.above.abs() * 1e6,
                     if h.above < 0.0 { "lower" } else { "higher" },
                     h.sigma * 1e6,
@@ -248,7 +248,7 @@ impl<B: Backend> Workflow<'_, B> {
                 self.focus_by = "stack sensors";
                 if sensed.abs() > 0.05e-6 {
                     why.push(format!(
-                        "the tip rests {:.2} um {} than at the session's start: focus height {:.2} um",
+                        "the tip rests {:.2} µm {} than at the session's start: focus height {:.2} µm",
                         sensed.abs() * 1e6,
                         if sensed < 0.0 { "lower" } else { "higher" },
                         (self.options.focus - sensed) * 1e6

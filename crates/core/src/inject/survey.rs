@@ -196,12 +196,12 @@ impl<B: Backend> Workflow<'_, B> {
     pub(super) fn focus_note(&self) -> String {
         match self.field_focus {
             Some(f) => format!(
-                ", height {:.1} um: the floor slopes {:.2} um/mm{}",
+                ", height {:.1} µm: the floor slopes {:.2} µm/mm{}",
                 f.feeder_z_m * 1e6,
                 f.slope[0].hypot(f.slope[1]) * 1e3,
                 if f.tiles > 0 {
                     format!(
-                        " ({} tiles, {:.2} um rms, {} focus frames)",
+                        " ({} tiles, {:.2} µm rms, {} focus frames)",
                         f.tiles,
                         f.residual_m * 1e6,
                         f.frames
@@ -236,7 +236,7 @@ impl<B: Backend> Workflow<'_, B> {
     pub(super) fn feeder_height(&mut self, z: f64) -> Result<Result<(), String>, WorkflowError> {
         if let Err(e) = self.rig.feeder.move_to(2, z) {
             return Ok(Err(format!(
-                "the feeder stage refused the height {:.1} um: {e}",
+                "the feeder stage refused the height {:.1} µm: {e}",
                 z * 1e6
             )));
         }
