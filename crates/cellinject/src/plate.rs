@@ -92,6 +92,21 @@ pub fn load(arg: &str, path: &Path) -> Result<Plate> {
         .map_err(|e| InputError(format!("plate file `{}`: {e}", path.display())).into())
 }
 
+/// The plate file at `path` (`plate check`), refused with every problem it has, one
+/// per line.
+fn load_all(path: &Path) -> Result<Plate> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| InputError(format!("--plate `{}`: cannot read: {e}", path.display())))?;
+    cellinject_config::plate::parse_all(&text).map_err(|all| {
+        let list: Vec<String> = all.iter().map(|e| format!("  {e}")).collect();
+        let what = match all.as_slice() {
+            [one] => one.to_string(),
+            _ => format!("{} problems:\n{}", all.len(), list.join("\n")),
+        };
+        InputError(format!("plate file `{}`: {what}", path.display())).into()
+    })
+}
+
 /// Whether a plate subcommand reads the manipulator description (only `detect`,
 /// which builds the twin).
 pub fn uses_description(cmd: &PlateCommand) -> bool {
@@ -232,7 +247,7 @@ pub fn run(
             Ok(())
         }
         PlateCommand::Check { plate, format } => {
-            let p = load("--plate", plate)?;
+            let p = load_all(plate)?;
             let s = p.summary();
             if *format == Format::Json {
                 return print_json(&s, &[]);

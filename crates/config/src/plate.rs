@@ -24,45 +24,79 @@ use cellinject_plate::{Object, Plate, PlateError};
 use crate::ConfigError;
 use crate::section::Section;
 
-/// Parses and validates a plate file's text ([`Plate::check`]).
+/// Parses and validates a plate file's text ([`Plate::check`]): the first of
+/// [`parse_all`]'s problems.
 pub fn parse(text: &str) -> Result<Plate, ConfigError> {
-    let root = crate::toml_table(text)?;
+    parse_all(text).map_err(|mut all| all.swap_remove(0))
+}
+
+/// `r`'s value, or `None` with its error added to `errors`.
+fn keep<T>(r: Result<T, ConfigError>, errors: &mut Vec<ConfigError>) -> Option<T> {
+    r.map_err(|e| errors.push(e)).ok()
+}
+
+/// [`parse`], with every problem of the file (`plate check`): each key that cannot be
+/// read or is unknown, then, if the grid could be read, each object's and every
+/// overlap ([`Plate::problems`]). Never an empty list.
+pub fn parse_all(text: &str) -> Result<Plate, Vec<ConfigError>> {
+    let root = crate::toml_table(text).map_err(|e| vec![e])?;
+    let mut errors = Vec::new();
     let mut top = Section::root(&root);
-    let mut p = top.table("plate")?;
-    let rows = p.int("rows", 0, 1, u64::from(cellinject_plate::MAX_SIDE))? as u32;
-    let cols = p.int("cols", 0, 1, u64::from(cellinject_plate::MAX_SIDE))? as u32;
-    let pitch = p.number("pitch")?;
-    let origin = p.opt_array::<2>("origin")?.unwrap_or([0.0, 0.0]);
-    p.finish()?;
-    let mut objects = |name: &str| -> Result<Vec<Object>, ConfigError> {
-        top.tables(name)?
+    let grid = keep(top.table("plate"), &mut errors).and_then(|mut p| {
+        let max = u64::from(cellinject_plate::MAX_SIDE);
+        let rows = keep(p.int("rows", 0, 1, max), &mut errors);
+        let cols = keep(p.int("cols", 0, 1, max), &mut errors);
+        let pitch = keep(p.number("pitch"), &mut errors);
+        let origin = keep(p.opt_array::<2>("origin"), &mut errors);
+        errors.extend(p.unknown());
+        Some((
+            rows? as u32,
+            cols? as u32,
+            pitch?,
+            origin?.unwrap_or([0.0, 0.0]),
+        ))
+    });
+    let mut objects = |name: &str, errors: &mut Vec<ConfigError>| -> Vec<Object> {
+        let Some(tables) = keep(top.tables(name), errors) else {
+            return Vec::new();
+        };
+        tables
             .into_iter()
-            .map(|mut t| {
-                let o = Object {
-                    well: t.index_pair("well")?,
-                    offset: t.array::<2>("offset")?,
-                    diameter: t.number("diameter")?,
-                };
-                t.finish()?;
-                Ok(o)
+            .filter_map(|mut t| {
+                let well = keep(t.index_pair("well"), errors);
+                let offset = keep(t.array::<2>("offset"), errors);
+                let diameter = keep(t.number("diameter"), errors);
+                errors.extend(t.unknown());
+                Some(Object {
+                    well: well?,
+                    offset: offset?,
+                    diameter: diameter?,
+                })
             })
             .collect()
     };
-    let cells = objects("cell")?;
-    let debris = objects("debris")?;
-    top.finish()?;
-    let plate = Plate {
+    let cells = objects("cell", &mut errors);
+    let debris = objects("debris", &mut errors);
+    errors.extend(top.unknown());
+    let plate = grid.map(|(rows, cols, pitch, origin)| Plate {
         rows,
         cols,
         pitch,
         origin,
         cells,
         debris,
-    };
-    plate
-        .check()
-        .map_err(|PlateError::Invalid { key, reason }| ConfigError::Invalid { key, reason })?;
-    Ok(plate)
+    });
+    if let Some(p) = &plate {
+        errors.extend(
+            p.problems()
+                .into_iter()
+                .map(|PlateError::Invalid { key, reason }| ConfigError::Invalid { key, reason }),
+        );
+    }
+    match plate {
+        Some(p) if errors.is_empty() => Ok(p),
+        _ => Err(errors),
+    }
 }
 
 /// A number as TOML: shortest round-trip form, `0.0` for zero.
@@ -192,5 +226,34 @@ mod tests {
         );
         assert_eq!(key(&two), "cell[1].offset");
         assert_eq!(key(&swap("[[debris]]", "[debris]")), "debris");
+    }
+
+    #[test]
+    fn every_problem_of_a_file_is_listed_not_just_the_first() {
+        // Three distinct faults: an unknown key, a cell reaching outside its well, a
+        // negative diameter; and a fourth, an unknown section.
+        let text = "[plate]\nrows = 2\ncols = 2\npitch = 150e-6\ncolour = \"red\"\n\
+                    [[cell]]\nwell = [0, 0]\noffset = [70e-6, 0.0]\ndiameter = 20e-6\n\
+                    [[cell]]\nwell = [1, 1]\noffset = [0.0, 0.0]\ndiameter = -20e-6\n\
+                    [lid]\nclosed = true\n";
+        let all = parse_all(text).unwrap_err();
+        let keys: Vec<&str> = all.iter().map(|e| e.key().unwrap_or("syntax")).collect();
+        assert_eq!(
+            keys,
+            ["plate.colour", "lid", "cell[0].offset", "cell[1].diameter"],
+            "{all:?}"
+        );
+        // `parse` refuses the same file with the first of them.
+        assert_eq!(parse(text).unwrap_err().key(), Some("plate.colour"));
+        // A grid that cannot be read still lets the objects' keys be checked.
+        let no_rows = "[plate]\ncols = 2\npitch = 150e-6\n[[cell]]\nwell = [0, 0]\noffset = [0.0]\ndiameter = 2e-5\n";
+        let keys: Vec<String> = parse_all(no_rows)
+            .unwrap_err()
+            .iter()
+            .map(|e| e.key().unwrap_or("syntax").to_string())
+            .collect();
+        assert_eq!(keys, ["plate.rows", "cell[0].offset"]);
+        // A good file has none.
+        assert!(parse_all(EXAMPLE).is_ok());
     }
 }

@@ -152,13 +152,23 @@ impl<'a> Section<'a> {
 
     /// Refuses keys that were not read.
     pub(crate) fn finish(self) -> Result<(), ConfigError> {
-        if let Some(unknown) = self.table.keys().find(|k| !self.used.contains(k.as_str())) {
-            return Err(ConfigError::Unknown {
+        match self.unknown().into_iter().next() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Every key of the table that was not read, as [`Section::finish`] refuses the
+    /// first.
+    pub(crate) fn unknown(&self) -> Vec<ConfigError> {
+        self.table
+            .keys()
+            .filter(|k| !self.used.contains(k.as_str()))
+            .map(|unknown| ConfigError::Unknown {
                 key: self.key(unknown),
                 expected: self.used.iter().cloned().collect::<Vec<_>>().join(", "),
-            });
-        }
-        Ok(())
+            })
+            .collect()
     }
 }
 

@@ -189,22 +189,49 @@ impl Plate {
         cells.chain(debris)
     }
 
-    /// Refuses a plate that cannot be: see the crate's documentation.
+    /// Refuses a plate that cannot be: see the crate's documentation. The first of
+    /// [`Plate::problems`].
     pub fn check(&self) -> Result<(), PlateError> {
+        match self.problems().into_iter().next() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Everything that makes the plate one that cannot be, in the file's order: the
+    /// grid's faults alone if it has any (the objects are placed on it), else each
+    /// object's (a well outside the grid, a diameter out of its class, an offset
+    /// reaching outside the well) and every overlap.
+    pub fn problems(&self) -> Vec<PlateError> {
+        let grid = self.grid_problems();
+        if !grid.is_empty() {
+            return grid;
+        }
+        let mut out = Vec::new();
+        for (kind, i, o) in self.objects() {
+            out.extend(self.object_problems(kind, i, o));
+        }
+        out.extend(self.overlaps());
+        out
+    }
+
+    /// The grid's faults: rows, columns, pitch, origin.
+    fn grid_problems(&self) -> Vec<PlateError> {
+        let mut out = Vec::new();
         if self.rows == 0 || self.rows > MAX_SIDE {
-            return Err(invalid(
+            out.push(invalid(
                 "plate.rows",
                 format!("{} must lie in [1, {MAX_SIDE}]", self.rows),
             ));
         }
         if self.cols == 0 || self.cols > MAX_SIDE {
-            return Err(invalid(
+            out.push(invalid(
                 "plate.cols",
                 format!("{} must lie in [1, {MAX_SIDE}]", self.cols),
             ));
         }
         if !(self.pitch.is_finite() && self.pitch > CELL_MAX) {
-            return Err(invalid(
+            out.push(invalid(
                 "plate.pitch",
                 format!(
                     "{} m must be a finite number above the largest cell, {} µm",
@@ -212,9 +239,8 @@ impl Plate {
                     CELL_MAX * 1e6
                 ),
             ));
-        }
-        if self.pitch > PITCH_MAX {
-            return Err(invalid(
+        } else if self.pitch > PITCH_MAX {
+            out.push(invalid(
                 "plate.pitch",
                 format!(
                     "{} m ({:.0} mm) is not a matrix feeder's pitch (above {} µm, at most {} mm){}",
@@ -228,75 +254,97 @@ impl Plate {
         }
         for (i, v) in self.origin.iter().enumerate() {
             if !v.is_finite() {
-                return Err(invalid(
+                out.push(invalid(
                     format!("plate.origin[{i}]"),
                     format!("{v} must be a finite number"),
                 ));
             }
         }
+        out
+    }
+
+    /// Whether object `o` lies in a well of the grid.
+    fn in_grid(&self, o: &Object) -> bool {
+        o.well[0] < self.rows && o.well[1] < self.cols
+    }
+
+    /// Object `o`'s own faults (the `i`-th of its `kind`): its well, its diameter, its
+    /// offset.
+    fn object_problems(&self, kind: Kind, i: usize, o: &Object) -> Vec<PlateError> {
+        let key = |k: &str| format!("{}[{i}].{k}", kind.key());
+        let mut out = Vec::new();
+        if !self.in_grid(o) {
+            out.push(invalid(
+                key("well"),
+                format!(
+                    "[{}, {}] is outside the {}x{} grid (rows and columns count from 0)",
+                    o.well[0], o.well[1], self.rows, self.cols
+                ),
+            ));
+        }
+        let d = o.diameter;
+        let (lo, hi, what) = match kind {
+            Kind::Cell => (
+                CELL_MIN,
+                CELL_MAX,
+                "a cell's diameter must lie in [10, 30] µm",
+            ),
+            Kind::Debris => (0.0, DEBRIS_MAX, "debris must be smaller than 10 µm"),
+        };
+        if !(d.is_finite() && d > 0.0) {
+            out.push(invalid(
+                key("diameter"),
+                format!("{d} m must be a positive number"),
+            ));
+            return out;
+        }
+        if d < lo || d > hi || (kind == Kind::Debris && d >= hi) {
+            out.push(invalid(
+                key("diameter"),
+                format!("{:.3} µm: {what}", d * 1e6),
+            ));
+        }
         let half = 0.5 * self.pitch;
-        for (kind, i, o) in self.objects() {
-            let key = |k: &str| format!("{}[{i}].{k}", kind.key());
-            if o.well[0] >= self.rows || o.well[1] >= self.cols {
-                return Err(invalid(
-                    key("well"),
+        for (a, v) in o.offset.iter().enumerate() {
+            if !v.is_finite() {
+                out.push(invalid(
+                    format!("{}[{a}]", key("offset")),
+                    format!("{v} must be a finite number"),
+                ));
+                continue;
+            }
+            let reach = v.abs() + 0.5 * d - half;
+            if reach > TOUCH_SLACK {
+                out.push(invalid(
+                    key("offset"),
                     format!(
-                        "[{}, {}] is outside the {}x{} grid (rows and columns count from 0)",
-                        o.well[0], o.well[1], self.rows, self.cols
+                        "the {} of {:.3} µm at {:.3} µm from the centre of well [{}, {}] reaches {:.3} µm outside it (pitch {:.3} µm)",
+                        if kind == Kind::Cell { "cell" } else { "debris" },
+                        d * 1e6,
+                        v * 1e6,
+                        o.well[0],
+                        o.well[1],
+                        reach * 1e6,
+                        self.pitch * 1e6
                     ),
                 ));
-            }
-            let d = o.diameter;
-            let (lo, hi, what) = match kind {
-                Kind::Cell => (
-                    CELL_MIN,
-                    CELL_MAX,
-                    "a cell's diameter must lie in [10, 30] µm",
-                ),
-                Kind::Debris => (0.0, DEBRIS_MAX, "debris must be smaller than 10 µm"),
-            };
-            if !(d.is_finite() && d > 0.0) {
-                return Err(invalid(
-                    key("diameter"),
-                    format!("{d} m must be a positive number"),
-                ));
-            }
-            if d < lo || d > hi || (kind == Kind::Debris && d >= hi) {
-                return Err(invalid(
-                    key("diameter"),
-                    format!("{:.3} µm: {what}", d * 1e6),
-                ));
-            }
-            for (a, v) in o.offset.iter().enumerate() {
-                if !v.is_finite() {
-                    return Err(invalid(
-                        format!("{}[{a}]", key("offset")),
-                        format!("{v} must be a finite number"),
-                    ));
-                }
-                let out = v.abs() + 0.5 * d - half;
-                if out > TOUCH_SLACK {
-                    return Err(invalid(
-                        key("offset"),
-                        format!(
-                            "the {} of {:.3} µm at {:.3} µm from the centre of well [{}, {}] reaches {:.3} µm outside it (pitch {:.3} µm)",
-                            if kind == Kind::Cell { "cell" } else { "debris" },
-                            d * 1e6,
-                            v * 1e6,
-                            o.well[0],
-                            o.well[1],
-                            out * 1e6,
-                            self.pitch * 1e6
-                        ),
-                    ));
-                }
+                break;
             }
         }
-        // Overlaps, well by well.
+        out
+    }
+
+    /// Objects overlapping in their well (objects outside the grid, or with a size or
+    /// position that is not a number, left out: their own faults say why).
+    fn overlaps(&self) -> Vec<PlateError> {
+        let mut out = Vec::new();
         let mut by_well: Vec<Vec<(Kind, usize, &Object)>> = vec![Vec::new(); self.wells()];
         for (kind, i, o) in self.objects() {
-            by_well[o.well[0] as usize * self.cols as usize + o.well[1] as usize]
-                .push((kind, i, o));
+            let finite = o.diameter.is_finite() && o.offset.iter().all(|v| v.is_finite());
+            if self.in_grid(o) && finite {
+                by_well[o.well[0] as usize * self.cols as usize + o.well[1] as usize]
+                    .push((kind, i, o));
+            }
         }
         for objects in &by_well {
             for (n, (ka, ia, a)) in objects.iter().enumerate() {
@@ -304,7 +352,7 @@ impl Plate {
                     let gap = (a.offset[0] - b.offset[0]).hypot(a.offset[1] - b.offset[1])
                         - 0.5 * (a.diameter + b.diameter);
                     if gap < -TOUCH_SLACK {
-                        return Err(invalid(
+                        out.push(invalid(
                             format!("{}[{ia}].offset", ka.key()),
                             format!(
                                 "overlaps {}[{ib}] in well [{}, {}] by {:.3} µm (objects may touch, not overlap)",
@@ -318,7 +366,7 @@ impl Plate {
                 }
             }
         }
-        Ok(())
+        out
     }
 }
 

@@ -130,6 +130,23 @@ fn bad_plate_files_are_refused_naming_the_file_and_the_key() {
         assert!(e.contains("bad.toml") && e.contains(key), "{key}: {e}");
         assert!(!e.contains("panicked"), "{e}");
     }
+    // A file with three distinct faults: all three listed, one per line (exit 2).
+    let three = GOOD
+        .replace("[plate]\n", "[plate]\ncolour = \"red\"\n")
+        .replace("offset = [3e-6", "offset = [70e-6")
+        + "[[cell]]\nwell = [1, 1]\noffset = [0.0, 0.0]\ndiameter = -20e-6\n";
+    fs::write(d.join("three.toml"), &three).unwrap();
+    let o = run(&d, &["plate", "check", "--plate", "three.toml"]);
+    assert_eq!(o.status.code(), Some(2), "{}", err(&o));
+    let e = err(&o);
+    assert!(e.contains("three.toml") && e.contains("3 problems"), "{e}");
+    for key in ["plate.colour", "cell[0].offset", "].diameter"] {
+        assert_eq!(
+            e.lines().filter(|l| l.contains(key)).count(),
+            1,
+            "{key}: {e}"
+        );
+    }
     // Bad generator options: exit 2, the option named, nothing written.
     for (args, name) in [
         (vec!["--rows", "0"], "--rows"),
