@@ -45,8 +45,10 @@ pub struct CacheArgs {
     /// ($XDG_CACHE_HOME/cellinject, else the platform's cache directory).
     #[arg(long)]
     no_cache: bool,
-    /// Start a joint FEM even when its estimated peak memory exceeds the memory this
-    /// machine has available (it may then swap for a long time, or be killed).
+    /// Do it anyway: start a joint FEM even when its estimated peak memory exceeds the
+    /// memory this machine has available (it may then swap for a long time, or be
+    /// killed); and, as on every command, replace output files in the way without
+    /// keeping them (the same flag as the global `--force`).
     #[arg(long)]
     force: bool,
 }

@@ -256,4 +256,32 @@ mod tests {
         // A good file has none.
         assert!(parse_all(EXAMPLE).is_ok());
     }
+
+    #[test]
+    fn docs_plate_md_documents_the_example_that_is_read() {
+        // The first TOML block of docs/plate.md is the example file's plate, and every
+        // key its table documents is a key of that block.
+        let doc = include_str!("../../../docs/plate.md");
+        let block = doc
+            .split("```toml\n")
+            .nth(1)
+            .and_then(|b| b.split("```").next())
+            .unwrap();
+        assert_eq!(parse(block).unwrap(), parse(EXAMPLE).unwrap());
+        let table_keys: Vec<&str> = doc
+            .lines()
+            .filter_map(|l| l.strip_prefix("| `"))
+            .filter_map(|l| l.split('`').next())
+            .collect();
+        assert!(table_keys.len() >= 8, "{table_keys:?}");
+        for k in table_keys {
+            let leaf = k.rsplit('.').next().unwrap();
+            assert!(
+                block
+                    .lines()
+                    .any(|l| l.trim_start().starts_with(&format!("{leaf} ="))),
+                "`{k}` is documented but not in the example"
+            );
+        }
+    }
 }
