@@ -68,7 +68,9 @@ pub enum PlateCommand {
         twin: crate::sim::TwinArgs,
     },
     /// Reads a plate file, checks it (cells inside their wells, no overlaps, sizes in
-    /// their class) and says what it holds.
+    /// their class; every problem listed) and that the feeder of the manipulator
+    /// description (--config) can present every well at the run's zoom, as `run`
+    /// does, and says what it holds.
     #[command(after_help = "Examples:\n  cellinject plate check --plate plate.toml")]
     Check {
         /// The plate file.
@@ -107,10 +109,34 @@ fn load_all(path: &Path) -> Result<Plate> {
     })
 }
 
-/// Whether a plate subcommand reads the manipulator description (only `detect`,
-/// which builds the twin).
+/// Refuses a plate the feeder of the bench `opened` cannot present with `options` (the
+/// check `run` makes as it starts, `cellinject_station::check_plate`): exit 2 naming
+/// `what` and the wells for a plan that cannot be; 1 for a bench that fails.
+pub(crate) fn feeder_presents(
+    d: &cellinject_config::Description,
+    opened: &mut cellinject_session::Opened,
+    plate: &Plate,
+    options: cellinject_core::inject::Options,
+    what: &str,
+) -> Result<()> {
+    use cellinject_core::inject::WorkflowError;
+    let verdict = cellinject_station::check_plate(d, opened, plate, options)
+        .map_err(|e| anyhow::anyhow!("cannot build the twin: {e}"))?;
+    verdict.map_err(|e| match e {
+        WorkflowError::Plan(_)
+        | WorkflowError::PitchTooLarge { .. }
+        | WorkflowError::Invalid { .. } => InputError(format!("{what}: {e}")).into(),
+        e => anyhow::anyhow!("checking the plate: {e}"),
+    })
+}
+
+/// Whether a plate subcommand reads the manipulator description (`detect`, which
+/// builds the twin, and `check`, which plans the fields over the plate on it).
 pub fn uses_description(cmd: &PlateCommand) -> bool {
-    matches!(cmd, PlateCommand::Detect { .. })
+    matches!(
+        cmd,
+        PlateCommand::Detect { .. } | PlateCommand::Check { .. }
+    )
 }
 
 /// `plate detect`.
@@ -248,6 +274,23 @@ pub fn run(
         }
         PlateCommand::Check { plate, format } => {
             let p = load_all(plate)?;
+            // And what `run` checks with the description: the feeder presents every
+            // well (the fields planned at the run's zoom, on the description's twin).
+            let d = d()?;
+            let mut opened = crate::backend::open_with(
+                &d,
+                &crate::sim::TwinArgs::with_seed(d.sim.seed),
+                &cellinject_config::rigfile::RigFile::twin(),
+                |devices| devices,
+            )?;
+            let options = cellinject_core::inject::Options::default();
+            feeder_presents(
+                &d,
+                &mut opened,
+                &p,
+                options,
+                &format!("plate file `{}`", plate.display()),
+            )?;
             let s = p.summary();
             if *format == Format::Json {
                 return print_json(&s, &[]);

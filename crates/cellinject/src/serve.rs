@@ -128,18 +128,7 @@ pub fn serve(d: &Description, a: &ServeArgs) -> Result<()> {
     )?;
     let mut opened = opened;
     // A plate the feeder cannot present is refused now, not at the first run.
-    let verdict = cellinject_station::check_plate(d, &mut opened, &plate, options)
-        .map_err(|e| anyhow::anyhow!("cannot build the twin: {e}"))?;
-    if let Err(e) = verdict {
-        return Err(match e {
-            cellinject_core::inject::WorkflowError::Plan(_)
-            | cellinject_core::inject::WorkflowError::PitchTooLarge { .. }
-            | cellinject_core::inject::WorkflowError::Invalid { .. } => {
-                InputError(format!("--plate: {e}")).into()
-            }
-            e => anyhow::anyhow!("checking the plate: {e}"),
-        });
-    }
+    crate::plate::feeder_presents(d, &mut opened, &plate, options, "--plate")?;
     // The database is opened (and refused if foreign) before anything is listened on,
     // and after the plate is checked (a refused plate leaves no file).
     drop(Records::open(&a.db).map_err(records_error)?);

@@ -147,6 +147,23 @@ fn bad_plate_files_are_refused_naming_the_file_and_the_key() {
             "{key}: {e}"
         );
     }
+    // A plate the feeder cannot present (50 mm off the stage's origin): `plate check`
+    // refuses it as `run` does, naming the wells and the move that would fix it.
+    let far = GOOD.replace("origin = [0.0, 0.0]", "origin = [0.05, 0.0]");
+    assert_ne!(far, GOOD);
+    fs::write(d.join("far.toml"), &far).unwrap();
+    let check = run(&d, &["plate", "check", "--plate", "far.toml"]);
+    let run_it = run(&d, &["run", "--plate", "far.toml", "--db", "far.sqlite"]);
+    for o in [&check, &run_it] {
+        assert_eq!(o.status.code(), Some(2), "{}", err(o));
+        let e = err(o);
+        assert!(
+            e.contains("outside the feeder stage's travel") && e.contains("[0, 0]"),
+            "{e}"
+        );
+        assert!(e.contains("moving the plate's origin"), "{e}");
+    }
+    assert!(err(&check).contains("far.toml"), "{}", err(&check));
     // Bad generator options: exit 2, the option named, nothing written.
     for (args, name) in [
         (vec!["--rows", "0"], "--rows"),
