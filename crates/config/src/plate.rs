@@ -56,11 +56,13 @@ pub fn parse_all(text: &str) -> Result<Plate, Vec<ConfigError>> {
             origin?.unwrap_or([0.0, 0.0]),
         ))
     });
-    let mut objects = |name: &str, errors: &mut Vec<ConfigError>| -> Vec<Object> {
+    // Each list's objects, and whether every one of them could be read.
+    let mut objects = |name: &str, errors: &mut Vec<ConfigError>| -> (Vec<Object>, bool) {
         let Some(tables) = keep(top.tables(name), errors) else {
-            return Vec::new();
+            return (Vec::new(), false);
         };
-        tables
+        let n = tables.len();
+        let read: Vec<Object> = tables
             .into_iter()
             .filter_map(|mut t| {
                 let well = keep(t.index_pair("well"), errors);
@@ -73,10 +75,15 @@ pub fn parse_all(text: &str) -> Result<Plate, Vec<ConfigError>> {
                     diameter: diameter?,
                 })
             })
-            .collect()
+            .collect();
+        let all = read.len() == n;
+        (read, all)
     };
-    let cells = objects("cell", &mut errors);
-    let debris = objects("debris", &mut errors);
+    let (cells, cells_read) = objects("cell", &mut errors);
+    let (debris, debris_read) = objects("debris", &mut errors);
+    // An object left unread shifts the indices of those after it: their own checks
+    // wait until the file reads (the grid's are made either way).
+    let all_read = cells_read && debris_read;
     errors.extend(top.unknown());
     let plate = grid.map(|(rows, cols, pitch, origin)| Plate {
         rows,
@@ -87,8 +94,18 @@ pub fn parse_all(text: &str) -> Result<Plate, Vec<ConfigError>> {
         debris,
     });
     if let Some(p) = &plate {
+        let checked = if all_read {
+            p.clone()
+        } else {
+            Plate {
+                cells: Vec::new(),
+                debris: Vec::new(),
+                ..p.clone()
+            }
+        };
         errors.extend(
-            p.problems()
+            checked
+                .problems()
                 .into_iter()
                 .map(|PlateError::Invalid { key, reason }| ConfigError::Invalid { key, reason }),
         );
@@ -253,6 +270,17 @@ mod tests {
             .map(|e| e.key().unwrap_or("syntax").to_string())
             .collect();
         assert_eq!(keys, ["plate.rows", "cell[0].offset"]);
+        // An object that cannot be read shifts the indices after it: the others' checks
+        // wait (never a fault named on the wrong object), the grid's are made.
+        let unread = "[plate]\nrows = 2\ncols = 2\npitch = 150e-6\n\
+                      [[cell]]\nwell = [0, 0]\noffset = [0.0, 0.0]\ndiameter = \"big\"\n\
+                      [[cell]]\nwell = [1, 1]\noffset = [70e-6, 0.0]\ndiameter = 2e-5\n";
+        let keys: Vec<String> = parse_all(unread)
+            .unwrap_err()
+            .iter()
+            .map(|e| e.key().unwrap_or("syntax").to_string())
+            .collect();
+        assert_eq!(keys, ["cell[0].diameter"]);
         // A good file has none.
         assert!(parse_all(EXAMPLE).is_ok());
     }

@@ -114,15 +114,19 @@ fn keep_previous(path: &Path, staged: &Path) -> Result<Option<PathBuf>> {
                 continue;
             }
             // A file system without hard links: a copy (`create_new` keeps another
-            // writer's backup of the same number).
+            // writer's backup of the same number; a copy left half-written is removed).
             Err(_) => fs::OpenOptions::new()
                 .write(true)
                 .create_new(true)
                 .open(&to)
                 .and_then(|mut f| {
-                    let bytes = fs::read(path)?;
-                    f.write_all(&bytes)?;
-                    f.sync_all()
+                    let copied = fs::read(path)
+                        .and_then(|b| f.write_all(&b))
+                        .and_then(|()| f.sync_all());
+                    if copied.is_err() {
+                        let _ = fs::remove_file(&to);
+                    }
+                    copied
                 }),
         };
         return match made {
