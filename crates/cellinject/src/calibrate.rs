@@ -145,14 +145,26 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
         CalibrateCommand::All { out, twin, backend } => {
             cellinject_files::check_dir("--out", out)?;
             let mut s = setup(d, twin, backend)?;
-            let (_, _, made) = calibrations(&mut s, None)?;
+            let (px, cal, made) = calibrations(&mut s, None)?;
             let mut o = cellinject_files::Outputs::new("--out");
             o.add_named(out, made, "json")?;
             let files = o.commit()?;
             if twin.format() == Format::Json {
                 let f: Vec<&Path> = files.iter().map(|p| p.as_path()).collect();
-                return print_json(serde_json::json!({ "approach": s.made.approach }), &f);
+                return print_json(
+                    serde_json::json!({
+                        "approach": s.made.approach,
+                        "pixels": px,
+                        "jacobian": cal.jacobian,
+                        "hysteresis": cal.hysteresis,
+                    }),
+                    &f,
+                );
             }
+            // What was found, as each calibration's own command says it.
+            outln!("{}", print::pixels_text(&px));
+            outln!("{}", print::jacobian_text(&cal.jacobian));
+            outln!("{}", print::hysteresis_text(&cal.hysteresis));
             outln!("{}", cellinject_files::wrote(&files));
             Ok(())
         }

@@ -48,6 +48,15 @@ fn calibration() -> &'static PathBuf {
         assert_eq!(px["kind"], "pixels");
         assert_eq!(px["made"]["backend"], "twin");
         assert_eq!(px["made"]["approach"], 2);
+        // What it printed is what it wrote (the figures it found, each calibration's).
+        assert_eq!(v["pixels"], px["calibration"]);
+        for kind in ["jacobian", "hysteresis"] {
+            let f: Value = serde_json::from_str(
+                &fs::read_to_string(d.join(format!("cal/{kind}.json"))).unwrap(),
+            )
+            .unwrap();
+            assert_eq!(v[kind], f["calibration"], "{kind}");
+        }
         assert!(px["made"]["created_utc"].as_str().unwrap().ends_with('Z'));
         let m = px["calibration"]["maps"][0]["metres_per_pixel"][0]
             .as_f64()
