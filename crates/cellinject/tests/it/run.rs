@@ -1107,3 +1107,101 @@ fn the_small_partners_of_doublets_are_sized_and_dosed_as_themselves() {
     }
     assert_eq!(sized, pairs.len());
 }
+
+/// On a terminal (a pseudo-terminal from util-linux's `script`) `run` shows its
+/// progress over the cells, up to all of them, on a plate of several fields of view;
+/// piped, its standard output is the same summary and no bar is drawn.
+#[test]
+fn on_a_terminal_a_run_shows_its_progress_to_the_last_cell_and_piped_it_does_not() {
+    let d = dir("pty");
+    let o = run(
+        &d,
+        &[
+            "plate",
+            "generate",
+            "--rows",
+            "1",
+            "--cols",
+            "17",
+            "--origin=-1.2e-3,0",
+            "--empty-fraction",
+            "0.5",
+            "--debris-fraction",
+            "0",
+            "--doublet-fraction",
+            "0",
+            "--seed",
+            "4",
+            "--out",
+            "p.toml",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let bin = env!("CARGO_BIN_EXE_cellinject");
+    let tty = Command::new("script")
+        .args([
+            "-qec",
+            &format!("{bin} run --plate p.toml --db t.sqlite"),
+            "/dev/null",
+        ])
+        .current_dir(&d)
+        .output()
+        .expect("util-linux's `script` (Debian's bsdutils) runs the command on a pseudo-terminal");
+    assert!(
+        tty.status.success(),
+        "{}",
+        String::from_utf8_lossy(&tty.stdout)
+    );
+    // The terminal's text without its control sequences (ESC [ ... letter), each
+    // redraw of the bar on a line of its own.
+    let raw = String::from_utf8_lossy(&tty.stdout).replace('\r', "\n");
+    let mut screen = String::new();
+    let mut chars = raw.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            // The sequence's introducer, then everything up to its final letter.
+            let _ = chars.next();
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            screen.push(c);
+        }
+    }
+    let piped = run(&d, &["run", "--plate", "p.toml", "--db", "p.sqlite"]);
+    assert_eq!(piped.status.code(), Some(0), "{}", err(&piped));
+    let out = String::from_utf8_lossy(&piped.stdout);
+    let found: usize = out
+        .split_whitespace()
+        .zip(out.split_whitespace().skip(1))
+        .find(|(_, w)| *w == "cells" || *w == "cell")
+        .and_then(|(n, _)| n.parse().ok())
+        .expect("the summary's cells found");
+    assert!(found >= 3, "{out}");
+    let fields: usize = out
+        .lines()
+        .find_map(|l| l.split(" field").next()?.parse().ok())
+        .unwrap_or(1);
+    assert!(fields >= 2, "a plate of several fields: {out}");
+    let last = format!("{found}/{found} (");
+    assert!(
+        screen
+            .lines()
+            .any(|l| l.starts_with("cells [") && l.contains(&last)),
+        "no bar reaching {found}/{found}: {screen}"
+    );
+    // Piped: the same summary, and no bar on either stream.
+    for line in out.lines() {
+        assert!(
+            screen.contains(line.trim_end()),
+            "{line:?} not on the terminal: {screen}"
+        );
+    }
+    assert!(
+        !out.contains("cells [") && !err(&piped).contains("cells ["),
+        "{}",
+        err(&piped)
+    );
+}
