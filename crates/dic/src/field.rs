@@ -248,26 +248,34 @@ fn inconsistent(points: &[Option<PointResult>], nx: usize, ny: usize) -> Vec<usi
         if in_grid > 0 && kept == 0 {
             return true;
         }
-        let (mut us, mut vs, mut sus, mut svs) = (vec![], vec![], vec![], vec![]);
+        // The pairs' means and both members' σ, in fixed arrays (no allocation per
+        // point): `n` pairs complete.
+        let (mut us, mut vs, mut sus, mut svs) = ([0.0; 4], [0.0; 4], [0.0; 8], [0.0; 8]);
+        let mut n = 0;
         for (di, dj) in PAIRS {
             if let (Some(a), Some(b)) = (at(gx, gy, di, dj), at(gx, gy, -di, -dj)) {
-                us.push(0.5 * (a.u + b.u));
-                vs.push(0.5 * (a.v + b.v));
-                sus.extend([a.sigma_u, b.sigma_u]);
-                svs.extend([a.sigma_v, b.sigma_v]);
+                us[n] = 0.5 * (a.u + b.u);
+                vs[n] = 0.5 * (a.v + b.v);
+                [sus[2 * n], sus[2 * n + 1]] = [a.sigma_u, b.sigma_u];
+                [svs[2 * n], svs[2 * n + 1]] = [a.sigma_v, b.sigma_v];
+                n += 1;
             }
         }
-        if us.is_empty() {
+        if n == 0 {
             return false;
         }
-        let test = |own: f64, sigma: f64, values: &mut Vec<f64>, sigmas: &mut Vec<f64>| {
+        let test = |own: f64, sigma: f64, values: &mut [f64], sigmas: &mut [f64]| {
             let m = median(values);
-            let mut spread: Vec<f64> = values.iter().map(|x| (x - m).abs()).collect();
-            let r = median(&mut spread);
+            let mut spread = [0.0; 4];
+            for (s, x) in spread.iter_mut().zip(values.iter()) {
+                *s = (x - m).abs();
+            }
+            let r = median(&mut spread[..values.len()]);
             let eps = sigma.hypot(median(sigmas));
             (own - m).abs() > MEDIAN_TEST_THRESHOLD * (r + eps)
         };
-        test(p.u, p.sigma_u, &mut us, &mut sus) || test(p.v, p.sigma_v, &mut vs, &mut svs)
+        test(p.u, p.sigma_u, &mut us[..n], &mut sus[..2 * n])
+            || test(p.v, p.sigma_v, &mut vs[..n], &mut svs[..2 * n])
     };
     (0..points.len())
         .into_par_iter()
@@ -544,7 +552,7 @@ pub fn field_with_progress(
     );
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
-        quantisation_step: opts.icgn.quantisation_step.max(q),
+        quantisation_step: q,
         ..opts.icgn
     };
     let corrections = Corrections::with_rounding(&r, opts.spline, rounding);

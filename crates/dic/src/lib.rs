@@ -173,21 +173,21 @@ pub(crate) struct Prepared {
     /// Variance of the rounding noise of both images after the prefilter, grey levels²:
     /// the floor of the residual variance ([`IcgnOptions::residual_floor`]).
     pub(crate) floor: f64,
-    /// Quantisation step of the current image's grey levels, 0 if not quantised or
-    /// prefiltered ([`IcgnOptions::quantisation_step`]: the rounding is simulated on
-    /// unfiltered data only).
+    /// The quantisation step the matches use ([`IcgnOptions::quantisation_step`]):
+    /// the larger of the caller's and the current image's own (0 if not quantised or
+    /// prefiltered: the rounding is simulated on unfiltered data only).
     pub(crate) step: f64,
-    /// The rounding tables at the larger of `step` and the caller's own step
-    /// ([`correction::rounding_tables`]).
+    /// The rounding tables at `step` ([`correction::rounding_tables`]).
     pub(crate) rounding: Vec<Vec<f32>>,
 }
 
 impl Prepared {
     /// Pyramid depth: enough levels that a `search_radius` jump is ~8 px at the top.
     /// A `prefilter` sigma > 0 low-passes both images first (against aliasing of
-    /// undersampled speckles, at the cost of some noise averaging). The rounding
-    /// tables are made for the larger of the current image's quantisation step and
-    /// `min_step` (the caller's [`IcgnOptions::quantisation_step`]).
+    /// undersampled speckles, at the cost of some noise averaging). The step the
+    /// matches use, and the rounding tables', is the larger of the current image's
+    /// quantisation step and `min_step` (the caller's
+    /// [`IcgnOptions::quantisation_step`]).
     pub(crate) fn new(
         reference: &Image,
         current: &Image,
@@ -221,12 +221,13 @@ impl Prepared {
                 (12.0 * qc).sqrt()
             }
         };
-        let ((qc, r, rounding), (qr, ((pr, pc), s))) = rayon::join(
+        let ((qc, step, r, rounding), (qr, ((pr, pc), s))) = rayon::join(
             || {
                 let qc = image::quantisation_variance(given_c);
+                let step = step_of(qc).max(min_step);
                 let r = Reference::with_degree(reference.clone(), spline);
-                let rounding = correction::rounding_tables(&r, step_of(qc).max(min_step));
-                (qc, r, rounding)
+                let rounding = correction::rounding_tables(&r, step);
+                (qc, step, r, rounding)
             },
             || {
                 let qr = image::quantisation_variance(given_r);
@@ -242,7 +243,6 @@ impl Prepared {
                 (qr, rest)
             },
         );
-        let step = step_of(qc);
         let floor = (qr + qc) * image::blur_noise_gain(prefilter);
         Prepared {
             pr,
@@ -311,7 +311,7 @@ pub fn correlate_points(
     );
     let icgn_opts = IcgnOptions {
         residual_floor: opts.icgn.residual_floor.max(floor),
-        quantisation_step: opts.icgn.quantisation_step.max(step),
+        quantisation_step: step,
         ..opts.icgn
     };
     let corrections = correction::Corrections::with_rounding(&r, opts.spline, rounding);
