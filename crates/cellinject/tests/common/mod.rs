@@ -62,3 +62,20 @@ pub fn poll<T, L: std::fmt::Debug>(
         std::thread::sleep(every);
     }
 }
+
+/// `cellinject plate generate ARGS --out OUT` in `dir`, which must succeed: a test's
+/// plate.
+pub fn plate(dir: &Path, args: &[&str], out: &str) {
+    let o = cmd(dir)
+        .args(["plate", "generate"])
+        .args(args)
+        .args(["--out", out])
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "plate generate {args:?}: {}",
+        err(&o)
+    );
+}

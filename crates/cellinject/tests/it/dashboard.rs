@@ -404,11 +404,9 @@ fn a_dashboard_run_records_what_the_cli_records_on_the_same_seed_and_plate() {
     // Both front ends start their runs through cellinject-session's one lifecycle:
     // on the same seed and plate, the same run (attempts, outcomes, events).
     let d = dir("serve", "same");
-    let o = run(
+    common::plate(
         &d,
         &[
-            "plate",
-            "generate",
             "--rows",
             "1",
             "--cols",
@@ -416,11 +414,9 @@ fn a_dashboard_run_records_what_the_cli_records_on_the_same_seed_and_plate() {
             "--origin=-75e-6,-40e-6",
             "--seed",
             "3",
-            "--out",
-            "p.toml",
         ],
+        "p.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let common = ["--plate", "p.toml", "--seed", "2"];
     let o = run(
         &d,

@@ -665,18 +665,9 @@ fn tree(d: &Path) -> Vec<PathBuf> {
 /// command writes one of its files.
 #[test]
 fn every_writing_command_keeps_a_file_in_its_way_unless_forced() {
-    use crate::no_panic::{baseline, bin, help, setup, subcommands};
+    use crate::no_panic::{baseline, bin, command_paths, setup};
     let d = setup("kept");
-    let mut paths: Vec<Vec<String>> = Vec::new();
-    let mut todo: Vec<Vec<String>> = vec![Vec::new()];
-    while let Some(p) = todo.pop() {
-        for s in subcommands(&help(&d, &p)) {
-            let mut q = p.clone();
-            q.push(s);
-            todo.push(q.clone());
-            paths.push(q);
-        }
-    }
+    let paths = command_paths(&d);
     let mine = b"a file of the user's own\n";
     let cases: Vec<(Vec<String>, PathBuf, usize)> = paths
         .iter()

@@ -90,11 +90,9 @@ impl Drop for Emulator {
 }
 
 fn plate(d: &Path) {
-    let o = run(
+    common::plate(
         d,
         &[
-            "plate",
-            "generate",
             "--rows",
             "2",
             "--cols",
@@ -102,11 +100,9 @@ fn plate(d: &Path) {
             "--origin=-75e-6,-45e-6",
             "--seed",
             "5",
-            "--out",
-            "p.toml",
         ],
+        "p.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
 }
 
 fn rms(v: &Value) -> f64 {

@@ -23,14 +23,34 @@ pub(crate) fn bin(dir: &Path) -> Command {
     c
 }
 
-pub(crate) fn help(dir: &Path, path: &[String]) -> String {
+fn help(dir: &Path, path: &[String]) -> String {
     let o = bin(dir).args(path).arg("--help").output().unwrap();
     assert!(o.status.success(), "{path:?} --help");
     String::from_utf8(o.stdout).unwrap()
 }
 
+/// Every command path (`["dic", "field"]`, ...), from the help texts run in `dir`,
+/// sorted: a new command is found at once.
+pub(crate) fn command_paths(dir: &Path) -> Vec<Vec<String>> {
+    let mut paths: Vec<Vec<String>> = Vec::new();
+    let mut todo: Vec<Vec<String>> = vec![Vec::new()];
+    while let Some(p) = todo.pop() {
+        let subs = subcommands(&help(dir, &p));
+        if !p.is_empty() {
+            paths.push(p.clone());
+        }
+        for s in subs {
+            let mut q = p.clone();
+            q.push(s);
+            todo.push(q);
+        }
+    }
+    paths.sort();
+    paths
+}
+
 /// Subcommand names of a help text ("Commands:" section, `help` left out).
-pub(crate) fn subcommands(help: &str) -> Vec<String> {
+fn subcommands(help: &str) -> Vec<String> {
     let mut out = Vec::new();
     let mut inside = false;
     for l in help.lines() {
@@ -54,14 +74,14 @@ pub(crate) fn subcommands(help: &str) -> Vec<String> {
 /// An option of a help text: its long name, whether it takes a value, its documented
 /// default (`[default: X]`) and its possible values if clap lists them.
 #[derive(Debug, Clone)]
-pub(crate) struct Opt {
-    pub(crate) name: String,
-    pub(crate) takes_value: bool,
+struct Opt {
+    name: String,
+    takes_value: bool,
     default: Option<String>,
     possible: Vec<String>,
 }
 
-pub(crate) fn options(help: &str) -> Vec<Opt> {
+fn options(help: &str) -> Vec<Opt> {
     let lines: Vec<&str> = help.lines().collect();
     let mut out: Vec<Opt> = Vec::new();
     for (i, l) in lines.iter().enumerate() {
@@ -548,22 +568,7 @@ pub(crate) fn setup(tag: &str) -> PathBuf {
 #[test]
 fn no_argument_list_makes_any_command_panic() {
     let dir = setup("nopanic");
-    // Every command path, from the help texts.
-    let mut paths: Vec<Vec<String>> = Vec::new();
-    let mut todo: Vec<Vec<String>> = vec![Vec::new()];
-    while let Some(p) = todo.pop() {
-        let h = help(&dir, &p);
-        let subs = subcommands(&h);
-        if !p.is_empty() {
-            paths.push(p.clone());
-        }
-        for s in subs {
-            let mut q = p.clone();
-            q.push(s);
-            todo.push(q);
-        }
-    }
-    paths.sort();
+    let paths = command_paths(&dir);
     assert!(paths.len() >= 16, "{paths:?}");
     let mut cases: Vec<Vec<String>> = Vec::new();
     let mut per_command: BTreeMap<String, usize> = BTreeMap::new();

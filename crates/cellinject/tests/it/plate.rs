@@ -252,17 +252,7 @@ fn plate_detect_finds_every_cell_and_no_debris_on_generated_plates() {
 #[test]
 fn plate_detect_with_no_cell_in_view_says_where_the_plate_is() {
     let d = dir("detect-none");
-    let o = run(
-        &d,
-        &[
-            "plate",
-            "generate",
-            "--origin=5e-3,5e-3",
-            "--out",
-            "far.toml",
-        ],
-    );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    common::plate(&d, &["--origin=5e-3,5e-3"], "far.toml");
     for format in ["text", "json"] {
         let o = run(
             &d,

@@ -31,11 +31,9 @@ fn ascii_um(text: &str) -> bool {
 }
 
 fn plate(d: &Path) {
-    let o = run(
+    common::plate(
         d,
         &[
-            "plate",
-            "generate",
             "--rows",
             "3",
             "--cols",
@@ -43,11 +41,9 @@ fn plate(d: &Path) {
             "--origin=-225e-6,-120e-6",
             "--seed",
             "3",
-            "--out",
-            "p.toml",
         ],
+        "p.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
 }
 
 #[test]
@@ -205,13 +201,7 @@ fn a_foreign_database_and_bad_arguments_are_refused_with_exit_2() {
 #[test]
 fn a_rig_file_naming_the_twin_records_what_the_default_run_records() {
     let d = dir("rig-twin");
-    let o = run(
-        &d,
-        &[
-            "plate", "generate", "--rows", "1", "--cols", "2", "--seed", "3", "--out", "p.toml",
-        ],
-    );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    common::plate(&d, &["--rows", "1", "--cols", "2", "--seed", "3"], "p.toml");
     fs::write(d.join("twin.toml"), "[piezo]\ndriver = \"twin\"\n").unwrap();
     let records = |db: &str, extra: &[&str]| {
         let mut args = vec!["run", "--plate", "p.toml", "--db", db];
@@ -295,21 +285,11 @@ fn a_plate_partly_beyond_the_feeders_reach_is_refused_naming_the_wells() {
     // The feeder reaches ±25 mm; the view's usable window ends about 1.1 mm right of
     // the stage's origin. Column 0's centre at 25.9 mm is within reach (its square
     // fits the window with the feeder at -25 mm), columns 1-3 at 26.05-26.35 mm not.
-    let o = run(
+    common::plate(
         &d,
-        &[
-            "plate",
-            "generate",
-            "--rows",
-            "2",
-            "--cols",
-            "4",
-            "--origin=25.9e-3,0",
-            "--out",
-            "far.toml",
-        ],
+        &["--rows", "2", "--cols", "4", "--origin=25.9e-3,0"],
+        "far.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let o = run(
         &d,
         &["run", "--plate", "far.toml", "--calibration", "hy.json"],
@@ -398,11 +378,9 @@ fn a_plate_wider_than_the_view_is_served_in_fields_and_each_cell_attempted_once(
     assert_ne!(steep, prototype, "the description's surface_tilt key moved");
     fs::write(d.join("steep.toml"), steep).unwrap();
     // 16 columns of 150 um span 2.4 mm; the window at zoom 2.5 is about 2.27 mm wide.
-    let o = run(
+    common::plate(
         &d,
         &[
-            "plate",
-            "generate",
             "--rows",
             "2",
             "--cols",
@@ -412,11 +390,9 @@ fn a_plate_wider_than_the_view_is_served_in_fields_and_each_cell_attempted_once(
             "--origin=-1.1e-3,-0.1e-3",
             "--seed",
             "4",
-            "--out",
-            "wide.toml",
         ],
+        "wide.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let o = run(
         &d,
         &[
@@ -716,11 +692,9 @@ fn show(d: &Path, db: &str) -> Option<Value> {
 #[test]
 fn a_run_killed_between_and_within_fields_resumes_without_touching_a_cell_twice() {
     let d = bench("kill-fields");
-    let o = run(
+    common::plate(
         &d,
         &[
-            "plate",
-            "generate",
             "--rows",
             "1",
             "--cols",
@@ -732,11 +706,9 @@ fn a_run_killed_between_and_within_fields_resumes_without_touching_a_cell_twice(
             "--origin=-1.1e-3,0",
             "--seed",
             "2",
-            "--out",
-            "w.toml",
         ],
+        "w.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let cells = fs::read_to_string(d.join("w.toml"))
         .unwrap()
         .lines()
@@ -1114,11 +1086,9 @@ fn the_small_partners_of_doublets_are_sized_and_dosed_as_themselves() {
 #[test]
 fn on_a_terminal_a_run_shows_its_progress_to_the_last_cell_and_piped_it_does_not() {
     let d = dir("pty");
-    let o = run(
+    common::plate(
         &d,
         &[
-            "plate",
-            "generate",
             "--rows",
             "1",
             "--cols",
@@ -1132,11 +1102,9 @@ fn on_a_terminal_a_run_shows_its_progress_to_the_last_cell_and_piped_it_does_not
             "0",
             "--seed",
             "4",
-            "--out",
-            "p.toml",
         ],
+        "p.toml",
     );
-    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
     let bin = env!("CARGO_BIN_EXE_cellinject");
     let tty = Command::new("script")
         .args([
