@@ -58,6 +58,19 @@ pub enum FocusError {
         /// Tiles with a focus.
         usable: usize,
     },
+    /// The plane through the tiles slopes more steeply than a plate's floor lies
+    /// ([`MAX_FLOOR_SLOPE`]): it rests on noise peaks.
+    #[error(
+        "the plane through {points} tiles slopes {:.1} µm/mm, steeper than a plate's floor lies ({:.0} µm/mm at most): their foci are noise",
+        slope * 1e3,
+        MAX_FLOOR_SLOPE * 1e3
+    )]
+    Steep {
+        /// m/m, the plane's slope (its magnitude).
+        slope: f64,
+        /// Tiles it rests on.
+        points: usize,
+    },
 }
 
 /// Least contrast of a tile's focus curve (highest over lowest sharpness) for its
@@ -265,6 +278,13 @@ pub const PLANE_OUTLIER: f64 = 1.5e-6;
 /// by the sum, as a plate truly tilted by 5 um/mm needs).
 const TILT_EQUAL: f64 = 10e-3;
 
+/// m/m, the steepest floor a plane of tile foci may describe (20 um/mm, 1.1°: four
+/// times the steepest field of the prototype's plates, 5.6 um/mm, whose dishes lie
+/// on a level holder). A steeper plane rests on noise: a field of nearly empty wells
+/// gave four tiles with curves wide enough to pass, on a plane of 27.8 um/mm, and
+/// the next field's focus, predicted from it 1.9 mm away, started its sweep 45 um off.
+pub const MAX_FLOOR_SLOPE: f64 = 20e-3;
+
 /// m, least rms spread of the points along a direction for the plane's slope along
 /// it to be fitted: along a narrower direction (a plate a few wells wide, seen in one
 /// row of tiles) the slope is left at 0 rather than fitted to noise.
@@ -279,7 +299,8 @@ pub const MIN_SPREAD: f64 = 0.15e-3;
 /// points remain. Dropping the farthest from the plane through all of them alone
 /// failed where one wrong tile stood alone at the field's edge: the plane leant to it,
 /// a right tile became the farthest, and a strip plate's floor was made to slope
-/// 15 um/mm (the cells 11 um off their focus).
+/// 15 um/mm (the cells 11 um off their focus). A plane steeper than
+/// [`MAX_FLOOR_SLOPE`] is refused ([`FocusError::Steep`]).
 pub fn fit_plane(points: &[([f64; 2], f64)], centre: [f64; 2]) -> Result<Plane, FocusError> {
     let finite: Vec<([f64; 2], f64)> = points
         .iter()
@@ -295,6 +316,13 @@ pub fn fit_plane(points: &[([f64; 2], f64)], centre: [f64; 2]) -> Result<Plane, 
             .map(|(i, (p, z))| (i, (z - plane.at(*p)).abs()))
             .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
         if off <= PLANE_OUTLIER || kept.len() <= 3 {
+            let slope = plane.slope[0].hypot(plane.slope[1]);
+            if slope > MAX_FLOOR_SLOPE {
+                return Err(FocusError::Steep {
+                    slope,
+                    points: plane.points,
+                });
+            }
             return Ok(plane);
         }
         kept.remove(worst);
@@ -522,6 +550,39 @@ mod tests {
         );
         assert!(plane.z.abs() < 0.5e-6, "{plane:?}");
         assert!((plane.at(pts[1].0) - pts[1].1).abs() > 5e-6);
+    }
+
+    /// Four tiles exactly on a plane: one of 19 um/mm is a floor; one of 21 um/mm
+    /// (beyond [`MAX_FLOOR_SLOPE`]) is refused, its slope named, whichever way it
+    /// leans.
+    #[test]
+    fn a_plane_steeper_than_a_floor_lies_is_refused() {
+        let tiles = [
+            [-0.7e-3, -0.5e-3],
+            [0.7e-3, -0.5e-3],
+            [-0.7e-3, 0.5e-3],
+            [0.7e-3, 0.5e-3],
+        ];
+        for dir in [0.0, 1.0, 2.5, 4.0] {
+            let on = |m: f64| -> Vec<([f64; 2], f64)> {
+                let (tx, ty) = (m * f64::cos(dir), m * f64::sin(dir));
+                tiles
+                    .iter()
+                    .map(|&p| (p, 3e-6 + tx * p[0] + ty * p[1]))
+                    .collect()
+            };
+            let plane = fit_plane(&on(19e-3), [0.0, 0.0]).unwrap();
+            assert!(
+                (plane.slope[0].hypot(plane.slope[1]) - 19e-3).abs() < 1e-9,
+                "{plane:?}"
+            );
+            match fit_plane(&on(21e-3), [0.0, 0.0]) {
+                Err(FocusError::Steep { slope, points: 4 }) => {
+                    assert!((slope - 21e-3).abs() < 1e-9, "{slope}")
+                }
+                other => panic!("{other:?}"),
+            }
+        }
     }
 
     #[test]
