@@ -59,6 +59,9 @@ pub enum CalibrateCommand {
         backend: BackendArgs,
     },
     /// The tilt stacks' hysteresis (Preisach) and creep from their position sensors.
+    ///
+    /// The macro stage first raises the pipette by as much as the sweep can lower its
+    /// tip (clear of a plate under it), and brings it back after.
     #[command(after_help = "Examples:\n  cellinject calibrate hysteresis --out hysteresis.json")]
     Hysteresis {
         /// Excitation samples per stack, 1 ms apart (by default a run's own number).
@@ -131,7 +134,15 @@ pub fn calibrate(d: &Description, cmd: &CalibrateCommand) -> Result<()> {
             let mut s = setup(d, twin, backend)?;
             let c = {
                 let _p = crate::progress::spinner("exciting A1 and A2");
-                calibrate::hysteresis(&mut s.rig, *samples as usize, *size as usize)
+                calibrate::sweep_drop(&s.description.design, &s.description.rig)
+                    .and_then(|drop| {
+                        calibrate::hysteresis_clear(
+                            &mut s.rig,
+                            drop,
+                            *samples as usize,
+                            *size as usize,
+                        )
+                    })
                     .map_err(bench_error)?
             };
             cellinject_files::write_one(&path, &file_bytes("hysteresis", &s.made, &c)?)?;

@@ -52,6 +52,11 @@ pub trait Station: Send + 'static {
     fn plate(&self) -> PlateView;
     /// The guarded devices.
     fn rig(&mut self) -> &mut Rig<DynBackend>;
+    /// m, how far the stacks' hysteresis sweep can lower the pipette's tip: the
+    /// calibration raises the pipette as much first
+    /// ([`cellinject_core::calibrate::sweep_drop`] of the bench's description), or
+    /// why the description's model gives none.
+    fn sweep_drop(&self) -> Result<f64, String>;
     /// Runs the plate to its end, recording it. Every call of the workflow's
     /// observer also goes to `watch` (which pauses and aborts through
     /// [`Observer::proceed`]); `aborted` tells whether the operator aborted, for the
@@ -670,7 +675,9 @@ fn execute(
                 b.message = None;
             });
             let (n, size) = (calibrate::HYSTERESIS_SAMPLES, calibrate::HYSTERESIS_SIZE);
-            let r = calibrate::hysteresis(station.rig(), n, size);
+            let r = station.sweep_drop().and_then(|drop| {
+                calibrate::hysteresis_clear(station.rig(), drop, n, size).map_err(|e| e.to_string())
+            });
             let safe = safe_state(station.rig());
             shared.update(|b| match (r, safe) {
                 (Ok(c), Ok(())) => {

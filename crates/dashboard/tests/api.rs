@@ -58,6 +58,9 @@ impl Station for FakeStation {
     fn rig(&mut self) -> &mut Rig<DynBackend> {
         &mut self.rig
     }
+    fn sweep_drop(&self) -> Result<f64, String> {
+        Ok(0.0)
+    }
     fn run(
         &mut self,
         watch: &mut dyn Observer,

@@ -386,7 +386,8 @@ pub fn load_or_make<B: Backend>(
         Some(h) => h,
         None => {
             step(Step::Making("identifying the stacks' hysteresis and creep"));
-            let c = calibrate::hysteresis(rig, HYSTERESIS_SAMPLES, HYSTERESIS_SIZE)?;
+            let drop = calibrate::sweep_drop(&description.design, &description.rig)?;
+            let c = calibrate::hysteresis_clear(rig, drop, HYSTERESIS_SAMPLES, HYSTERESIS_SIZE)?;
             files.push(("hysteresis".into(), file_bytes("hysteresis", made, &c)?));
             c
         }
@@ -499,5 +500,67 @@ mod tests {
         let e =
             read_file::<[f64; 2]>(&dir.path().join("none.json"), "pixels").expect_err("no file");
         assert!(e.to_string().contains("cannot read"), "{e}");
+    }
+
+    /// The stacks' sweep on a bench with a plate under the pipette, as `emulate gcs
+    /// --plate` serves it and a run starts (the pipette 30 µm above focus): swept where
+    /// the pipette stands, the tilt of body 1 drives the tip into the floor; raised by
+    /// [`calibrate::sweep_drop`] first ([`calibrate::hysteresis_clear`], what the
+    /// calibration commands and the dashboard run), the tip meets neither the floor nor
+    /// a cell, and the pipette ends where it stood.
+    #[test]
+    fn the_stacks_sweep_clears_a_plate_under_the_pipette() {
+        use cellinject_hw::Stage;
+        use cellinject_plate::{Object, Plate};
+        use cellinject_twin::{Twin, TwinParams, rig};
+        let d = cellinject_config::prototype();
+        let cell = |row, col| Object {
+            well: [row, col],
+            offset: [0.0, 0.0],
+            diameter: 20e-6,
+        };
+        let plate = Plate {
+            rows: 2,
+            cols: 2,
+            pitch: 150e-6,
+            origin: [-75e-6, -45e-6],
+            cells: vec![cell(0, 0), cell(0, 1), cell(1, 0), cell(1, 1)],
+            debris: vec![],
+        };
+        let start = cellinject_core::inject::Options::default();
+        let loaded = || {
+            let params = TwinParams {
+                rig: d.rig,
+                ..TwinParams::default()
+            };
+            let t = Twin::new(&d.design, params).unwrap().into_shared();
+            let mut w = t.lock().unwrap();
+            w.load_plate(&plate);
+            w.world.stage.place(1, start.focus + start.lift);
+            drop(w);
+            t
+        };
+        // (floor strikes, m of tip lost, cells touched, punctures) after the sweep.
+        let harm = |t: &cellinject_twin::SharedTwin| {
+            let w = t.lock().unwrap();
+            let b = w.biology.as_ref().unwrap();
+            let touched = b.cells.iter().filter(|c| c.touched || c.grazed).count();
+            let punctures: u32 = b.cells.iter().map(|c| c.punctures).sum();
+            (b.floor_strikes, b.tip_loss, touched, punctures)
+        };
+        let bare = loaded();
+        calibrate::hysteresis(&mut rig(&bare).unwrap(), 2000, 12).unwrap();
+        assert!(harm(&bare).0 > 0, "the bare sweep: {:?}", harm(&bare));
+        let clear = loaded();
+        let mut r = rig(&clear).unwrap();
+        let y0 = r.stage.position(1).unwrap();
+        let drop = calibrate::sweep_drop(&d.design, &d.rig).unwrap();
+        let c = calibrate::hysteresis_clear(&mut r, drop, 2000, 12).unwrap();
+        assert_eq!(harm(&clear), (0, 0.0, 0, 0));
+        assert!((r.stage.position(1).unwrap() - y0).abs() < 0.1e-6);
+        assert_eq!(c.problem(), None);
+        // A clearance that is not a length is refused before anything moves.
+        let e = calibrate::hysteresis_clear(&mut r, f64::NAN, 2000, 12).unwrap_err();
+        assert!(e.to_string().contains("clearance"), "{e}");
     }
 }

@@ -140,6 +140,10 @@ impl Station for BenchStation {
     fn rig(&mut self) -> &mut Rig<DynBackend> {
         &mut self.b.opened.rig
     }
+    fn sweep_drop(&self) -> Result<f64, String> {
+        cellinject_core::calibrate::sweep_drop(&self.b.d.design, &self.b.d.rig)
+            .map_err(|e| e.to_string())
+    }
     fn run(
         &mut self,
         watch: &mut dyn Observer,
