@@ -246,6 +246,32 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
         &d,
         &["rig", "check", "--rig", "bench.toml", "--format", "json"],
     ));
+    // The stacks identified over the wire once, with the plate under the pipette, for
+    // both of the wire's runs (day two on a bench: a run from its saved calibration).
+    // A run does not use the twin's calibration on another backend and would identify
+    // the stacks itself at a run's 20,000 samples (46 s of the wire's clock); 2,000
+    // take 11 s. Swept without raising the pipette first, this calibration broke the
+    // tip on the floor and the run's injections found no flow.
+    let o = run(
+        &d,
+        &[
+            "calibrate",
+            "hysteresis",
+            "--samples",
+            "2000",
+            "--rig",
+            "bench.toml",
+            "--out",
+            "cal/wire.json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let wire = |db: &'static str, extra: &[&'static str]| {
+        let mut a = injection(db, extra);
+        let k = a.iter().position(|x| *x == "cal/hysteresis.json").unwrap();
+        a[k] = "cal/wire.json";
+        a
+    };
     let devices = check["devices"].as_array().unwrap();
     assert_eq!(devices.len(), 7, "{check}");
     assert!(devices.iter().all(|x| x["answers"] == true), "{check}");
@@ -256,7 +282,7 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     );
     // The manipulator falls silent once the run is under way.
     let mut child = common::cmd(&d)
-        .args(injection("g.sqlite", &["--rig", "bench.toml"]))
+        .args(wire("g.sqlite", &["--rig", "bench.toml"]))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -278,10 +304,7 @@ fn a_run_over_gcs_injects_what_the_twin_injects() {
     assert!(a3.abs() < 0.05, "A3 withdrawn: {a3} V; {stderr}");
     // Answering again: the run resumes and finishes the plate.
     relay.silence(false);
-    let o = run(
-        &d,
-        &injection("g.sqlite", &["--rig", "bench.toml", "--resume"]),
-    );
+    let o = run(&d, &wire("g.sqlite", &["--rig", "bench.toml", "--resume"]));
     let g = ok(&o);
     let t = ok(&twin_side.join().unwrap());
     assert_eq!(g["backend"], backend.as_str());
