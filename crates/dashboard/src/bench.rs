@@ -595,6 +595,14 @@ pub fn spawn(
     (tx, handle)
 }
 
+/// The stacks' hysteresis identified with the pipette raised clear of the plate first
+/// ([`calibrate::hysteresis_clear`]), at a run's number of samples.
+fn calibrate_clear(station: &mut dyn Station) -> Result<HysteresisCalibration, String> {
+    let (n, size) = (calibrate::HYSTERESIS_SAMPLES, calibrate::HYSTERESIS_SIZE);
+    let drop = station.sweep_drop()?;
+    calibrate::hysteresis_clear(station.rig(), drop, n, size).map_err(|e| e.to_string())
+}
+
 fn execute(
     station: &mut dyn Station,
     shared: &Shared,
@@ -674,10 +682,7 @@ fn execute(
                 b.task = Some("calibrate");
                 b.message = None;
             });
-            let (n, size) = (calibrate::HYSTERESIS_SAMPLES, calibrate::HYSTERESIS_SIZE);
-            let r = station.sweep_drop().and_then(|drop| {
-                calibrate::hysteresis_clear(station.rig(), drop, n, size).map_err(|e| e.to_string())
-            });
+            let r = calibrate_clear(station);
             let safe = safe_state(station.rig());
             shared.update(|b| match (r, safe) {
                 (Ok(c), Ok(())) => {
