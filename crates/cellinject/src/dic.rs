@@ -211,7 +211,7 @@ fn parse_pair(s: &str) -> Result<(f64, f64), String> {
     Ok((x, y))
 }
 
-/// Loads a PNG or TIFF as grey levels in its own units (0-255 or 0-65535).
+/// Loads a PNG, TIFF or JPEG as grey levels in its own units (0-255 or 0-65535).
 pub fn load_grey(path: &Path) -> Result<Image> {
     let img = image::open(path)
         .map_err(|e| InputError(format!("cannot read image `{}`: {e}", path.display())))?;

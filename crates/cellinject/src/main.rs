@@ -34,6 +34,7 @@ mod rigcheck;
 mod run;
 mod serve;
 mod sim;
+mod vision;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -156,6 +157,12 @@ enum Command {
         after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate check --plate plate.toml\n  cellinject plate detect --plate plate.toml"
     )]
     Plate(plate::PlateCommand),
+    /// Vision on a lab's own micrographs: the cells in one image (phase contrast or bright field, either polarity).
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  cellinject vision cells --image cells.png --pixel-size 0.107e-6\n  cellinject vision cells --image field.png --out overlay.png --format json\n\nSee docs/vision.md."
+    )]
+    Vision(vision::VisionCommand),
     /// The unattended injection workflow: every cell of a plate found, injected and checked, recorded in a database (the default command).
     #[command(
         after_help = "Examples:\n  cellinject run\n  cellinject run --plate plate.toml --db runs.sqlite --format json\n  cellinject run --resume\n  cellinject run --fault clog@1,0"
@@ -264,6 +271,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 unused_config();
             }
             plate::run(&cmd, description)
+        }
+        Some(Command::Vision(cmd)) => {
+            unused_config();
+            vision::run(&cmd)
         }
         Some(Command::Hinge(args)) => {
             unused_config();

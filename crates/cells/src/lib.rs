@@ -33,6 +33,7 @@ use thiserror::Error;
 
 pub mod focus;
 pub mod tip;
+pub mod vision;
 
 /// Why an image could not be searched.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -221,7 +222,7 @@ pub(crate) fn darkness(pixels: &[u16], width: usize, height: usize, window: f64)
 
 /// Mean of `img` over the `(2h+1)²` window around each pixel, counting only `keep`
 /// pixels (summed-area tables).
-fn box_mean(img: &[f64], keep: &[bool], w: usize, h: usize, half: usize) -> Vec<f64> {
+pub(crate) fn box_mean(img: &[f64], keep: &[bool], w: usize, h: usize, half: usize) -> Vec<f64> {
     let (w1, h1) = (w + 1, h + 1);
     let mut s = vec![0.0; w1 * h1];
     let mut n = vec![0.0; w1 * h1];
@@ -251,7 +252,7 @@ fn box_mean(img: &[f64], keep: &[bool], w: usize, h: usize, half: usize) -> Vec<
 }
 
 /// Erosion then dilation by the `(2r+1)²` square (separable; outside counts as empty).
-fn opening(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+pub(crate) fn opening(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     let eroded = filter(mask, w, h, r, true);
     filter(&eroded, w, h, r, false)
 }
@@ -300,7 +301,7 @@ fn neighbours(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
 /// Sets the pixels the outside cannot reach (holes inside a blob, where noise left a
 /// cell's pale inside below the threshold): a hole would pull the distance transform
 /// off the cell's centre.
-fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
+pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
     let mut reached = vec![false; mask.len()];
     let mut queue = VecDeque::new();
     for i in 0..mask.len() {
@@ -457,9 +458,40 @@ fn split_discs(comp: &[usize], w: usize, min_radius: f64) -> Vec<(Vec<usize>, bo
     vec![(one, true), (two, true)]
 }
 
+/// `a x = r` by Gaussian elimination with partial pivoting; `None` when a pivot is
+/// below `tiny` in magnitude (or not a number).
+pub(crate) fn solve<const N: usize>(
+    mut a: [[f64; N]; N],
+    mut r: [f64; N],
+    tiny: f64,
+) -> Option<[f64; N]> {
+    for k in 0..N {
+        let p = (k..N).max_by(|&i, &j| a[i][k].abs().total_cmp(&a[j][k].abs()))?;
+        let pivot = a[p][k].abs();
+        if pivot.is_nan() || pivot < tiny {
+            return None;
+        }
+        a.swap(k, p);
+        r.swap(k, p);
+        for i in k + 1..N {
+            let f = a[i][k] / a[k][k];
+            for j in k..N {
+                a[i][j] -= f * a[k][j];
+            }
+            r[i] -= f * r[k];
+        }
+    }
+    let mut x = [0.0; N];
+    for k in (0..N).rev() {
+        let s: f64 = (k + 1..N).map(|j| a[k][j] * x[j]).sum();
+        x[k] = (r[k] - s) / a[k][k];
+    }
+    Some(x)
+}
+
 /// Circle through points in the least-squares sense (Kåsa): `(cx, cy, r)`, or `None`
 /// when the points do not determine one.
-fn fit_circle(pts: &[(f64, f64)]) -> Option<(f64, f64, f64)> {
+pub(crate) fn fit_circle(pts: &[(f64, f64)]) -> Option<(f64, f64, f64)> {
     if pts.len() < 8 {
         return None;
     }

@@ -348,7 +348,7 @@ impl<'a> Darkness<'a> {
                     }
                 }
             }
-            solve9(a, r)
+            crate::solve(a, r, 1e-12)
         };
         let c = fit(None).map(|c0| fit(Some(&c0)).unwrap_or(c0));
         Darkness {
@@ -399,31 +399,6 @@ fn row_coefficients(c: &[f64; 9], v: f64) -> [f64; 3] {
 fn darkness(p: u16, u: f64, q: &[f64; 3]) -> f64 {
     let b = q[0] + u * (q[1] + u * q[2]);
     if b > 0.0 { 1.0 - p as f64 / b } else { 0.0 }
-}
-
-/// Solves a 9×9 system by Gaussian elimination with partial pivoting.
-fn solve9(mut a: [[f64; 9]; 9], mut r: [f64; 9]) -> Option<[f64; 9]> {
-    for k in 0..9 {
-        let p = (k..9).max_by(|&i, &j| a[i][k].abs().total_cmp(&a[j][k].abs()))?;
-        if a[p][k].abs() < 1e-12 {
-            return None;
-        }
-        a.swap(k, p);
-        r.swap(k, p);
-        for i in k + 1..9 {
-            let f = a[i][k] / a[k][k];
-            for j in k..9 {
-                a[i][j] -= f * a[k][j];
-            }
-            r[i] -= f * r[k];
-        }
-    }
-    let mut x = [0.0; 9];
-    for k in (0..9).rev() {
-        let s: f64 = (k + 1..9).map(|j| a[k][j] * x[j]).sum();
-        x[k] = (r[k] - s) / a[k][k];
-    }
-    Some(x)
 }
 
 /// The unit principal axis of points.

@@ -15,3 +15,4 @@ pub mod model;
 pub mod plate;
 pub mod run;
 pub mod table;
+pub mod vision;

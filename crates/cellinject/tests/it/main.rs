@@ -24,3 +24,4 @@ mod plate;
 mod python;
 mod run;
 mod tidy;
+mod vision;

@@ -178,6 +178,9 @@ fn values(opt: &Opt) -> Vec<String> {
         "origin" => v(&["0,0", "-1e-3,2e-3", "1", "nan,0", "1e300,0", "x"]),
         "rows" | "cols" => v(&["0", "1", "1001", "-1", "x", "3"]),
         "frames" => v(&["", "missing", "frames/*.png", "frames/*.tif", "r.png"]),
+        "image" => v(&["", "missing.png", "r.png", "bad.toml", "."]),
+        "pixel-size" => v(&["0.2e-6", "0", "-1e-6", "nan", "inf", "x"]),
+        "diameter" => v(&["10e-6,30e-6", "30e-6,10e-6", "0,1", "nan,1", "1", "x"]),
         "out" | "reference" | "current" | "plot" | "export-mesh" => v(&[
             "",
             "r.png",
@@ -346,6 +349,7 @@ pub(crate) fn baseline(path: &[String]) -> Vec<&'static str> {
             "study",
         ],
         ["plate", "check"] => vec!["--plate", "plate.toml"],
+        ["vision", "cells"] => vec!["--image", "r.png"],
         ["plate", "detect"] => vec!["--plate", "plate.toml"],
         ["sim", "tip"] => vec!["--runs", "2"],
         ["run"] => vec![
@@ -697,6 +701,7 @@ fn a_closed_pipe_ends_every_printing_command_quietly() {
         vec!["design", "evaluate", "--format", "json"],
         vec!["model", "--format", "json"],
         vec!["hinge-table"],
+        vec!["vision", "cells", "--image", "r.png"],
         vec![
             "experiment",
             "repeatability",

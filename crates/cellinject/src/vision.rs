@@ -1,0 +1,167 @@
+//! `cellinject vision`: cell detection on a lab's own images (`cellinject_cells::vision`).
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use cellinject_cells::vision::{Contrast, VisionOptions, find_cells};
+use cellinject_files::{Kind, Plan, Staged, encode_rgb};
+use cellinject_plot::frame::{Outline, with_outlines};
+use cellinject_print::vision::CellsReport;
+use clap::{Args, Subcommand, ValueEnum};
+
+use crate::output::print_json;
+use crate::{Format, InputError};
+
+/// `cellinject vision ...`.
+#[derive(Debug, Subcommand)]
+pub enum VisionCommand {
+    /// The cells in one micrograph (phase contrast or bright field, either polarity): centre, diameter, contrast and confidence of each, debris apart.
+    #[command(
+        after_help = "Examples:\n  cellinject vision cells --image cells.png --pixel-size 0.107e-6\n  cellinject vision cells --image field.tif --pixel-size 0.88e-6 --contrast dark --out overlay.png --format json\n\nSee docs/vision.md."
+    )]
+    Cells(CellsArgs),
+}
+
+/// Which cells to look for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ContrastArg {
+    /// Both: bright bodies (phase contrast) and dark ones (bright field).
+    Auto,
+    /// Cells darker than their surroundings.
+    Dark,
+    /// Cells brighter than their surroundings.
+    Bright,
+}
+
+/// `vision cells`'s arguments.
+#[derive(Debug, Args)]
+pub struct CellsArgs {
+    /// The image: PNG, TIFF or JPEG, 8 or 16 bit (colour is read as grey).
+    #[arg(long)]
+    image: PathBuf,
+    /// m per pixel in the object plane (e.g. 0.107e-6); sizes are then given in m too.
+    #[arg(long, value_name = "M")]
+    pixel_size: Option<f64>,
+    /// m, the smallest and largest diameter of a cell (needs --pixel-size) [default: 9.5e-6,30e-6 with a pixel size; 8 px to half the image's shorter side without].
+    #[arg(long, value_name = "MIN,MAX", value_parser = parse_range)]
+    diameter: Option<(f64, f64)>,
+    /// Which cells to look for.
+    #[arg(long, value_enum, default_value_t = ContrastArg::Auto)]
+    contrast: ContrastArg,
+    /// The image with the outlines drawn over it (PNG): cells green, debris orange, numbered as printed.
+    #[arg(long, value_name = "OVERLAY.png")]
+    out: Option<PathBuf>,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    format: Format,
+}
+
+fn parse_range(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("expected MIN,MAX in metres, got `{s}`");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let a: f64 = a.trim().parse().map_err(|_| bad())?;
+    let b: f64 = b.trim().parse().map_err(|_| bad())?;
+    if !(a.is_finite() && b.is_finite() && a > 0.0 && b > a) {
+        return Err(format!(
+            "`{s}`: the smallest diameter must be a positive length below the largest"
+        ));
+    }
+    Ok((a, b))
+}
+
+/// Runs a `vision` command.
+pub fn run(cmd: &VisionCommand) -> Result<()> {
+    match cmd {
+        VisionCommand::Cells(a) => cells(a),
+    }
+}
+
+fn cells(a: &CellsArgs) -> Result<()> {
+    if let Some(p) = a.pixel_size
+        && !(p.is_finite() && p > 0.0)
+    {
+        return Err(InputError(format!(
+            "--pixel-size must be a positive length in metres, got {p}"
+        ))
+        .into());
+    }
+    if a.diameter.is_some() && a.pixel_size.is_none() {
+        return Err(InputError(
+            "--diameter is in metres: give --pixel-size too (the image's m per pixel)".into(),
+        )
+        .into());
+    }
+    let mut plan = Plan::new();
+    plan.input("--image", &a.image);
+    let out = match &a.out {
+        Some(o) => Some(plan.output("--out", o, &[Kind::Png])?),
+        None => None,
+    };
+    plan.check()?;
+    let img = crate::dic::load_grey(&a.image).map_err(|e| InputError(format!("--image: {e}")))?;
+    let (w, h) = (img.width(), img.height());
+    let diameter_px = match (a.pixel_size, a.diameter) {
+        (Some(p), Some((lo, hi))) => [lo / p, hi / p],
+        (Some(p), None) => [9.5e-6 / p, 30e-6 / p],
+        (None, _) => [8.0, 0.5 * w.min(h) as f64],
+    };
+    let contrast = match a.contrast {
+        ContrastArg::Auto => Contrast::Auto,
+        ContrastArg::Dark => Contrast::Dark,
+        ContrastArg::Bright => Contrast::Bright,
+    };
+    let census = find_cells(
+        img.data(),
+        w,
+        h,
+        &VisionOptions {
+            diameter_px,
+            contrast,
+        },
+    )
+    .map_err(|e| InputError(format!("--image `{}`: {e}", a.image.display())))?;
+    let report = CellsReport::new(&census, a.pixel_size);
+    let mut written = Vec::new();
+    if let Some(path) = &out {
+        let (lo, hi) = img
+            .data()
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |m, v| {
+                (m.0.min(*v), m.1.max(*v))
+            });
+        let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
+        let grey: Vec<u8> = img
+            .data()
+            .iter()
+            .map(|v| ((v - lo) * scale).round() as u8)
+            .collect();
+        let outlines: Vec<Outline> = census
+            .cells
+            .iter()
+            .map(|f| (f, true))
+            .chain(census.debris.iter().map(|f| (f, false)))
+            .map(|(f, primary)| Outline {
+                centre: [f.x, f.y],
+                radius: 0.5 * f.diameter,
+                primary,
+            })
+            .collect();
+        let rgb = with_outlines(&grey, w as u32, h as u32, &outlines)?;
+        let mut staged = Staged::new();
+        staged.add(path, &encode_rgb(rgb, path)?)?;
+        staged.commit()?;
+        written.push(path.clone());
+    }
+    if a.format == Format::Json {
+        let files: Vec<&std::path::Path> = written.iter().map(|p| p.as_path()).collect();
+        return print_json(&report, &files);
+    }
+    outln!(
+        "{}",
+        report.text(&a.image.display().to_string(), w, h).trim_end()
+    );
+    if let Some(p) = written.first() {
+        outln!("wrote {}", p.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,141 @@
+//! `cellinject vision cells` on images the test renders: a phase-contrast cell (a
+//! bright body in a dark halo) found at its outline, the JSON of issue 40's interface,
+//! the overlay; bad input refused naming it. (The real photograph, `data.cell()`, and
+//! its variants are `crates/cells/tests/micrographs.rs`.)
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::fs;
+use std::path::Path;
+
+use crate::common::{self, err};
+
+/// A `w x h` 8-bit PNG of a bright disc of radius `r` px at `c` inside a dark halo on
+/// a grey field, its edges blurred over about a pixel.
+fn phase_png(path: &Path, (w, h): (u32, u32), c: (f64, f64), r: f64) {
+    let img = image::GrayImage::from_fn(w, h, |x, y| {
+        let d = (x as f64 - c.0).hypot(y as f64 - c.1);
+        let s = |e: f64| 0.5 * (1.0 + (e / 1.2).tanh());
+        let body = s(r - d);
+        let halo = s(1.3 * r - d) - body;
+        image::Luma([(70.0 + 130.0 * body - 60.0 * halo).round() as u8])
+    });
+    img.save(path).unwrap();
+}
+
+#[test]
+fn a_cell_is_found_at_its_outline_and_reported_as_the_interface_says() {
+    let d = common::dir("vision", "found");
+    phase_png(&d.join("c.png"), (240, 200), (131.4, 97.8), 40.0);
+    let o = common::run(
+        &d,
+        &[
+            "vision",
+            "cells",
+            "--image",
+            "c.png",
+            "--pixel-size",
+            "0.2e-6",
+            "--format",
+            "json",
+            "--out",
+            "o.png",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["pixel_size_m"], 0.2e-6);
+    let cells = v["cells"].as_array().unwrap();
+    assert_eq!(cells.len(), 1, "{v}");
+    let c = &cells[0];
+    let keys: Vec<&str> = c.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+    for k in [
+        "x_px",
+        "y_px",
+        "diameter_px",
+        "diameter_m",
+        "confidence",
+        "contrast",
+    ] {
+        assert!(keys.contains(&k), "{k} missing: {c}");
+    }
+    let f = |k: &str| c[k].as_f64().unwrap();
+    assert!(
+        (f("x_px") - 131.4).abs() < 0.5 && (f("y_px") - 97.8).abs() < 0.5,
+        "{c}"
+    );
+    assert!((f("diameter_px") / 80.0 - 1.0).abs() < 0.03, "{c}");
+    assert!(
+        (f("diameter_m") - f("diameter_px") * 0.2e-6).abs() < 1e-15,
+        "{c}"
+    );
+    assert_eq!(c["contrast"], "bright");
+    assert!((0.5..=1.0).contains(&f("confidence")), "{c}");
+    assert_eq!(v["debris"].as_array().unwrap().len(), 0, "{v}");
+    let overlay = image::open(d.join("o.png")).unwrap();
+    assert_eq!((overlay.width(), overlay.height()), (240, 200));
+    // Text: the summary line, then the cell's; without a pixel size, no µm.
+    let o = common::run(&d, &["vision", "cells", "--image", "c.png"]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    let first = text.lines().next().unwrap();
+    assert_eq!(first, "1 cell and 0 pieces of debris in c.png (240x200 px)");
+    assert!(text.contains("bright") && !text.contains("µm"), "{text}");
+    let _ = fs::remove_dir_all(&d);
+}
+
+#[test]
+fn bad_images_and_arguments_exit_2_naming_them() {
+    let d = common::dir("vision", "bad");
+    phase_png(&d.join("c.png"), (120, 100), (60.0, 50.0), 20.0);
+    fs::write(d.join("text.png"), "not an image").unwrap();
+    fs::write(d.join("empty.png"), "").unwrap();
+    image::GrayImage::new(4, 4)
+        .save(d.join("tiny.png"))
+        .unwrap();
+    let before = fs::read(d.join("c.png")).unwrap();
+    for (args, named) in [
+        (vec!["--image", "text.png"], "text.png"),
+        (vec!["--image", "empty.png"], "empty.png"),
+        (vec!["--image", "tiny.png"], "tiny.png"),
+        (vec!["--image", "missing.png"], "missing.png"),
+        (
+            vec!["--image", "c.png", "--pixel-size", "nan"],
+            "--pixel-size",
+        ),
+        (
+            vec!["--image", "c.png", "--pixel-size", "0"],
+            "--pixel-size",
+        ),
+        (
+            vec![
+                "--image",
+                "c.png",
+                "--pixel-size",
+                "1e-6",
+                "--diameter",
+                "30e-6,10e-6",
+            ],
+            "--diameter",
+        ),
+        (
+            vec!["--image", "c.png", "--diameter", "10e-6,30e-6"],
+            "--diameter",
+        ),
+        (vec!["--image", "c.png", "--out", "c.png"], "c.png"),
+        (vec!["--image", "c.png", "--out", "o.txt"], "--out"),
+    ] {
+        let mut a = vec!["vision", "cells"];
+        a.extend(args.iter());
+        let o = common::run(&d, &a);
+        let e = err(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains(named), "{args:?}: {e}");
+        assert!(!e.contains("panicked"), "{args:?}: {e}");
+    }
+    assert_eq!(
+        fs::read(d.join("c.png")).unwrap(),
+        before,
+        "the input is untouched"
+    );
+    let _ = fs::remove_dir_all(&d);
+}
