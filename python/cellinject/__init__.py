@@ -10,6 +10,7 @@ The modules (each a thin layer over the Rust library crates, all imported here):
 - ``cellinject.hysteresis``: hysteresis models, fitted, applied and inverted;
 - ``cellinject.twin``: the digital twin of the bench, and the injection workflow;
 - ``cellinject.rig``: a bench opened from a rig file, its devices checked, runs on it;
+- ``cellinject.vision``: the cells in a lab's own micrograph (NumPy in, dict out);
 - ``cellinject.runs``: the run database read back.
 
 Results are dicts with the CLI's JSON field names and SI units (docs/json.md).
@@ -19,7 +20,7 @@ named; ``NotConverged`` (also ``RuntimeError``) when nothing usable came out.
 
 from ._errors import Error, InputError, NotConverged
 from ._cellinject import __version__
-from . import design, dic, fea, flexure, hysteresis, model, rig, runs, twin
+from . import design, dic, fea, flexure, hysteresis, model, rig, runs, twin, vision
 
 __all__ = [
     "Error",
@@ -35,4 +36,5 @@ __all__ = [
     "rig",
     "runs",
     "twin",
+    "vision",
 ]

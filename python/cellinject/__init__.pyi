@@ -5,6 +5,7 @@ from . import flexure as flexure
 from . import hysteresis as hysteresis
 from . import model as model
 from . import rig as rig
+from . import vision as vision
 from . import runs as runs
 from . import twin as twin
 from ._errors import Error as Error

@@ -5,9 +5,9 @@ import doctest
 import numpy as np
 
 import cellinject
-from cellinject import design, dic, fea, flexure, hysteresis, model, rig, runs, twin
+from cellinject import design, dic, fea, flexure, hysteresis, model, rig, runs, twin, vision
 
-MODULES = [design, dic, fea, flexure, hysteresis, model, rig, runs, twin]
+MODULES = [design, dic, fea, flexure, hysteresis, model, rig, runs, twin, vision]
 
 
 def objects():

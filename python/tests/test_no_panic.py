@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import cellinject
-from cellinject import dic, fea, flexure, hysteresis, model, runs, twin
+from cellinject import dic, fea, flexure, hysteresis, model, runs, twin, vision
 
 # Random grey levels: texture along both axes (a ramp along x alone has none along y,
 # and the tracker rightly refuses it).
@@ -18,6 +18,7 @@ GOOD = {
     "field": (dic.field, dict(reference=IMG, current=IMG)),
     "track": (dic.track, dict(frames=[IMG, IMG], roi=(10, 10, 20, 20))),
     "synth": (dic.synth, dict(size=(32, 32))),
+    "cells": (vision.cells, dict(image=IMG, pixel_size=0.5e-6)),
     "hinge": (flexure.hinge, dict(profile="circular", thickness=5e-4, width=5e-3, radius=2e-3)),
     "tension": (model.tension, dict(approach=1)),
     "fea": (fea.run, dict(approach=1, forces=(-100.0, -100.0))),
@@ -45,6 +46,10 @@ SWEEP = [
     ("synth", "noise", BAD_NUMBERS[:4]),
     ("synth", "shift", [(math.nan, 0.0), (0.0, math.inf)]),
     ("synth", "rotation", [math.nan]),
+    ("cells", "pixel_size", BAD_NUMBERS[:5]),
+    ("cells", "diameter", [(2e-5, 1e-5), (math.nan, 1e-5), (0.0, 1e-5), (-1.0, 1e-5)]),
+    ("cells", "contrast", ["light", ""]),
+    ("cells", "image", [IMG[None], IMG.astype(np.int64), np.zeros((0, 0), np.uint8), np.full((64, 64), np.nan), np.zeros((4, 4), np.uint8), None]),
     ("hinge", "thickness", BAD_NUMBERS[:5]),
     ("hinge", "width", BAD_NUMBERS[:5]),
     ("hinge", "radius", BAD_NUMBERS[:5]),

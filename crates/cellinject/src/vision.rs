@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use cellinject_cells::vision::{Contrast, VisionOptions, find_cells};
+use cellinject_cells::vision::{Arg, Contrast, Request, RequestError, find_cells};
 use cellinject_files::{Kind, Plan, Staged, encode_rgb};
 use cellinject_plot::frame::{Outline, with_outlines};
 use cellinject_print::vision::CellsReport;
@@ -77,20 +77,24 @@ pub fn run(cmd: &VisionCommand) -> Result<()> {
 }
 
 fn cells(a: &CellsArgs) -> Result<()> {
-    if let Some(p) = a.pixel_size
-        && !(p.is_finite() && p > 0.0)
-    {
-        return Err(InputError(format!(
-            "--pixel-size must be a positive length in metres, got {p}"
-        ))
-        .into());
-    }
-    if a.diameter.is_some() && a.pixel_size.is_none() {
-        return Err(InputError(
-            "--diameter is in metres: give --pixel-size too (the image's m per pixel)".into(),
-        )
-        .into());
-    }
+    let request = Request {
+        pixel_size: a.pixel_size,
+        diameter: a.diameter.map(|(lo, hi)| [lo, hi]),
+        contrast: match a.contrast {
+            ContrastArg::Auto => Contrast::Auto,
+            ContrastArg::Dark => Contrast::Dark,
+            ContrastArg::Bright => Contrast::Bright,
+        },
+    };
+    let refused = |e: RequestError| {
+        let arg = match e.arg() {
+            Arg::PixelSize => "--pixel-size",
+            Arg::Diameter => "--diameter",
+        };
+        InputError(format!("{arg} {e}"))
+    };
+    // The options checked before any file is read.
+    request.options(1, 1).map_err(refused)?;
     let mut plan = Plan::new();
     plan.input("--image", &a.image);
     let out = match &a.out {
@@ -100,26 +104,9 @@ fn cells(a: &CellsArgs) -> Result<()> {
     plan.check()?;
     let img = crate::dic::load_grey(&a.image).map_err(|e| InputError(format!("--image: {e}")))?;
     let (w, h) = (img.width(), img.height());
-    let diameter_px = match (a.pixel_size, a.diameter) {
-        (Some(p), Some((lo, hi))) => [lo / p, hi / p],
-        (Some(p), None) => [9.5e-6 / p, 30e-6 / p],
-        (None, _) => [8.0, 0.5 * w.min(h) as f64],
-    };
-    let contrast = match a.contrast {
-        ContrastArg::Auto => Contrast::Auto,
-        ContrastArg::Dark => Contrast::Dark,
-        ContrastArg::Bright => Contrast::Bright,
-    };
-    let census = find_cells(
-        img.data(),
-        w,
-        h,
-        &VisionOptions {
-            diameter_px,
-            contrast,
-        },
-    )
-    .map_err(|e| InputError(format!("--image `{}`: {e}", a.image.display())))?;
+    let options = request.options(w, h).map_err(refused)?;
+    let census = find_cells(img.data(), w, h, &options)
+        .map_err(|e| InputError(format!("--image `{}`: {e}", a.image.display())))?;
     let report = CellsReport::new(&census, a.pixel_size);
     let mut written = Vec::new();
     if let Some(path) = &out {

@@ -99,6 +99,92 @@ pub struct Census {
 /// Rays cast from a centre.
 const RAYS: usize = 72;
 
+/// What a front end asks of [`find_cells`] in the units a user gives (`vision cells`'s
+/// options, `cellinject.vision.cells`'s arguments): checked and turned into pixels
+/// once, for all of them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Request {
+    /// m per pixel in the object plane, if known.
+    pub pixel_size: Option<f64>,
+    /// m, the smallest and largest diameter of a cell (needs `pixel_size`); by default
+    /// 9.5-30 µm with a pixel size, 8 px to half the image's shorter side without.
+    pub diameter: Option<[f64; 2]>,
+    /// Which cells to look for.
+    pub contrast: Contrast,
+}
+
+/// Why a [`Request`] cannot be met; each front end names its own argument.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum RequestError {
+    /// The pixel size is not a positive length.
+    #[error("must be a positive length in metres, got {0}")]
+    PixelSize(f64),
+    /// A diameter range in metres without a pixel size to turn it into pixels.
+    #[error("is in metres: it needs the pixel size (the image's m per pixel) too")]
+    DiameterWithoutPixelSize,
+    /// The diameters are not two positive lengths, the smaller first.
+    #[error("must be two positive lengths in metres, the smaller first, got {0}, {1}")]
+    Diameter(f64, f64),
+    /// At this pixel size the smallest cell spans fewer than 4 pixels (blamed on the
+    /// diameter range when one was given, else on the pixel size).
+    #[error("makes the smallest cell {0:.3} px across: at least 4 px are needed to find it")]
+    Coarse(f64, Arg),
+}
+
+/// A [`Request`]'s argument.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Arg {
+    /// [`Request::pixel_size`].
+    PixelSize,
+    /// [`Request::diameter`].
+    Diameter,
+}
+
+impl RequestError {
+    /// The argument at fault, for the front end to name.
+    pub fn arg(&self) -> Arg {
+        match self {
+            RequestError::PixelSize(_) => Arg::PixelSize,
+            RequestError::Coarse(_, a) => *a,
+            _ => Arg::Diameter,
+        }
+    }
+}
+
+impl Request {
+    /// The search options for a `width` x `height` image.
+    pub fn options(&self, width: usize, height: usize) -> Result<VisionOptions, RequestError> {
+        if let Some(p) = self.pixel_size
+            && !(p.is_finite() && p > 0.0)
+        {
+            return Err(RequestError::PixelSize(p));
+        }
+        if let Some([lo, hi]) = self.diameter
+            && !(lo.is_finite() && hi.is_finite() && lo > 0.0 && hi > lo)
+        {
+            return Err(RequestError::Diameter(lo, hi));
+        }
+        let diameter_px = match (self.pixel_size, self.diameter) {
+            (Some(p), Some([lo, hi])) => [lo / p, hi / p],
+            (Some(p), None) => [9.5e-6 / p, 30e-6 / p],
+            (None, Some(_)) => return Err(RequestError::DiameterWithoutPixelSize),
+            (None, None) => [8.0, 0.5 * width.min(height) as f64],
+        };
+        if diameter_px[0].is_nan() || diameter_px[0] < 4.0 {
+            let blamed = if self.diameter.is_some() {
+                Arg::Diameter
+            } else {
+                Arg::PixelSize
+            };
+            return Err(RequestError::Coarse(diameter_px[0], blamed));
+        }
+        Ok(VisionOptions {
+            diameter_px,
+            contrast: self.contrast,
+        })
+    }
+}
+
 /// Least confidence of a cell or a piece of debris.
 pub const MIN_CONFIDENCE: f64 = 0.5;
 
@@ -110,11 +196,18 @@ pub fn find_cells(
     height: usize,
     o: &VisionOptions,
 ) -> Result<Census, CellsError> {
-    if grey.len() != width * height || width < 8 || height < 8 {
+    if grey.len() != width * height {
         return Err(CellsError::Size {
             len: grey.len(),
             width,
             height,
+        });
+    }
+    if width < 8 || height < 8 {
+        return Err(CellsError::Invalid {
+            what: "image size",
+            value: width.min(height) as f64,
+            reason: "an image must be at least 8 x 8 pixels",
         });
     }
     let [dmin, dmax] = o.diameter_px;
@@ -226,8 +319,11 @@ pub fn find_cells(
 
 /// The illumination under `img`: a quadratic surface in x and y fitted by least
 /// squares to every fourth pixel of every fourth row, three times, each time without
-/// the pixels more than three robust spreads (and 3 %) off the last surface: a cell, its
-/// halo and debris do not pull it; a ramp or a vignetting across the frame is followed.
+/// the pixels more than three robust spreads (and 3 %) off the last surface, starting
+/// from the samples' median level: a cell, its halo and debris do not pull it; a ramp
+/// or a vignetting across the frame is followed. A first fit over every sample leant
+/// to a large bright cell (a disc over an eighth of the frame bent it into a dome of
+/// 124 grey levels over a field of 70, its corners near 1), and nothing stood out.
 fn background(img: &[f64], w: usize, h: usize) -> Vec<f64> {
     let basis = |x: usize, y: usize| {
         let u = 2.0 * x as f64 / (w - 1) as f64 - 1.0;
@@ -245,29 +341,24 @@ fn background(img: &[f64], w: usize, h: usize) -> Vec<f64> {
             .map(|(b, c)| b * c)
             .sum::<f64>()
     };
-    let mut coef = [0.0; 6];
-    let mut keep = vec![true; samples.len()];
-    for round in 0..3 {
-        if round > 0 {
-            let rel: Vec<f64> = samples
-                .iter()
-                .map(|&(x, y)| {
-                    let b = surface(&coef, x, y);
-                    if b.abs() > 0.0 {
-                        img[y * w + x] / b - 1.0
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
-            let limit = (3.0 * 1.4826 * median_abs_deviation(&rel)).max(0.03);
-            for (k, r) in keep.iter_mut().zip(&rel) {
-                *k = r.abs() <= limit;
-            }
-        }
+    let mut levels: Vec<f64> = samples.iter().map(|&(x, y)| img[y * w + x]).collect();
+    let mut coef = [median_in_place(&mut levels), 0.0, 0.0, 0.0, 0.0, 0.0];
+    for _ in 0..3 {
+        let rel: Vec<f64> = samples
+            .iter()
+            .map(|&(x, y)| {
+                let b = surface(&coef, x, y);
+                if b.abs() > 0.0 {
+                    img[y * w + x] / b - 1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let limit = (3.0 * 1.4826 * median_abs_deviation(&rel)).max(0.03);
         let mut m = [[0.0f64; 6]; 6];
         let mut rhs = [0.0f64; 6];
-        for (&(x, y), _) in samples.iter().zip(&keep).filter(|(_, k)| **k) {
+        for (&(x, y), _) in samples.iter().zip(&rel).filter(|(_, r)| r.abs() <= limit) {
             let b = basis(x, y);
             for i in 0..6 {
                 for j in 0..6 {
@@ -281,10 +372,6 @@ fn background(img: &[f64], w: usize, h: usize) -> Vec<f64> {
             Some(c) if c.iter().all(|v| v.is_finite()) => coef = c,
             _ => break,
         }
-    }
-    if coef == [0.0; 6] {
-        let mean = img.iter().sum::<f64>() / img.len() as f64;
-        return vec![mean; img.len()];
     }
     (0..h)
         .flat_map(|y| (0..w).map(move |x| (x, y)))
@@ -512,6 +599,81 @@ mod tests {
         assert_eq!(find_cells(&flat, w, h, &o).unwrap(), Census::default());
     }
 
+    /// Defaults in pixels from the pixel size, or from the image without one; bad
+    /// requests refused.
+    #[test]
+    fn a_request_is_turned_into_pixels_or_refused() {
+        let r = |pixel_size, diameter| Request {
+            pixel_size,
+            diameter,
+            contrast: Contrast::Auto,
+        };
+        let px = |o: VisionOptions| o.diameter_px;
+        let d = px(r(Some(0.5e-6), None).options(100, 80).unwrap());
+        assert!(
+            (d[0] - 19.0).abs() < 1e-9 && (d[1] - 60.0).abs() < 1e-9,
+            "{d:?}"
+        );
+        assert_eq!(px(r(None, None).options(100, 80).unwrap()), [8.0, 40.0]);
+        let d = px(r(Some(1e-6), Some([10e-6, 20e-6])).options(9, 9).unwrap());
+        assert!(
+            (d[0] - 10.0).abs() < 1e-9 && (d[1] - 20.0).abs() < 1e-9,
+            "{d:?}"
+        );
+        for (p, dm, want) in [
+            (Some(f64::NAN), None, "PixelSize"),
+            (Some(0.0), None, "PixelSize"),
+            (None, Some([1e-6, 2e-6]), "DiameterWithoutPixelSize"),
+            (Some(1e-6), Some([2e-6, 1e-6]), "Diameter"),
+            (Some(1e-6), Some([f64::NAN, 1e-6]), "Diameter"),
+            (Some(1e300), None, "Coarse"),
+            (Some(1e-6), Some([2e-6, 9e-6]), "Coarse"),
+        ] {
+            let e = r(p, dm).options(10, 10).unwrap_err();
+            assert!(format!("{e:?}").starts_with(want), "{e:?}");
+            let blamed = if dm.is_some() && want != "PixelSize" {
+                Arg::Diameter
+            } else {
+                Arg::PixelSize
+            };
+            assert_eq!(e.arg(), blamed, "{e:?}");
+        }
+    }
+
+    /// A hard-edged bright disc over an eighth of a flat field: the illumination stays
+    /// the field's level (a least-squares start over every pixel bent it into a dome
+    /// and lost the disc), and the disc is found at its edge.
+    #[test]
+    fn a_large_disc_does_not_pull_the_illumination() {
+        let (w, h) = (140usize, 120usize);
+        let mut img = vec![70.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                if (x as f64 - 70.3).hypot(y as f64 - 60.0) < 25.0 {
+                    img[y * w + x] = 200.0;
+                }
+            }
+        }
+        let bg = background(&img, w, h);
+        assert!(
+            bg.iter().all(|b| (b - 70.0).abs() < 0.5),
+            "{:?}",
+            (bg[0], bg[60 * w + 70])
+        );
+        let o = VisionOptions {
+            diameter_px: [23.75, 75.0],
+            contrast: Contrast::Auto,
+        };
+        let got = find_cells(&img, w, h, &o).unwrap();
+        assert_eq!(got.cells.len(), 1, "{got:?}");
+        let f = got.cells[0];
+        assert!(
+            (f.x - 70.3).abs() < 0.3 && (f.y - 60.0).abs() < 0.3,
+            "{f:?}"
+        );
+        assert!((f.diameter - 50.0).abs() < 1.0, "{f:?}");
+    }
+
     #[test]
     fn bad_inputs_are_refused_naming_them() {
         let o = VisionOptions {
@@ -523,6 +685,8 @@ mod tests {
             find_cells(&img, 10, 11, &o),
             Err(CellsError::Size { .. })
         ));
+        let small = find_cells(&img[..49], 7, 7, &o).unwrap_err().to_string();
+        assert!(small.contains("at least 8 x 8"), "{small}");
         let bad = |d: [f64; 2]| {
             find_cells(
                 &img,

@@ -26,6 +26,7 @@ mod model;
 mod rig;
 mod runs;
 mod twin;
+mod vision;
 
 /// The exception classes of `cellinject._errors`, looked up once.
 struct Classes {
@@ -189,5 +190,6 @@ fn _cellinject(m: &Bound<'_, PyModule>) -> PyResult<()> {
     twin::register(m)?;
     runs::register(m)?;
     rig::register(m)?;
+    vision::register(m)?;
     Ok(())
 }
