@@ -204,11 +204,16 @@ pub(crate) fn read_hysteresis_for_run(
     calibration::read_hysteresis_for_run(path, bench).map_err(|e| calibration_error(e).into())
 }
 
-/// A calibration step said on the terminal: a spinner while one is made, a note when
-/// a file is not used.
+/// A calibration step said on the terminal: a spinner while one is made, counted
+/// among the three (`2 of 3: identifying the stacks' hysteresis and
+/// creep`), a note when a file is not used.
 fn show_step(spinner: &mut Option<crate::progress::Progress>, step: calibration::Step) {
     match step {
-        calibration::Step::Making(what) => *spinner = Some(crate::progress::spinner(what)),
+        calibration::Step::Making(what, k) => {
+            // The last one's spinner goes first: one line at a time.
+            *spinner = None;
+            *spinner = Some(crate::progress::spinner(format!("{k} of 3: {what}")));
+        }
         calibration::Step::Redo(note) => eprintln!("note: {note}"),
     }
 }

@@ -262,8 +262,9 @@ pub fn file_bytes<T: Serialize + Clone>(
 /// What [`load_or_make`] is doing, for a front end to show.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Step {
-    /// A calibration is being made (what, for a spinner).
-    Making(&'static str),
+    /// Calibration `k` of the three (1: the cameras' pixels, 2: the stacks' hysteresis,
+    /// 3: the Jacobian) is being made: what, for a spinner, and `k`.
+    Making(&'static str, usize),
     /// A file was not used and the calibration is made again (why, for a note).
     Redo(String),
 }
@@ -369,6 +370,7 @@ pub fn load_or_make<B: Backend>(
         None => {
             step(Step::Making(
                 "calibrating the cameras' pixels (stage moves)",
+                1,
             ));
             let c = calibrate::pixels(rig, marker, PIXEL_STEP)?;
             files.push(("pixels".into(), file_bytes("pixels", made, &c)?));
@@ -385,7 +387,10 @@ pub fn load_or_make<B: Backend>(
     let hysteresis = match hysteresis {
         Some(h) => h,
         None => {
-            step(Step::Making("identifying the stacks' hysteresis and creep"));
+            step(Step::Making(
+                "identifying the stacks' hysteresis and creep",
+                2,
+            ));
             let drop = calibrate::sweep_drop(&description.design, &description.rig)?;
             let c = calibrate::hysteresis_clear(rig, drop, HYSTERESIS_SAMPLES, HYSTERESIS_SIZE)?;
             files.push(("hysteresis".into(), file_bytes("hysteresis", made, &c)?));
@@ -402,7 +407,7 @@ pub fn load_or_make<B: Backend>(
     let jacobian = match jacobian {
         Some(j) => j,
         None => {
-            step(Step::Making("measuring the stacks-to-tip Jacobian"));
+            step(Step::Making("measuring the stacks-to-tip Jacobian", 3));
             let mut bench = Bench::new(
                 rig,
                 Acquisition::Marker,
