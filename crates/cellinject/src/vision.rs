@@ -93,8 +93,8 @@ fn cells(a: &CellsArgs) -> Result<()> {
         };
         InputError(format!("{arg} {e}"))
     };
-    // The options checked before any file is read.
-    request.options(1, 1).map_err(refused)?;
+    // The options checked before any file is read (the image's size not known yet).
+    request.options(usize::MAX, usize::MAX).map_err(refused)?;
     let mut plan = Plan::new();
     plan.input("--image", &a.image);
     let out = match &a.out {
@@ -116,12 +116,17 @@ fn cells(a: &CellsArgs) -> Result<()> {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |m, v| {
                 (m.0.min(*v), m.1.max(*v))
             });
-        let scale = if hi > lo { 255.0 / (hi - lo) } else { 0.0 };
-        let grey: Vec<u8> = img
-            .data()
-            .iter()
-            .map(|v| ((v - lo) * scale).round() as u8)
-            .collect();
+        // Stretched over the image's range; a flat image as its level (8 or 16 bit).
+        let grey: Vec<u8> = if hi > lo {
+            let scale = 255.0 / (hi - lo);
+            img.data()
+                .iter()
+                .map(|v| ((v - lo) * scale).round() as u8)
+                .collect()
+        } else {
+            let level = if hi > 255.0 { hi / 257.0 } else { hi };
+            vec![level.round().clamp(0.0, 255.0) as u8; img.data().len()]
+        };
         let outlines: Vec<Outline> = census
             .cells
             .iter()

@@ -413,7 +413,7 @@ fn distance(comp: &[usize], w: usize) -> (usize, usize, usize, usize, Vec<f64>) 
 /// `min_radius` pixels from the outside, is a second disc. Pixels go to the disc of the
 /// smaller power distance `|p − c|² − r²` (for two touching discs: their common
 /// tangent).
-fn split_discs(comp: &[usize], w: usize, min_radius: f64) -> Vec<(Vec<usize>, bool)> {
+pub(crate) fn split_discs(comp: &[usize], w: usize, min_radius: f64) -> Vec<(Vec<usize>, bool)> {
     if comp.len() < 20 {
         return vec![(comp.to_vec(), false)];
     }

@@ -31,7 +31,7 @@
 //! Pixel coordinates: x along the columns, y along the rows, the origin at the centre
 //! of the top-left pixel.
 
-use crate::{CellsError, box_mean, components, fill_holes, fit_circle, opening};
+use crate::{CellsError, box_mean, components, fill_holes, fit_circle, opening, split_discs};
 
 /// Which cells to look for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -125,6 +125,9 @@ pub enum RequestError {
     /// The diameters are not two positive lengths, the smaller first.
     #[error("must be two positive lengths in metres, the smaller first, got {0}, {1}")]
     Diameter(f64, f64),
+    /// The smallest cell is wider than the image's shorter side (pixels).
+    #[error("makes the smallest cell {0:.0} px across, wider than the image ({1} px)")]
+    Large(f64, usize),
     /// At this pixel size the smallest cell spans fewer than 4 pixels (blamed on the
     /// diameter range when one was given, else on the pixel size).
     #[error("makes the smallest cell {0:.3} px across: at least 4 px are needed to find it")]
@@ -145,6 +148,7 @@ impl RequestError {
     pub fn arg(&self) -> Arg {
         match self {
             RequestError::PixelSize(_) => Arg::PixelSize,
+            RequestError::Large(..) => Arg::Diameter,
             RequestError::Coarse(_, a) => *a,
             _ => Arg::Diameter,
         }
@@ -168,8 +172,12 @@ impl Request {
             (Some(p), Some([lo, hi])) => [lo / p, hi / p],
             (Some(p), None) => [9.5e-6 / p, 30e-6 / p],
             (None, Some(_)) => return Err(RequestError::DiameterWithoutPixelSize),
-            (None, None) => [8.0, 0.5 * width.min(height) as f64],
+            (None, None) => [8.0, (0.5 * width.min(height) as f64).max(16.0)],
         };
+        // (An image under 8 px a side is find_cells's to refuse, naming the image.)
+        if width.min(height) >= 8 && diameter_px[0] > width.min(height) as f64 {
+            return Err(RequestError::Large(diameter_px[0], width.min(height)));
+        }
         if diameter_px[0].is_nan() || diameter_px[0] < 4.0 {
             let blamed = if self.diameter.is_some() {
                 Arg::Diameter
@@ -264,7 +272,14 @@ pub fn find_cells(
         h: height,
     };
     let mut census = Census::default();
-    for comp in components(&mask, width, height) {
+    // Two cells whose halos touch make one piece: split where its distance transform
+    // has two discs (as the workflow's detector splits a doublet), each outlined from
+    // its own centre.
+    let pieces = components(&mask, width, height)
+        .into_iter()
+        .flat_map(|c| split_discs(&c, width, 0.25 * dmin))
+        .map(|(part, _)| part);
+    for comp in pieces {
         let r0 = (comp.len() as f64 / std::f64::consts::PI).sqrt();
         if 2.0 * r0 < 0.3 * dmin || 2.0 * r0 > 2.5 * dmax {
             continue;
@@ -311,10 +326,38 @@ pub fn find_cells(
             census.cells.push(f);
         }
     }
+    Ok(once_each(census))
+}
+
+/// The census sorted by confidence, each outline once: one found from two pieces (a
+/// cell and a piece of its halo) is one cell (of outlines whose centres lie within a
+/// quarter of the larger diameter, the most confident), and debris inside a cell is
+/// not listed.
+fn once_each(mut census: Census) -> Census {
     let by_confidence = |a: &Found, b: &Found| b.confidence.total_cmp(&a.confidence);
     census.cells.sort_by(by_confidence);
     census.debris.sort_by(by_confidence);
-    Ok(census)
+    let once = |found: Vec<Found>| {
+        let mut kept: Vec<Found> = Vec::new();
+        for f in found {
+            let seen = kept
+                .iter()
+                .any(|k| (k.x - f.x).hypot(k.y - f.y) < 0.25 * k.diameter.max(f.diameter));
+            if !seen {
+                kept.push(f);
+            }
+        }
+        kept
+    };
+    census.cells = once(census.cells);
+    census.debris = once(census.debris);
+    census.debris.retain(|d| {
+        !census
+            .cells
+            .iter()
+            .any(|c| (c.x - d.x).hypot(c.y - d.y) < 0.5 * c.diameter)
+    });
+    census
 }
 
 /// The illumination under `img`: a quadratic surface in x and y fitted by least
@@ -578,6 +621,32 @@ mod tests {
         }
     }
 
+    /// Two phase-contrast discs whose halos overlap (one piece of the contrast mask)
+    /// are two cells, each at its own outline, each once.
+    #[test]
+    fn two_cells_whose_halos_touch_are_two() {
+        let (w, h) = (260, 160);
+        let a = phase_cell(w, h, (80.0, 80.0), 27.0, 0.0);
+        let b = phase_cell(w, h, (168.0, 82.0), 27.0, 0.0);
+        // Each disc on the field (70): the sum less one field.
+        let img: Vec<f64> = a.iter().zip(&b).map(|(p, q)| p + q - 70.0).collect();
+        let o = VisionOptions {
+            diameter_px: [30.0, 90.0],
+            contrast: Contrast::Auto,
+        };
+        let got = find_cells(&img, w, h, &o).unwrap();
+        assert_eq!(got.cells.len(), 2, "{got:?}");
+        let mut xs: Vec<f64> = got.cells.iter().map(|f| f.x).collect();
+        xs.sort_by(f64::total_cmp);
+        assert!(
+            (xs[0] - 80.0).abs() < 1.0 && (xs[1] - 168.0).abs() < 1.0,
+            "{got:?}"
+        );
+        for f in &got.cells {
+            assert!((f.diameter / 54.0 - 1.0).abs() < 0.05, "{f:?}");
+        }
+    }
+
     /// A blurred shadow as large as a cell (its edge as wide as its radius) is no
     /// cell; a flat field holds nothing.
     #[test]
@@ -615,7 +684,8 @@ mod tests {
             "{d:?}"
         );
         assert_eq!(px(r(None, None).options(100, 80).unwrap()), [8.0, 40.0]);
-        let d = px(r(Some(1e-6), Some([10e-6, 20e-6])).options(9, 9).unwrap());
+        assert_eq!(px(r(None, None).options(20, 12).unwrap()), [8.0, 16.0]);
+        let d = px(r(Some(1e-6), Some([10e-6, 20e-6])).options(40, 40).unwrap());
         assert!(
             (d[0] - 10.0).abs() < 1e-9 && (d[1] - 20.0).abs() < 1e-9,
             "{d:?}"
@@ -627,6 +697,7 @@ mod tests {
             (Some(1e-6), Some([2e-6, 1e-6]), "Diameter"),
             (Some(1e-6), Some([f64::NAN, 1e-6]), "Diameter"),
             (Some(1e300), None, "Coarse"),
+            (Some(1e-6), Some([20e-6, 30e-6]), "Large"),
             (Some(1e-6), Some([2e-6, 9e-6]), "Coarse"),
         ] {
             let e = r(p, dm).options(10, 10).unwrap_err();

@@ -369,7 +369,7 @@ impl Plan {
                 )));
             }
             for (arg, input) in &self.inputs {
-                if resolved(input).as_ref() == Some(&r) {
+                if resolved(input).as_ref() == Some(&r) || same_file(input, &r) {
                     return Err(FilesError::Invalid(format!(
                         "{} `{}` is the input {arg} `{}`: refusing to replace a file the command reads",
                         o.arg,
@@ -388,6 +388,24 @@ impl Plan {
             seen.push((r, o));
         }
         Ok(())
+    }
+}
+
+/// Whether `a` and `b` are one existing file under two names (hard links: the same
+/// device and inode), which their resolved paths do not tell apart.
+fn same_file(a: &Path, b: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt as _;
+        match (fs::metadata(a), fs::metadata(b)) {
+            (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+            _ => false,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (a, b);
+        false
     }
 }
 
@@ -707,6 +725,20 @@ mod tests {
         p.output("--out", &d.join("./in.png"), &[Kind::Png])
             .unwrap();
         assert!(p.check().unwrap_err().to_string().contains("--reference"));
+        // The input under another name (a hard link) is the input.
+        #[cfg(unix)]
+        {
+            fs::hard_link(&input, d.join("link.png")).unwrap();
+            let mut p = Plan::new();
+            p.input("--reference", &input);
+            p.output("--out", &d.join("link.png"), &[Kind::Png])
+                .unwrap();
+            let e = p.check().unwrap_err().to_string();
+            assert!(
+                e.contains("refusing to replace") && e.contains("link.png"),
+                "{e}"
+            );
+        }
         let mut p = Plan::new();
         p.output("--reference", &d.join("a.png"), &[Kind::Png])
             .unwrap();
