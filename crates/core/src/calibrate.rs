@@ -697,9 +697,11 @@ pub fn sweep_drop(design: &Design, params: &RigParams) -> Result<f64, BenchError
 }
 
 /// [`hysteresis`] with the pipette first raised `drop` m ([`sweep_drop`]) above where
-/// it stands (the macro stage's axis 1), and brought back after, also when the sweep
-/// fails: what the calibration commands and the dashboard's calibration run, on a
-/// bench where a plate may lie under the pipette. Swept without it from a run's start
+/// it stands (the macro stage's axis 1), and brought back once the stacks are at rest
+/// again: what the calibration commands and the dashboard's calibration run, on a
+/// bench where a plate may lie under the pipette. A sweep that fails (a device, the
+/// operator) leaves the pipette raised: the stacks may not be at rest, and lowering
+/// it then could drive the tip down. Swept without it from a run's start
 /// height (30 µm above focus) over a loaded plate, the twin's tip struck the floor 8
 /// times and lost 16 µm of its length, and the next run's injections found no flow. A
 /// stage that cannot rise that far refuses the move, and nothing is swept.
@@ -718,10 +720,8 @@ pub fn hysteresis_clear<B: Backend>(
     }
     let y0 = rig.stage.position(1).map_err(dev("stage"))?;
     stage_height(rig, y0 + drop)?;
-    let made = hysteresis(rig, samples, size);
-    let back = stage_height(rig, y0);
-    let made = made?;
-    back?;
+    let made = hysteresis(rig, samples, size)?;
+    stage_height(rig, y0)?;
     Ok(made)
 }
 

@@ -512,7 +512,7 @@ mod tests {
     /// the pipette stands, the tilt of body 1 drives the tip into the floor; raised by
     /// [`calibrate::sweep_drop`] first ([`calibrate::hysteresis_clear`], what the
     /// calibration commands and the dashboard run), the tip meets neither the floor nor
-    /// a cell, and the pipette ends where it stood.
+    /// a cell, and the pipette ends where it stood; a sweep that fails leaves it raised.
     #[test]
     fn the_stacks_sweep_clears_a_plate_under_the_pipette() {
         use cellinject_hw::Stage;
@@ -567,5 +567,10 @@ mod tests {
         // A clearance that is not a length is refused before anything moves.
         let e = calibrate::hysteresis_clear(&mut r, f64::NAN, 2000, 12).unwrap_err();
         assert!(e.to_string().contains("clearance"), "{e}");
+        assert!((r.stage.position(1).unwrap() - y0).abs() < 0.1e-6);
+        // A sweep that fails leaves the pipette raised (the safe side).
+        assert!(calibrate::hysteresis_clear(&mut r, drop, 100, 12).is_err());
+        assert!((r.stage.position(1).unwrap() - (y0 + drop)).abs() < 0.1e-6);
+        assert_eq!(harm(&clear), (0, 0.0, 0, 0));
     }
 }
