@@ -268,17 +268,7 @@ fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
         for i in (0..pad).chain(pad + n..n + 2 * pad) {
             ext[i] = half_sample(i);
         }
-        // The first tap written, not added (see `bspline::Separable`: fresh zeroed
-        // memory read before its first write costs a TLB flush per page).
-        for (j, wj) in sinc.iter().enumerate() {
-            let from = pad - half + j;
-            let taps = sim.iter_mut().zip(&ext[from..from + n]);
-            if j == 0 {
-                taps.for_each(|(s, e)| *s = wj * e);
-            } else {
-                taps.for_each(|(s, e)| *s += wj * e);
-            }
-        }
+        convolve(&ext[pad - half..], &sinc, sim);
     }
     bspline::prefilter_lines(&mut sims, n, degree);
     // Each spline interpolated back at m + t: taps m − 2..=m + 3.
@@ -294,18 +284,42 @@ fn mismatch_table(lines: &[f64], n: usize, t: f64, degree: Degree) -> Vec<f32> {
         for i in (0..edge).chain(edge + n..n + 2 * edge) {
             coef[i] = sim[bspline::mirror(i as isize - edge as isize, n)];
         }
-        acc.fill(0.0);
-        for (i, wi) in spline.iter().enumerate() {
-            let from = TAPS - 3 + i;
-            for (a, c) in acc.iter_mut().zip(&coef[from..from + n]) {
-                *a += wi * c;
-            }
-        }
+        convolve(&coef[TAPS - 3..], &spline, &mut acc);
         for ((d, a), f) in dst.iter_mut().zip(&acc).zip(line) {
             *d = (a - f) as f32;
         }
     }
     out
+}
+
+/// Outputs a convolution computes at a time, in registers ([`convolve`]).
+const CONVOLVE_BLOCK: usize = 32;
+
+/// `out[i] = Σ_j w[j]·src[i + j]` for every `i < out.len()` (`src` holds at least
+/// `out.len() + T − 1` samples), the taps added in order from 0.0, as a pass per tap
+/// adds them: [`CONVOLVE_BLOCK`] outputs are kept in registers across the taps, where
+/// a pass per tap loads and stores every output once per tap.
+#[inline(always)]
+fn convolve<const T: usize>(src: &[f64], w: &[f64; T], out: &mut [f64]) {
+    let n = out.len();
+    let full = n - n % CONVOLVE_BLOCK;
+    for (c, o) in out[..full].chunks_exact_mut(CONVOLVE_BLOCK).enumerate() {
+        let at = c * CONVOLVE_BLOCK;
+        let mut acc = [0.0; CONVOLVE_BLOCK];
+        for (j, wj) in w.iter().enumerate() {
+            let s = &src[at + j..at + j + CONVOLVE_BLOCK];
+            for (a, v) in acc.iter_mut().zip(s) {
+                *a += wj * v;
+            }
+        }
+        o.copy_from_slice(&acc);
+    }
+    for (i, o) in out.iter_mut().enumerate().skip(full) {
+        *o = w
+            .iter()
+            .enumerate()
+            .fold(0.0, |a, (j, wj)| a + wj * src[i + j]);
+    }
 }
 
 /// The rounding tables of `reference` for a current image quantised to

@@ -48,6 +48,20 @@ pub enum Shape {
 /// iterations a point instead of 4.95.
 pub const MEASUREMENT_TOLERANCE: f64 = 5e-4;
 
+/// What the updates after one of size `step` would still move the solution, pixels,
+/// when each shrinks by the contraction `r` (the larger of the last two updates'
+/// ratios to the update before: Anderson mixing makes the ratios alternate, so one
+/// alone can promise too much): the geometric tail step·r / (1 − r). Infinite where
+/// the iteration does not contract, or before a second update (r not finite or 0).
+#[inline]
+fn predicted_rest(step: f64, r: f64) -> f64 {
+    if r > 0.0 && r < 1.0 {
+        step * r / (1.0 - r)
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// Stopping rule of the iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IcgnOptions {
@@ -1375,6 +1389,8 @@ pub fn iterate(
     let mut sampled = p;
     let mut spread = 0.0;
     let mut anderson = Anderson::new(corner);
+    // The last update's size and its ratio to the one before (none yet: 0).
+    let (mut last_step, mut last_ratio) = (f64::INFINITY, 0.0);
     // The warp in single precision where the steps it must resolve allow.
     let single = opts.tolerance >= crate::warp::SINGLE_PRECISION_TOLERANCE;
     while iterations < opts.max_iterations {
@@ -1452,10 +1468,18 @@ pub fn iterate(
         if !p.iter().all(|v| v.is_finite()) {
             return None;
         }
-        if step < opts.tolerance {
+        let ratio = step / last_step;
+        // Stopped where the update is below the tolerance, or where what the updates
+        // after it would still move is below a tenth of it (an update saved; the
+        // solution then differs from the fully converged one by 5e-5 px at most in
+        // the field-against-points test, 1.5e-5 px when each point iterated on).
+        if step < opts.tolerance
+            || predicted_rest(step, ratio.max(last_ratio)) < 0.1 * opts.tolerance
+        {
             converged = true;
             break;
         }
+        (last_step, last_ratio) = (step, ratio);
     }
     Some(Iterated {
         p,
@@ -1579,6 +1603,15 @@ mod tests {
                 "step {k}"
             );
             x = next;
+        }
+    }
+
+    #[test]
+    fn the_predicted_rest_is_the_geometric_tail_and_none_without_contraction() {
+        // 1e-3 then 1e-4, 1e-5, ...: what is left after 1e-3 is 1e-3·0.1/0.9.
+        assert!((super::predicted_rest(1e-3, 0.1) - 1e-3 / 9.0).abs() < 1e-18);
+        for r in [0.0, 1.0, 1.5, f64::NAN, f64::INFINITY] {
+            assert_eq!(super::predicted_rest(1e-3, r), f64::INFINITY, "r = {r}");
         }
     }
 
