@@ -396,32 +396,10 @@ pub fn runs(cmd: &RunsCommand) -> Result<()> {
             match format.as_str() {
                 "json" => json_out(&a),
                 "csv" => {
-                    let mut out = String::from(
-                        "cell,well_row,well_col,x_m,y_m,diameter_m,tip_error_m,measured_tip_error_m,depth_m,dose_fraction,measured_dose_fraction,alive,outcome,reason,t_start_s,t_end_s\n",
-                    );
-                    let o = |v: Option<f64>| v.map(|v| format!("{v:e}")).unwrap_or_default();
-                    for a in &a {
-                        out.push_str(&format!(
-                            "{},{},{},{:e},{:e},{:e},{},{},{},{},{},{},{},\"{}\",{},{}\n",
-                            a.cell,
-                            a.well[0],
-                            a.well[1],
-                            a.x_m,
-                            a.y_m,
-                            a.diameter_m,
-                            o(a.tip_error_m),
-                            o(a.measured_tip_error_m),
-                            o(a.depth_m),
-                            o(a.dose_fraction),
-                            o(a.measured_dose_fraction),
-                            a.alive.map(|b| b.to_string()).unwrap_or_default(),
-                            a.outcome,
-                            a.reason.replace('"', "\"\""),
-                            a.t_start,
-                            o(a.t_end)
-                        ));
-                    }
-                    crate::output::print(format_args!("{out}"));
+                    crate::output::print(format_args!(
+                        "{}",
+                        cellinject_print::run::attempts_csv(&a)
+                    ));
                     Ok(())
                 }
                 other => {

@@ -157,19 +157,27 @@ pub fn front_text(
     out
 }
 
-/// A front design's variables in the study's order, as written (empty where missing).
+/// A front design's variables in the study's order ([`variable_cell`]).
 fn variable_cells(study: &Study, e: &FrontEntry) -> Vec<String> {
     study
         .space
         .variables
         .iter()
-        .map(|v| {
-            e.variables
-                .get(&v.key)
-                .map(|x| x.to_string())
-                .unwrap_or_default()
-        })
+        .map(|v| variable_cell(e.variables.get(&v.key)))
         .collect()
+}
+
+/// A variable's cell: a real number in shortest round-trip exponent form (`1.05e-4`,
+/// one format down a column, where JSON's own form switches between `0.0001` and
+/// `1e-7`), anything else as written, empty where missing.
+fn variable_cell(x: Option<&serde_json::Value>) -> String {
+    match x {
+        Some(serde_json::Value::Number(n)) if n.is_f64() => {
+            format!("{:e}", n.as_f64().unwrap_or(f64::NAN))
+        }
+        Some(x) => x.to_string(),
+        None => String::new(),
+    }
 }
 
 /// The front's CSV: a design's number, its variables, then every figure of
@@ -312,6 +320,22 @@ fn display_scale(name: &str) -> (f64, &'static str) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_real_variable_is_written_in_one_form_whatever_its_size() {
+        use serde_json::json;
+        for (v, want) in [
+            (json!(0.0001), "1e-4"),
+            (json!(1e-7), "1e-7"),
+            (json!(0.000105), "1.05e-4"),
+            (json!(2.5), "2.5e0"),
+            (json!(3), "3"),
+            (json!("steel"), "\"steel\""),
+        ] {
+            assert_eq!(variable_cell(Some(&v)), want, "{v}");
+        }
+        assert_eq!(variable_cell(None), "");
+    }
 
     #[test]
     fn csv_fields_are_quoted_only_when_they_must_be() {
