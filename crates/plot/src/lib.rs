@@ -13,9 +13,11 @@ use std::sync::OnceLock;
 
 pub mod contour;
 pub mod frame;
+mod legend;
 pub mod map;
 pub mod style;
 
+use plotters::chart::SeriesLabelPosition;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use style::err;
@@ -127,6 +129,22 @@ fn draw_charts<DB: DrawingBackend>(
     let areas = root.split_evenly((rows.max(1), columns));
     for (chart, area) in charts.iter().zip(areas.iter()) {
         let ((x0, x1), (y0, y1)) = bounds(chart)?;
+        let legend = chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty());
+        // The legend in the corner clear of the data (or above it, the range raised).
+        let (corner, y1) = if legend {
+            let (w, h) = area.dim_in_pixel();
+            let plot_w = f64::from(w.saturating_sub(style::Y_LABEL_AREA + 2 * style::MARGIN));
+            let plot_h = f64::from(h.saturating_sub(style::X_LABEL_AREA + 2 * style::MARGIN + 30));
+            let chars = chart.series.iter().map(|s| s.name.chars().count()).max();
+            let (lw, lh) = legend::size_px(chars.unwrap_or(0), chart.series.len());
+            let f = (
+                (lw / plot_w.max(1.0)).min(1.0),
+                (lh / plot_h.max(1.0)).min(1.0),
+            );
+            legend::place(chart, (x0, x1), (y0, y1), f)
+        } else {
+            (SeriesLabelPosition::UpperRight, y1)
+        };
         let mut c = ChartBuilder::on(area)
             .caption(&chart.title, style::title())
             .margin(style::MARGIN)
@@ -172,8 +190,9 @@ fn draw_charts<DB: DrawingBackend>(
                     Style::Dots => Circle::new((x + 9, y), style::DOT, color.filled()).into_dyn(),
                 });
         }
-        if chart.series.len() > 1 || chart.series.iter().any(|s| !s.name.is_empty()) {
+        if legend {
             c.configure_series_labels()
+                .position(corner)
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
                 .label_font(style::label())

@@ -7,6 +7,8 @@ use cellinject_core::bench::FrameRecord;
 use cellinject_core::experiment::{RangeReport, RepeatabilityReport, TrackingReport};
 use cellinject_plot::{Chart, Series, Style};
 
+use crate::table::fixed;
+
 /// The range experiment's CSV: one row a sample of each sweep (NaN where unmeasured).
 pub fn range_csv(r: &RangeReport) -> String {
     let mut csv = String::from("actuator,voltage_v,axis,displacement_m,true_displacement_m\n");
@@ -128,13 +130,22 @@ pub fn repeatability_chart(r: &RepeatabilityReport) -> Chart {
         });
     }
     Chart {
+        // The title's errors in the axes' unit (µm over axes in nm read as a
+        // thousand times the spread).
         title: format!(
-            "{} runs, approach {}, {} control: max error {:.3} / {:.3} µm",
+            "{} runs, approach {}, {} control: max error {} / {} {}",
             r.runs,
             r.approach,
             r.control.name(),
-            r.max_error_m[0] * 1e6,
-            r.max_error_m[1] * 1e6
+            fixed(
+                r.max_error_m[0] * unit.1,
+                if unit.0 == "nm" { 1 } else { 3 }
+            ),
+            fixed(
+                r.max_error_m[1] * unit.1,
+                if unit.0 == "nm" { 1 } else { 3 }
+            ),
+            unit.0
         ),
         x_label: format!("x from the mean [{}]", unit.0),
         y_label: format!("y from the mean [{}]", unit.0),
