@@ -403,6 +403,23 @@ impl Records {
         Ok(())
     }
 
+    /// A run in progress: the cells its survey found (when given) and the device time
+    /// it has reached, s (when given; the larger of it and the time already written),
+    /// so that a reader, such as the dashboard's list of runs, sees live counts before
+    /// [`Records::update_run`] writes the run's end.
+    pub fn set_progress(
+        &mut self,
+        run: i64,
+        cells_found: Option<i64>,
+        sim_time_s: Option<f64>,
+    ) -> Result<(), RecordsError> {
+        self.conn.execute(
+            "UPDATE runs SET cells_found = COALESCE(?2, cells_found), sim_time_s = MAX(sim_time_s, COALESCE(?3, sim_time_s)) WHERE id = ?1",
+            params![run, cells_found, sim_time_s],
+        )?;
+        Ok(())
+    }
+
     /// Removes a run that was refused before it touched any cell (its events with it),
     /// in one transaction: bad input leaves no record. Refused for a run with attempts.
     pub fn discard_run(&mut self, run: i64) -> Result<(), RecordsError> {
@@ -598,6 +615,26 @@ mod tests {
             t_end: Some(2.0),
             transitions: serde_json::json!([]),
         }
+    }
+
+    /// Progress written while a run goes: the survey's count, then the device time,
+    /// which only grows; the run's end overwrites both.
+    #[test]
+    fn a_run_in_progress_shows_its_counts() {
+        let mut db = Records::open(&tmp("progress.sqlite")).unwrap();
+        let id = db
+            .create_run("[plate]", Some(1), "twin", &serde_json::json!({}), 0)
+            .unwrap();
+        db.set_progress(id, Some(41), None).unwrap();
+        let r = db.run(Some(id)).unwrap();
+        assert_eq!((r.cells_found, r.sim_time_s), (41, 0.0));
+        db.set_progress(id, None, Some(12.5)).unwrap();
+        db.set_progress(id, None, Some(3.0)).unwrap();
+        let r = db.run(Some(id)).unwrap();
+        assert_eq!((r.cells_found, r.sim_time_s), (41, 12.5));
+        db.update_run(id, "finished", 80.0, 60.0, 40, None).unwrap();
+        let r = db.run(Some(id)).unwrap();
+        assert_eq!((r.cells_found, r.sim_time_s), (40, 80.0));
     }
 
     #[test]

@@ -422,7 +422,10 @@ impl Observer for Recorder<'_, '_> {
         if let Some(p) = self.progress.as_mut() {
             p.surveyed(left as u64);
         }
-        Ok(())
+        // Live counts for readers of the records (the dashboard's list of runs).
+        self.db
+            .set_progress(self.run, Some(targets.len() as i64), None)
+            .map_err(|e| e.to_string())
     }
     fn done(&self, t: &Target) -> bool {
         self.previous
@@ -449,6 +452,9 @@ impl Observer for Recorder<'_, '_> {
         let row = self.row(a, a.outcome.name());
         self.db
             .write_attempt(self.run, self.current.take(), &row)
+            .map_err(|e| e.to_string())?;
+        self.db
+            .set_progress(self.run, None, Some(row.t_end.unwrap_or(row.t_start)))
             .map_err(|e| e.to_string())?;
         if let Some(p) = self.progress.as_mut() {
             p.attempt_done();

@@ -179,12 +179,12 @@ pub fn html(run: &RunRow, attempts: &[AttemptRow]) -> Result<String, ReportError
     let calibration = serde_json::to_string_pretty(&run.calibration)?;
     let html = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>cellinject run {id}</title>\
-<style>body{{font-family:sans-serif;margin:2em;max-width:1400px}}td,th{{padding:2px 10px;text-align:left}}pre{{background:#f4f4f4;padding:1em;max-height:30em;overflow:auto}}</style></head><body>\
+<style>body{{font-family:sans-serif;margin:2em;max-width:1400px}}td,th{{padding:2px 10px;text-align:left}}pre{{background:#f4f4f4;padding:1em;max-height:30em;overflow:auto}}svg{{max-width:100%;height:auto}}</style></head><body>\
 <h1>cellinject run {id}: {status}</h1>\
 <table><tr><th>cells found</th><td>{found}</td></tr><tr><th>injected</th><td>{inj}</td></tr><tr><th>failed</th><td>{fail}</td></tr>\
 <tr><th>skipped</th><td>{skip}</td></tr><tr><th>interrupted</th><td>{intr}</td></tr>\
 <tr><th>simulated time</th><td>{sim:.1} s ({cell:.1} s on cells)</td></tr><tr><th>mean tip error</th><td>{tip:.2} µm</td></tr>\
-<tr><th>stopped</th><td>{stopped}</td></tr><tr><th>resumed</th><td>{resumed} times</td></tr></table>\
+<tr><th>stopped</th><td>{stopped}</td></tr><tr><th>resumed</th><td>{resumed}</td></tr></table>\
 <h2>Plate map</h2><p>green injected, red failed, orange skipped, purple interrupted; hover a cell for its record.</p>{map}\
 <h2>Tip error, dose, throughput</h2>{charts}\
 <h2>Settings</h2><pre>{settings}</pre><h2>Calibrations in force</h2><pre>{calibration}</pre></body></html>\n",
@@ -199,7 +199,11 @@ pub fn html(run: &RunRow, attempts: &[AttemptRow]) -> Result<String, ReportError
         cell = run.cell_time_s,
         tip = mean(&tips),
         stopped = esc(run.stopped.as_deref().unwrap_or("no")),
-        resumed = run.resumed,
+        resumed = match run.resumed {
+            0 => "never".to_string(),
+            1 => "once".to_string(),
+            n => format!("{n} times"),
+        },
         map = plate_map(run, attempts),
         settings = esc(&settings),
         calibration = esc(&calibration),

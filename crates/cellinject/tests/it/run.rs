@@ -122,6 +122,14 @@ fn a_small_plate_is_injected_recorded_and_a_finished_run_resumes_to_nothing() {
     let html = fs::read_to_string(d.join("rep/report.html")).unwrap();
     assert_eq!(html.matches("<circle").count(), cells);
     assert!(html.contains("Tip error at injection") && html.contains("Throughput"));
+    // Every figure scales to the page's width (three charts side by side are 1,260 px
+    // wide: they overflowed a 1,200 px window) and keeps its proportions (a viewBox).
+    assert!(html.contains("svg{max-width:100%;height:auto}"));
+    assert_eq!(
+        html.matches("<svg").count(),
+        html.matches("viewBox=").count()
+    );
+    assert!(html.matches("<svg").count() >= 2);
     // `--out FILE.html`: that file, the same page (not a directory of that name).
     let o = run(&d, &["report", "--db", "r.sqlite", "--out", "r.html"]);
     assert_eq!(o.status.code(), Some(0), "{}", err(&o));
@@ -601,7 +609,10 @@ fn a_run_killed_at_any_moment_resumes_without_touching_a_cell_twice() {
         .lines()
         .filter(|l| l.trim() == "[[cell]]")
         .count();
-    for (k, delay_ms) in [700u64, 1500, 2600].into_iter().enumerate() {
+    // Kills at 0.7 s and 1.5 s (before or during the survey), then one as soon as the
+    // records show a cell done (polled, so that it falls among the cells whatever the
+    // machine's speed; a fixed 2.6 s came before the survey here).
+    for (k, delay_ms) in [Some(700u64), Some(1500), None].into_iter().enumerate() {
         let db = format!("k{k}.sqlite");
         let mut child = Command::new(env!("CARGO_BIN_EXE_cellinject"))
             .current_dir(&d)
@@ -618,9 +629,40 @@ fn a_run_killed_at_any_moment_resumes_without_touching_a_cell_twice() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        let done = |show: &Value| -> Vec<f64> {
+            show["attempts"]
+                .as_array()
+                .map(|a| a.iter().filter_map(|a| a["t_end"].as_f64()).collect())
+                .unwrap_or_default()
+        };
+        match delay_ms {
+            Some(ms) => std::thread::sleep(std::time::Duration::from_millis(ms)),
+            None => common::poll(
+                std::time::Duration::from_secs(120),
+                std::time::Duration::from_millis(100),
+                "a cell done",
+                || match show(&d, &db) {
+                    Some(s) if !done(&s).is_empty() => Ok(()),
+                    other => Err(other.map(|s| s["run"]["status"].clone())),
+                },
+            ),
+        }
         let _ = child.kill(); // SIGKILL
         let _ = child.wait();
+        // What a reader of the records sees after the kill: the survey's count and the
+        // device time of the last cell done, written as the run went (the dashboard's
+        // list of runs showed 0 cells and 0.0 s for a run in progress).
+        if delay_ms.is_none() {
+            let s = show(&d, &db).unwrap();
+            let (r, done) = (&s["run"], done(&s));
+            let last = done.iter().copied().fold(0.0, f64::max);
+            assert!(
+                r["cells_found"].as_u64().unwrap() as usize >= done.len().max(1),
+                "{r}"
+            );
+            assert!(r["sim_time_s"].as_f64().unwrap() >= last, "{r}");
+            assert_eq!(r["status"], "running", "{r}");
+        }
         // Resume once: the run ends (a kill before the run was recorded leaves nothing
         // to resume, and then the plate is run afresh).
         let args = [
