@@ -389,7 +389,8 @@ fn range(d: &Description, sweep: f64, args: &BenchArgs) -> Result<()> {
     let (pixels, _cal, made) = calibrations(&mut s, args.calibration.as_deref())?;
     let marker = s.description.rig.optics.marker;
     let r = {
-        let _p = crate::progress::spinner("sweeping A1, then A2");
+        let bar = crate::progress::share_bar("sweeping A1, then A2");
+        let total = experiment::range_seconds(sweep);
         let mut bench = Bench::new(
             &mut s.rig,
             Acquisition::Wide,
@@ -399,6 +400,7 @@ fn range(d: &Description, sweep: f64, args: &BenchArgs) -> Result<()> {
             timing(args),
         )
         .map_err(bench_error)?;
+        bench.watch(|t| bar.set_share(t / total));
         experiment::range(&mut bench, &s.description.design, &s.description.rig, sweep)
             .map_err(bench_error)?
     };
@@ -456,7 +458,9 @@ fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs
     let marker = s.description.rig.optics.marker;
     let approach = s.description.rig.approach;
     let r = {
-        let _p = crate::progress::spinner(format!("tracking with the {} controller", kind.name()));
+        let bar =
+            crate::progress::share_bar(format!("tracking with the {} controller", kind.name()));
+        let total = opts.seconds();
         let mut bench = Bench::new(
             &mut s.rig,
             Acquisition::Marker,
@@ -466,6 +470,7 @@ fn tracking(d: &Description, kind: Kind, opts: TrackingOptions, args: &BenchArgs
             timing(args),
         )
         .map_err(bench_error)?;
+        bench.watch(|t| bar.set_share(t / total));
         experiment::tracking(
             &mut bench,
             controller.as_mut(),

@@ -46,6 +46,26 @@ fn styled(pb: ProgressBar, what: impl Into<String>) -> ProgressBar {
     pb
 }
 
+/// Steps of a [`share_bar`].
+const SHARES: u64 = 1000;
+
+/// A bar over work whose size is known as a quantity, not a count (an experiment's
+/// device time): the share done as a percentage, the time taken and left. Updated
+/// with [`Progress::set_share`].
+pub fn share_bar(what: impl Into<String>) -> Progress {
+    if !shown() {
+        return Progress(None);
+    }
+    let pb = ProgressBar::new(SHARES);
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:32}] {percent}% ({elapsed}, {eta} left)")
+    {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_message(what.into());
+    Progress(Some(pb))
+}
+
 /// A bar over `len` items of `what` that also shows the rate (items per minute of
 /// wall time) and the time left.
 pub fn rate_bar(len: u64, what: impl Into<String>) -> Progress {
@@ -109,6 +129,14 @@ impl Progress {
     pub fn inc(&self) {
         if let Some(pb) = &self.0 {
             pb.inc(1);
+        }
+    }
+
+    /// The share `f` of a [`share_bar`]'s work done (clamped to [0, 1]; NaN is 0).
+    pub fn set_share(&self, f: f64) {
+        if let Some(pb) = &self.0 {
+            let f = if f.is_nan() { 0.0 } else { f.clamp(0.0, 1.0) };
+            pb.set_position((f * SHARES as f64).round() as u64);
         }
     }
 }

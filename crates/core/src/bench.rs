@@ -136,7 +136,12 @@ pub struct Bench<'r, B: Backend> {
     /// the references in effect while it was exposed.
     pending: Option<(f64, Vision, [f64; 2])>,
     volts: [f64; 2],
+    /// Told the device time since it was set, s, after every frame ([`Bench::watch`]).
+    watch: Option<Watch<'r>>,
 }
+
+/// [`Bench::watch`]'s observer: the device time it was set at, s, and the callback.
+type Watch<'r> = (f64, Box<dyn FnMut(f64) + 'r>);
 
 /// The object-plane size of a sensor pixel of `camera`, from one frame grabbed with
 /// its current settings (the camera states its output pixel's size).
@@ -224,9 +229,17 @@ impl<'r, B: Backend> Bench<'r, B> {
             next_frame,
             pending: None,
             volts: [0.0; 2],
+            watch: None,
         };
         bench.rest = bench.read_stacks(20)?;
         Ok(bench)
+    }
+
+    /// Calls `progress` after every frame with the device time since now, s: a
+    /// front end's progress over an experiment whose device time is known
+    /// ([`crate::experiment::range_seconds`], [`crate::experiment::TrackingOptions::seconds`]).
+    pub fn watch(&mut self, progress: impl FnMut(f64) + 'r) {
+        self.watch = Some((self.rig.clock.now(), Box::new(progress)));
     }
 
     /// The timing.
@@ -325,6 +338,9 @@ impl<'r, B: Backend> Bench<'r, B> {
         let [top, side] = self.grab_views()?;
         let t = self.views[0].frame.timestamp;
         self.next_frame = t + self.period;
+        if let Some((t0, progress)) = &mut self.watch {
+            progress(self.rig.clock.now() - *t0);
+        }
         let measured = match (top, side) {
             (Some(a), Some(b)) => Some([a[0], b[0], a[1]]),
             _ => None,

@@ -126,6 +126,17 @@ fn model_dx(m: &Mechanism, approach: Approach, e: [f64; 2]) -> Result<[f64; 2], 
     Ok([s.dx[0], s.dx[1]])
 }
 
+/// Device time [`range`] takes with sweeps of `seconds` each way, s: for each stack,
+/// 0.2 s at rest, the sweep up, 0.3 s held, the sweep down, 0.3 s held.
+pub fn range_seconds(seconds: f64) -> f64 {
+    2.0 * (RANGE_REST + 2.0 * seconds + 2.0 * RANGE_HOLD)
+}
+
+/// s at rest before a stack's sweep ([`range`]).
+const RANGE_REST: f64 = 0.2;
+/// s held at each end of a stack's sweep ([`range`]).
+const RANGE_HOLD: f64 = 0.3;
+
 /// Sweeps A1 (then A2) from rest up to the highest voltage the safety envelope allows
 /// and back, `seconds` each way, measuring x (then y) through the cameras.
 pub fn range<B: Backend>(
@@ -171,11 +182,11 @@ pub fn range<B: Backend>(
         let mut target = [0.0; 2];
         target[i] = top;
         let mut rec: Vec<FrameRecord> = Vec::new();
-        bench.hold_volts([0.0, 0.0], 0.2, &mut rec)?;
+        bench.hold_volts([0.0, 0.0], RANGE_REST, &mut rec)?;
         bench.ramp_volts(target, seconds, &mut rec)?;
-        bench.hold_volts(target, 0.3, &mut rec)?;
+        bench.hold_volts(target, RANGE_HOLD, &mut rec)?;
         bench.ramp_volts([0.0, 0.0], seconds, &mut rec)?;
-        bench.hold_volts([0.0, 0.0], 0.3, &mut rec)?;
+        bench.hold_volts([0.0, 0.0], RANGE_HOLD, &mut rec)?;
         // A1 moves x, seen by the top camera; A2 moves y, seen by the side camera (the
         // other camera then loses focus: its measurement is not used).
         let view = |r: &FrameRecord| r.views[i].map(|v| v[0]);
@@ -413,6 +424,13 @@ impl RepeatabilityOptions {
 }
 
 impl TrackingOptions {
+    /// Device time [`tracking`] takes, s: 0.2 s at rest, the ramp to the operating
+    /// point and a dwell there, the four steps, a dwell to the circle's start, the
+    /// circle.
+    pub fn seconds(&self) -> f64 {
+        TRACKING_REST + APPROACH_RAMP + self.dwell + 4.0 * self.dwell + self.dwell + self.duration
+    }
+
     /// Refuses options outside what the experiment supports, naming the option.
     pub fn check(&self) -> Result<(), BenchError> {
         in_range("--bias", self.bias, 0.0, 10e-6)?;
@@ -681,6 +699,9 @@ fn phase(
 /// s over which the tracking experiment ramps the stacks to their operating point.
 pub const APPROACH_RAMP: f64 = 0.3;
 
+/// s at rest before [`tracking`] moves.
+const TRACKING_REST: f64 = 0.2;
+
 /// Steps and a circle of the stack references with `controller` about an operating
 /// point, the tip measured by the cameras against `J·r`.
 pub fn tracking<B: Backend>(
@@ -693,7 +714,7 @@ pub fn tracking<B: Backend>(
     opts.check()?;
     controller.reset();
     let mut rest = Vec::new();
-    bench.hold_volts([0.0, 0.0], 0.2, &mut rest)?;
+    bench.hold_volts([0.0, 0.0], TRACKING_REST, &mut rest)?;
     let (s, o) = (opts.step, opts.bias);
     let dwell = opts.dwell;
     // To the operating point first, ramped so the cameras follow (a step of 2 µm of

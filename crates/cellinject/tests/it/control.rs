@@ -280,7 +280,17 @@ fn the_cascade_tracks_steps_and_a_circle_where_open_loop_misses_by_microns() {
     let mut report = |kind| {
         let mut c = experiment::controller(kind, stacks, &cal).unwrap();
         let j = cal.jacobian.jacobian;
+        // The device time the front ends' progress bars are sized with.
+        let seen = std::rc::Rc::new(std::cell::Cell::new(0.0));
+        let last = seen.clone();
+        bench.watch(move |t| last.set(t));
         let r = experiment::tracking(&mut bench, c.as_mut(), approach, j, opts).unwrap();
+        assert!(
+            (seen.get() - opts.seconds()).abs() < 0.1,
+            "{} s of device time, {} s foreseen",
+            seen.get(),
+            opts.seconds()
+        );
         println!(
             "{:>8}: steps RMS {:.1}/{:.1} nm (true {:.1}/{:.1}), circle RMS {:.1}/{:.1} nm (true {:.1}/{:.1}), settling {:?}",
             kind.name(),
@@ -335,7 +345,16 @@ fn the_range_of_motion_is_the_models_under_approach_2_and_torque_limited_under_a
             Timing::default(),
         )
         .unwrap();
+        let seen = std::rc::Rc::new(std::cell::Cell::new(0.0));
+        let last = seen.clone();
+        bench.watch(move |t| last.set(t));
         let r = experiment::range(&mut bench, &prototype(), &params(approach).rig, 3.0).unwrap();
+        let foreseen = experiment::range_seconds(3.0);
+        assert!(
+            (seen.get() - foreseen).abs() < 0.1,
+            "{} s of device time, {foreseen} s foreseen",
+            seen.get()
+        );
         println!(
             "approach {}: range x {:.2} µm, y {:.2} µm (true {:.2}, {:.2}); stacks up to {:.1} V, {:.1} V; {:?}",
             approach.number(),
