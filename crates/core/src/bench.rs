@@ -523,20 +523,9 @@ impl<'r, B: Backend> Bench<'r, B> {
                 .move_to(axis, origin[axis] + delta[axis])
                 .map_err(dev("stage move"))?;
         }
-        let mut waited = 0.0;
-        while self.rig.stage.is_busy().map_err(dev("stage"))? {
-            if waited > 10.0 {
-                return Err(BenchError::Device {
-                    what: "stage",
-                    source: HwError::Timeout {
-                        device: "stage".into(),
-                        seconds: waited,
-                    },
-                });
-            }
-            self.rig.clock.sleep(0.01).map_err(dev("clock"))?;
-            waited += 0.01;
-        }
+        self.rig
+            .wait_stage(10.0, 0.01, "stage")
+            .map_err(dev("stage"))?;
         let mut p = [0.0; 3];
         for (axis, p) in p.iter_mut().enumerate() {
             *p = self.rig.stage.position(axis).map_err(dev("stage"))?;

@@ -729,21 +729,8 @@ pub fn hysteresis_clear<B: Backend>(
 /// settled (at most 10 s of the bench's clock).
 fn stage_height<B: Backend>(rig: &mut Rig<B>, y: f64) -> Result<(), BenchError> {
     rig.stage.move_to(1, y).map_err(dev("stage lift"))?;
-    let t0 = rig.clock.now();
-    while rig.stage.is_busy().map_err(dev("stage"))? {
-        let waited = rig.clock.now() - t0;
-        if waited > 10.0 {
-            return Err(BenchError::Device {
-                what: "stage",
-                source: cellinject_hw::HwError::Timeout {
-                    device: "stage (lifting the pipette clear)".into(),
-                    seconds: waited,
-                },
-            });
-        }
-        rig.clock.sleep(0.01).map_err(dev("clock"))?;
-    }
-    Ok(())
+    rig.wait_stage(10.0, 0.01, "stage (lifting the pipette clear)")
+        .map_err(dev("stage"))
 }
 
 #[cfg(test)]

@@ -196,6 +196,9 @@ pub struct FakeStage {
     position: [f64; 3],
     /// The feeder stage (logged as [`Record::Feeder`]).
     feeder: bool,
+    /// Looks at it that find it still moving before it stops (0: it arrives at once;
+    /// `usize::MAX`: it never stops). Set before the rig wraps it.
+    pub busy_polls: usize,
 }
 
 impl Stage for FakeStage {
@@ -224,7 +227,11 @@ impl Stage for FakeStage {
         Ok(self.position[axis])
     }
     fn is_busy(&mut self) -> Result<bool, HwError> {
-        Ok(false)
+        let busy = self.busy_polls > 0;
+        if busy && self.busy_polls != usize::MAX {
+            self.busy_polls -= 1;
+        }
+        Ok(busy)
     }
 }
 
@@ -338,12 +345,14 @@ pub fn devices(rig: &RigParams) -> (Devices<FakeBackend>, Log) {
             travel: rig.stage_limits(),
             position: [0.0; 3],
             feeder: false,
+            busy_polls: 0,
         },
         feeder: FakeStage {
             log: log.clone(),
             travel: rig.feeder_limits(),
             position: [0.0; 3],
             feeder: true,
+            busy_polls: 0,
         },
         injector: FakeInjector {
             log: log.clone(),

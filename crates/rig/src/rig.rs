@@ -234,4 +234,58 @@ impl<B: Backend> Rig<B> {
         let g = lock(&self.guard);
         g.envelope().max_safe_voltage(ch, g.commanded())
     }
+
+    /// Waits on the rig's clock until the macro stage has stopped, looking every
+    /// `poll` s; a timeout naming `what` (e.g. "stage (lifting the pipette clear)")
+    /// once `deadline` s have passed with it still moving. The one wait of every
+    /// plain stage move (a move that servos the stacks meanwhile waits its own way).
+    pub fn wait_stage(&mut self, deadline: f64, poll: f64, what: &str) -> Result<(), HwError> {
+        let t0 = self.clock.now();
+        while self.stage.is_busy()? {
+            let waited = self.clock.now() - t0;
+            if waited > deadline {
+                return Err(HwError::Timeout {
+                    device: what.into(),
+                    seconds: waited,
+                });
+            }
+            self.clock.sleep(poll)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use crate::fake;
+
+    fn rig(busy_polls: usize) -> Rig<fake::FakeBackend> {
+        let params = RigParams::default();
+        let (mut devices, _log) = fake::devices(&params);
+        devices.stage.busy_polls = busy_polls;
+        Rig::new(devices, &cellinject_model::prototype(), &params).unwrap()
+    }
+
+    /// A stage that stops after three looks is waited for three polls of the clock; one
+    /// that never stops is a timeout naming what was waited for, after the deadline.
+    #[test]
+    fn the_stage_wait_ends_when_it_stops_or_at_the_deadline() {
+        let mut r = rig(3);
+        let t0 = r.clock.now();
+        r.wait_stage(1.0, 0.01, "stage").unwrap();
+        assert!((r.clock.now() - t0 - 0.03).abs() < 1e-12);
+        let mut r = rig(usize::MAX);
+        let t0 = r.clock.now();
+        match r.wait_stage(0.5, 0.01, "stage (lifting the pipette clear)") {
+            Err(HwError::Timeout { device, seconds }) => {
+                assert_eq!(device, "stage (lifting the pipette clear)");
+                assert!(seconds > 0.5 && seconds < 0.52, "{seconds}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(r.clock.now() - t0 < 0.52);
+    }
 }

@@ -174,28 +174,19 @@ impl<B: Backend> Workflow<'_, B> {
         self.servo_wait(seconds, Some((target, speed)))
     }
 
-    /// Moves the stage; the deadline is the option's for moves of up to 1 mm, plus
-    /// 1 s per further mm (the calibration's long moves).
     /// Moves the stage's height to `y` before the servo runs (no stack is driven):
     /// waits until it is there.
     pub(super) fn raise_to(&mut self, y: f64) -> Result<(), WorkflowError> {
         self.rig.stage.move_to(1, y).map_err(dev("stage lift"))?;
-        let t0 = self.now();
-        while self.rig.stage.is_busy().map_err(dev("stage"))? {
-            if self.now() - t0 > self.options.stage_deadline {
-                return Err(WorkflowError::Device {
-                    what: "stage",
-                    source: HwError::Timeout {
-                        device: "stage (missed its deadline)".into(),
-                        seconds: self.options.stage_deadline,
-                    },
-                });
-            }
-            self.rig.clock.sleep(0.005).map_err(dev("clock"))?;
-        }
-        Ok(())
+        let deadline = self.options.stage_deadline;
+        self.rig
+            .wait_stage(deadline, 0.005, "stage (missed its deadline)")
+            .map_err(dev("stage"))
     }
 
+    /// Moves the stage, servoing the stacks while it goes; the deadline is the
+    /// option's for moves of up to 1 mm, plus 1 s per further mm (the calibration's
+    /// long moves).
     pub(super) fn stage_to(
         &mut self,
         p: [Option<f64>; 3],
