@@ -519,25 +519,29 @@ mod tests {
         use cellinject_plate::{Object, Plate};
         use cellinject_twin::{Twin, TwinParams, rig};
         let d = cellinject_config::prototype();
-        let cell = |row, col| Object {
-            well: [row, col],
-            offset: [0.0, 0.0],
-            diameter: 20e-6,
-        };
-        let plate = Plate {
-            rows: 2,
-            cols: 2,
-            pitch: 150e-6,
-            origin: [-75e-6, -45e-6],
-            cells: vec![cell(0, 0), cell(0, 1), cell(1, 0), cell(1, 1)],
-            debris: vec![],
+        let plate = |diameter: f64| {
+            let cell = |row, col| Object {
+                well: [row, col],
+                offset: [0.0, 0.0],
+                diameter,
+            };
+            Plate {
+                rows: 2,
+                cols: 2,
+                pitch: 150e-6,
+                origin: [-75e-6, -45e-6],
+                cells: vec![cell(0, 0), cell(0, 1), cell(1, 0), cell(1, 1)],
+                debris: vec![],
+            }
         };
         let start = cellinject_core::inject::Options::default();
-        let loaded = || {
-            let params = TwinParams {
+        let loaded_with = |seed: u64, diameter: f64| {
+            let mut params = TwinParams {
                 rig: d.rig,
                 ..TwinParams::default()
             };
+            params.sim.seed = seed;
+            let plate = plate(diameter);
             let t = Twin::new(&d.design, params).unwrap().into_shared();
             let mut w = t.lock().unwrap();
             w.load_plate(&plate);
@@ -553,6 +557,7 @@ mod tests {
             let punctures: u32 = b.cells.iter().map(|c| c.punctures).sum();
             (b.floor_strikes, b.tip_loss, touched, punctures)
         };
+        let loaded = || loaded_with(TwinParams::default().sim.seed, 20e-6);
         let bare = loaded();
         calibrate::hysteresis(&mut rig(&bare).unwrap(), 2000, 12).unwrap();
         assert!(harm(&bare).0 > 0, "the bare sweep: {:?}", harm(&bare));
@@ -572,5 +577,25 @@ mod tests {
         assert!(calibrate::hysteresis_clear(&mut r, drop, 100, 12).is_err());
         assert!((r.stage.position(1).unwrap() - (y0 + drop)).abs() < 0.1e-6);
         assert_eq!(harm(&clear), (0, 0.0, 0, 0));
+        // Over seeds (the stacks' noise, creep and stick-slip) and the smallest and
+        // largest cells the workflow takes: a bare sweep strikes, the clear one never.
+        for seed in 1..=6 {
+            for diameter in [10e-6, 30e-6] {
+                let bare = loaded_with(seed, diameter);
+                calibrate::hysteresis(&mut rig(&bare).unwrap(), 2000, 12).unwrap();
+                assert!(
+                    harm(&bare).0 > 0,
+                    "seed {seed}, {diameter} m: bare {:?}",
+                    harm(&bare)
+                );
+                let clear = loaded_with(seed, diameter);
+                let mut r = rig(&clear).unwrap();
+                let y0 = r.stage.position(1).unwrap();
+                let c = calibrate::hysteresis_clear(&mut r, drop, 2000, 12).unwrap();
+                assert_eq!(harm(&clear), (0, 0.0, 0, 0), "seed {seed}, {diameter} m");
+                assert!((r.stage.position(1).unwrap() - y0).abs() < 0.1e-6);
+                assert_eq!(c.problem(), None, "seed {seed}, {diameter} m");
+            }
+        }
     }
 }
