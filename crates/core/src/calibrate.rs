@@ -691,9 +691,22 @@ pub fn hysteresis<B: Backend>(
 /// commands.
 pub fn sweep_drop(design: &Design, params: &RigParams) -> Result<f64, BenchError> {
     let j = model_jacobian(design, params.approach)?;
-    Ok(design.actuators[2].travel * params.pipette.angle.sin()
-        + j[1][0].abs() * design.actuators[0].travel
-        + j[1][1].abs() * design.actuators[1].travel)
+    Ok(drop_over_travel(
+        design.actuators[2].travel,
+        params.pipette.angle,
+        j[1],
+        [design.actuators[0].travel, design.actuators[1].travel],
+    ))
+}
+
+/// m, the drop of [`sweep_drop`] from its parts, the one formula of every caller: A3's
+/// full stroke `a3_stroke` (m) down the pipette's axis at `angle` (rad) from the
+/// horizontal, and the tilt stacks' travels `travel` (m) through `vertical`, the
+/// vertical row of a Jacobian (tip height per stack extension, either sign). The
+/// model's parts for the calibration commands; the workflow's own (A3's identified
+/// gain times its voltage range, its measured Jacobian) on a bench.
+pub fn drop_over_travel(a3_stroke: f64, angle: f64, vertical: [f64; 2], travel: [f64; 2]) -> f64 {
+    a3_stroke * angle.sin() + vertical[0].abs() * travel[0] + vertical[1].abs() * travel[1]
 }
 
 /// [`hysteresis`] with the pipette first raised `drop` m ([`sweep_drop`]) above where
@@ -741,6 +754,26 @@ mod response_tests {
     use cellinject_hysteresis::PrandtlIshlinskii;
     use cellinject_model::prototype;
     use cellinject_rig::{RigParams, fake};
+
+    /// A3's 100 µm down a pipette at 30° is 50 µm of height; stacks of 20 and 40 µm
+    /// through a vertical row (0.5, −0.25) add 10 + 10 µm, whatever the signs; and
+    /// the prototype's drop is the model's parts put through the same formula.
+    #[test]
+    fn the_drop_over_travel_adds_each_axis_worst_case() {
+        let d = drop_over_travel(
+            100e-6,
+            std::f64::consts::FRAC_PI_6,
+            [0.5, -0.25],
+            [20e-6, 40e-6],
+        );
+        assert!((d - 70e-6).abs() < 1e-15, "{d}");
+        let (design, params) = (prototype(), RigParams::default());
+        let j = model_jacobian(&design, params.approach).unwrap();
+        let by_hand = design.actuators[2].travel * params.pipette.angle.sin()
+            + j[1][0].abs() * design.actuators[0].travel
+            + j[1][1].abs() * design.actuators[1].travel;
+        assert_eq!(sweep_drop(&design, &params).unwrap(), by_hand);
+    }
 
     /// A calibration of two linear stacks of `um_per_volt`, on 0-100 V.
     fn linear(um_per_volt: f64) -> HysteresisCalibration {

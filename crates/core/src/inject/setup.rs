@@ -84,10 +84,12 @@ impl<B: Backend> Workflow<'_, B> {
         // The identification (and the check of a loaded calibration) sweeps the
         // stacks over their travel, A3 down the pipette's axis: the pipette goes that
         // much higher first, so that the tip stays clear of the cells and the floor.
-        let j = self.jacobian;
-        let drop = self.gain_a3 * self.rig.piezo[2].voltage_range().1 * self.pipette.angle.sin()
-            + j[1][0].abs() * self.travel_a12[0]
-            + j[1][1].abs() * self.travel_a12[1];
+        let drop = crate::calibrate::drop_over_travel(
+            self.gain_a3 * self.rig.piezo[2].voltage_range().1,
+            self.pipette.angle,
+            self.jacobian[1],
+            self.travel_a12,
+        );
         let loaded = match hysteresis {
             Some(c) if c.problem().is_none() => {
                 self.raise_to(lift + drop)?;
