@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::Result;
 use cellinject_cells::vision::{Arg, Contrast, Request, RequestError, find_cells};
 use cellinject_files::{Kind, Plan, Staged, encode_rgb};
-use cellinject_plot::frame::{Outline, with_outlines};
-use cellinject_print::vision::CellsReport;
+use cellinject_plot::frame::{stretched, with_outlines};
+use cellinject_print::vision::{CellsReport, outlines};
 use clap::{Args, Subcommand, ValueEnum};
 
 use crate::output::print_json;
@@ -110,34 +110,9 @@ fn cells(a: &CellsArgs) -> Result<()> {
     let report = CellsReport::new(&census, a.pixel_size);
     let mut written = Vec::new();
     if let Some(path) = &out {
-        let (lo, hi) = img
-            .data()
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |m, v| {
-                (m.0.min(*v), m.1.max(*v))
-            });
-        // Stretched over the image's range; a flat image as its level (8 or 16 bit).
-        let grey: Vec<u8> = if hi > lo {
-            let scale = 255.0 / (hi - lo);
-            img.data()
-                .iter()
-                .map(|v| ((v - lo) * scale).round() as u8)
-                .collect()
-        } else {
-            let level = if hi > 255.0 { hi / 257.0 } else { hi };
-            vec![level.round().clamp(0.0, 255.0) as u8; img.data().len()]
-        };
-        let outlines: Vec<Outline> = census
-            .cells
-            .iter()
-            .map(|f| (f, true))
-            .chain(census.debris.iter().map(|f| (f, false)))
-            .map(|(f, primary)| Outline {
-                centre: [f.x, f.y],
-                radius: 0.5 * f.diameter,
-                primary,
-            })
-            .collect();
+        // Stretched over the image's own range, the outlines drawn over it.
+        let grey = stretched(img.data());
+        let outlines = outlines(&census);
         let rgb = with_outlines(&grey, w as u32, h as u32, &outlines)?;
         let mut staged = Staged::new();
         staged.add(path, &encode_rgb(rgb, path)?)?;

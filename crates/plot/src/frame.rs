@@ -63,6 +63,37 @@ pub fn with_scale_bar(
     })
 }
 
+/// Grey levels of any range as 8-bit for display: stretched linearly over the
+/// values' own range (its least black, its largest white); a flat image as its
+/// level (8-bit as is, a 16-bit level divided by 257), clamped to 0..=255.
+/// Not-a-number values are left out of the range and shown black.
+pub fn stretched(values: &[f64]) -> Vec<u8> {
+    let (lo, hi) = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |m, v| {
+            (m.0.min(*v), m.1.max(*v))
+        });
+    if hi > lo {
+        let scale = 255.0 / (hi - lo);
+        values
+            .iter()
+            .map(|v| ((v - lo) * scale).round().clamp(0.0, 255.0) as u8)
+            .collect()
+    } else {
+        let level = if hi > 255.0 { hi / 257.0 } else { hi };
+        let level = if level.is_finite() {
+            level.round().clamp(0.0, 255.0) as u8
+        } else {
+            0
+        };
+        values
+            .iter()
+            .map(|v| if v.is_finite() { level } else { 0 })
+            .collect()
+    }
+}
+
 /// An outline to draw over a frame ([`with_outlines`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Outline {
@@ -130,6 +161,19 @@ pub fn with_outlines(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The range stretched to 0..=255; a flat 8-bit image keeps its level, a flat
+    /// 16-bit one is scaled to 8 bits; NaN is black and does not widen the range.
+    #[test]
+    fn grey_is_stretched_over_its_own_range() {
+        assert_eq!(stretched(&[10.0, 20.0, 30.0]), vec![0, 128, 255]);
+        assert_eq!(stretched(&[1000.0, 3000.0]), vec![0, 255]);
+        assert_eq!(stretched(&[77.0, 77.0]), vec![77, 77]);
+        assert_eq!(stretched(&[25700.0; 2]), vec![100, 100]);
+        assert_eq!(stretched(&[f64::NAN, 0.0, 2.0]), vec![0, 0, 255]);
+        assert_eq!(stretched(&[f64::NAN; 2]), vec![0, 0]);
+        assert!(stretched(&[]).is_empty());
+    }
 
     /// A cell's circle crosses the row through its centre at its radius, in green; a
     /// debris outline is orange; the pixels far from both stay grey.

@@ -1,6 +1,7 @@
 //! `cellinject vision cells`'s report: what a micrograph holds, as JSON and as text.
 
 use cellinject_cells::vision::{Census, Found};
+use cellinject_plot::frame::Outline;
 use serde::Serialize;
 
 /// One cell or piece of debris (docs/json.md, `vision cells`).
@@ -18,6 +19,22 @@ pub struct Seen {
     pub confidence: f64,
     /// `bright` or `dark`: how the body differs from its surroundings.
     pub contrast: &'static str,
+}
+
+/// The overlay's outlines of a census: the cells (green, numbered first, most
+/// confident first), then the debris (orange).
+pub fn outlines(census: &Census) -> Vec<Outline> {
+    census
+        .cells
+        .iter()
+        .map(|f| (f, true))
+        .chain(census.debris.iter().map(|f| (f, false)))
+        .map(|(f, primary)| Outline {
+            centre: [f.x, f.y],
+            radius: 0.5 * f.diameter,
+            primary,
+        })
+        .collect()
 }
 
 /// What `vision cells` found in one image.
