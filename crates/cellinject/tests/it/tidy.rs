@@ -248,3 +248,50 @@ fn the_counter_counts_bodies_and_skips_braces_in_literals() {
     );
     assert_eq!(code_lines("a\n#[cfg(test)]\nmod tests {}\n"), vec!["a"]);
 }
+
+/// A library that skips its documentation tests (`doctest = false`, which spares CI
+/// rustdoc's empty run) has no example in its documentation for them to test: no
+/// fenced block in a `///` or `//!` comment that rustdoc would compile (one with no
+/// language, `rust`, or rustdoc's attributes; `toml` and `text` blocks are shown,
+/// not compiled). An example added there needs the line removed, or it would never
+/// be compiled.
+#[test]
+fn a_crate_that_skips_doc_tests_has_no_examples_in_its_docs() {
+    let mut skipping = 0;
+    for file in sources() {
+        let krate = file.split('/').nth(1).unwrap().to_string();
+        let manifest =
+            std::fs::read_to_string(root().join("crates").join(&krate).join("Cargo.toml")).unwrap();
+        if !manifest.lines().any(|l| l.trim() == "doctest = false") {
+            continue;
+        }
+        skipping += 1;
+        let text = std::fs::read_to_string(root().join(&file)).unwrap();
+        let mut open = false;
+        for (k, line) in text.lines().enumerate() {
+            let t = line.trim_start();
+            let doc = t.strip_prefix("///").or_else(|| t.strip_prefix("//!"));
+            let Some(info) = doc.and_then(|d| d.trim_start().strip_prefix("```")) else {
+                continue;
+            };
+            if !open {
+                let lang = info.split(',').next().unwrap_or("").trim();
+                let compiled = lang.is_empty()
+                    || lang == "rust"
+                    || ["no_run", "should_panic", "compile_fail", "edition"]
+                        .iter()
+                        .any(|a| lang.starts_with(a));
+                assert!(
+                    !compiled,
+                    "{file}:{}: a Rust example in the docs of a crate with `doctest = false`",
+                    k + 1
+                );
+            }
+            open = !open;
+        }
+    }
+    assert!(
+        skipping > 0,
+        "no crate skips its doc tests: the rule checks nothing"
+    );
+}
