@@ -557,18 +557,34 @@ mod tests {
             let punctures: u32 = b.cells.iter().map(|c| c.punctures).sum();
             (b.floor_strikes, b.tip_loss, touched, punctures)
         };
-        let loaded = || loaded_with(TwinParams::default().sim.seed, 20e-6);
-        let bare = loaded();
-        calibrate::hysteresis(&mut rig(&bare).unwrap(), 2000, 12).unwrap();
-        assert!(harm(&bare).0 > 0, "the bare sweep: {:?}", harm(&bare));
-        let clear = loaded();
-        let mut r = rig(&clear).unwrap();
-        let y0 = r.stage.position(1).unwrap();
         let drop = calibrate::sweep_drop(&d.design, &d.rig).unwrap();
-        let c = calibrate::hysteresis_clear(&mut r, drop, 2000, 12).unwrap();
-        assert_eq!(harm(&clear), (0, 0.0, 0, 0));
-        assert!((r.stage.position(1).unwrap() - y0).abs() < 0.1e-6);
-        assert_eq!(c.problem(), None);
+        // A bare sweep strikes and a clear one touches nothing, comes back to its
+        // height and fits: the default seed with 20 µm cells, then over seeds (the
+        // stacks' noise, creep and stick-slip) and the smallest and largest cells the
+        // workflow takes. The twin and rig of the last clear sweep are returned.
+        let sweeps = |seed: u64, diameter: f64| {
+            let bare = loaded_with(seed, diameter);
+            calibrate::hysteresis(&mut rig(&bare).unwrap(), 2000, 12).unwrap();
+            assert!(
+                harm(&bare).0 > 0,
+                "seed {seed}, {diameter} m: bare {:?}",
+                harm(&bare)
+            );
+            let clear = loaded_with(seed, diameter);
+            let mut r = rig(&clear).unwrap();
+            let y0 = r.stage.position(1).unwrap();
+            let c = calibrate::hysteresis_clear(&mut r, drop, 2000, 12).unwrap();
+            assert_eq!(harm(&clear), (0, 0.0, 0, 0), "seed {seed}, {diameter} m");
+            assert!((r.stage.position(1).unwrap() - y0).abs() < 0.1e-6);
+            assert_eq!(c.problem(), None, "seed {seed}, {diameter} m");
+            (clear, r, y0)
+        };
+        for seed in 1..=6 {
+            for diameter in [10e-6, 30e-6] {
+                sweeps(seed, diameter);
+            }
+        }
+        let (clear, mut r, y0) = sweeps(TwinParams::default().sim.seed, 20e-6);
         // A clearance that is not a length is refused before anything moves.
         let e = calibrate::hysteresis_clear(&mut r, f64::NAN, 2000, 12).unwrap_err();
         assert!(e.to_string().contains("clearance"), "{e}");
@@ -577,25 +593,5 @@ mod tests {
         assert!(calibrate::hysteresis_clear(&mut r, drop, 100, 12).is_err());
         assert!((r.stage.position(1).unwrap() - (y0 + drop)).abs() < 0.1e-6);
         assert_eq!(harm(&clear), (0, 0.0, 0, 0));
-        // Over seeds (the stacks' noise, creep and stick-slip) and the smallest and
-        // largest cells the workflow takes: a bare sweep strikes, the clear one never.
-        for seed in 1..=6 {
-            for diameter in [10e-6, 30e-6] {
-                let bare = loaded_with(seed, diameter);
-                calibrate::hysteresis(&mut rig(&bare).unwrap(), 2000, 12).unwrap();
-                assert!(
-                    harm(&bare).0 > 0,
-                    "seed {seed}, {diameter} m: bare {:?}",
-                    harm(&bare)
-                );
-                let clear = loaded_with(seed, diameter);
-                let mut r = rig(&clear).unwrap();
-                let y0 = r.stage.position(1).unwrap();
-                let c = calibrate::hysteresis_clear(&mut r, drop, 2000, 12).unwrap();
-                assert_eq!(harm(&clear), (0, 0.0, 0, 0), "seed {seed}, {diameter} m");
-                assert!((r.stage.position(1).unwrap() - y0).abs() < 0.1e-6);
-                assert_eq!(c.problem(), None, "seed {seed}, {diameter} m");
-            }
-        }
     }
 }
