@@ -52,23 +52,30 @@ thread_local! {
     static PLANNER: std::cell::RefCell<FftPlanner<f64>> = std::cell::RefCell::new(FftPlanner::new());
 }
 
-fn fft2(planner: &mut FftPlanner<f64>, data: &mut [Complex<f64>], n: usize, inverse: bool) {
-    let fft = if inverse {
-        planner.plan_fft_inverse(n)
+/// The 2-D FFT of the `w x h` row-major `data`, in place (forward, or inverse without
+/// the `1/(w·h)`): the rows, then the columns.
+pub(crate) fn fft2(
+    planner: &mut FftPlanner<f64>,
+    data: &mut [Complex<f64>],
+    (w, h): (usize, usize),
+    inverse: bool,
+) {
+    let (fr, fc) = if inverse {
+        (planner.plan_fft_inverse(w), planner.plan_fft_inverse(h))
     } else {
-        planner.plan_fft_forward(n)
+        (planner.plan_fft_forward(w), planner.plan_fft_forward(h))
     };
-    for row in data.chunks_mut(n) {
-        fft.process(row);
+    for row in data.chunks_mut(w) {
+        fr.process(row);
     }
-    let mut col = vec![Complex::new(0.0, 0.0); n];
-    for x in 0..n {
-        for y in 0..n {
-            col[y] = data[y * n + x];
+    let mut col = vec![Complex::new(0.0, 0.0); h];
+    for x in 0..w {
+        for y in 0..h {
+            col[y] = data[y * w + x];
         }
-        fft.process(&mut col);
-        for y in 0..n {
-            data[y * n + x] = col[y];
+        fc.process(&mut col);
+        for y in 0..h {
+            data[y * w + x] = col[y];
         }
     }
 }
@@ -362,12 +369,12 @@ fn cross_fft(current: &Image, tz: &[f64], n: usize, r: Region, size: usize) -> (
     }
     PLANNER.with(|p| {
         let mut planner = p.borrow_mut();
-        fft2(&mut planner, &mut a, size, false);
-        fft2(&mut planner, &mut b, size, false);
+        fft2(&mut planner, &mut a, (size, size), false);
+        fft2(&mut planner, &mut b, (size, size), false);
         for (p, q) in a.iter_mut().zip(&b) {
             *p *= q.conj();
         }
-        fft2(&mut planner, &mut a, size, true);
+        fft2(&mut planner, &mut a, (size, size), true);
     });
     let scale = 1.0 / (size * size) as f64;
     (a.iter().map(|c| c.re * scale).collect(), size)

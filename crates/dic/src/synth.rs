@@ -1,10 +1,14 @@
-//! Exact synthetic speckle images for tests and benchmarks: a sum of Gaussian speckles
+//! Exact synthetic images for tests and benchmarks: a sum of Gaussian speckles
 //! integrated over each pixel (through the error function), moved by moving their
-//! centres (never by interpolating an image), then Gaussian noise and quantisation.
+//! centres (never by interpolating an image), then Gaussian noise and quantisation;
+//! and the band-limited (Fourier) shift of a real photograph ([`fourier_shift`]).
 
 use cellinject_numeric::Rng;
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex;
 
 use crate::image::Image;
+use crate::search::fft2;
 
 /// How the speckle pattern looks.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -212,4 +216,42 @@ impl Speckle {
         }
         .render_mapped(|x, y| (x, y), 0)
     }
+}
+
+/// The band-limited shift of `img` by (u, v) pixels, row-major values (not rounded):
+/// pixel (x, y) holds the trigonometric interpolant of the image's mirror-symmetric
+/// periodic extension at (x − u, y − v), what a camera would take of a band-limited
+/// scene moved by (u, v). Exact for whole-pixel shifts (the mirrored image moved);
+/// for any shift of a real photograph, the pair with a known sub-pixel motion that the
+/// accuracy tests correlate (`tests/real_images.rs`; `bench/photo_pair.py` does the
+/// same in NumPy).
+pub fn fourier_shift(img: &Image, u: f64, v: f64) -> Vec<f64> {
+    let (w, h) = (img.width(), img.height());
+    let (ew, eh) = (2 * w, 2 * h);
+    let mirror = |i: usize, n: usize| if i < n { i } else { 2 * n - 1 - i };
+    let mut e: Vec<Complex<f64>> = (0..eh)
+        .flat_map(|y| (0..ew).map(move |x| (x, y)))
+        .map(|(x, y)| Complex::new(img.at(mirror(x, w), mirror(y, h)), 0.0))
+        .collect();
+    let mut planner = FftPlanner::new();
+    fft2(&mut planner, &mut e, (ew, eh), false);
+    let freq = |k: usize, n: usize| {
+        if 2 * k < n {
+            k as f64 / n as f64
+        } else {
+            k as f64 / n as f64 - 1.0
+        }
+    };
+    for ky in 0..eh {
+        for kx in 0..ew {
+            let phase = -2.0 * std::f64::consts::PI * (freq(kx, ew) * u + freq(ky, eh) * v);
+            e[ky * ew + kx] *= Complex::from_polar(1.0, phase);
+        }
+    }
+    fft2(&mut planner, &mut e, (ew, eh), true);
+    let scale = 1.0 / (ew * eh) as f64;
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| e[y * ew + x].re * scale)
+        .collect()
 }

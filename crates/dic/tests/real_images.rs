@@ -25,9 +25,8 @@
 
 use cellinject_dic::Image;
 use cellinject_dic::field::{FieldOptions, field};
+use cellinject_dic::synth::fourier_shift;
 use cellinject_numeric::Rng;
-use rustfft::FftPlanner;
-use rustfft::num_complex::Complex;
 
 const PHOTOS: [&str; 6] = [
     "camera_sky_coat",
@@ -46,59 +45,6 @@ fn load(name: &str) -> Image {
     let img = image::open(&path).unwrap().into_luma8();
     let (w, h) = (img.width() as usize, img.height() as usize);
     Image::new(w, h, img.into_raw().into_iter().map(f64::from).collect()).unwrap()
-}
-
-/// The band-limited shift of `img`'s mirror-symmetric periodic extension: the result at
-/// pixel (x, y) is the trigonometric interpolant of the extension at (x − u, y − v).
-fn fourier_shift(img: &Image, u: f64, v: f64) -> Vec<f64> {
-    let (w, h) = (img.width(), img.height());
-    let (ew, eh) = (2 * w, 2 * h);
-    let mirror = |i: usize, n: usize| if i < n { i } else { 2 * n - 1 - i };
-    let mut e: Vec<Complex<f64>> = (0..eh)
-        .flat_map(|y| (0..ew).map(move |x| (x, y)))
-        .map(|(x, y)| Complex::new(img.at(mirror(x, w), mirror(y, h)), 0.0))
-        .collect();
-    let mut planner = FftPlanner::new();
-    let fft2 = |data: &mut [Complex<f64>], inverse: bool, planner: &mut FftPlanner<f64>| {
-        let (fr, fc) = if inverse {
-            (planner.plan_fft_inverse(ew), planner.plan_fft_inverse(eh))
-        } else {
-            (planner.plan_fft_forward(ew), planner.plan_fft_forward(eh))
-        };
-        for row in data.chunks_mut(ew) {
-            fr.process(row);
-        }
-        let mut col = vec![Complex::new(0.0, 0.0); eh];
-        for x in 0..ew {
-            for y in 0..eh {
-                col[y] = data[y * ew + x];
-            }
-            fc.process(&mut col);
-            for y in 0..eh {
-                data[y * ew + x] = col[y];
-            }
-        }
-    };
-    fft2(&mut e, false, &mut planner);
-    let freq = |k: usize, n: usize| {
-        if 2 * k < n {
-            k as f64 / n as f64
-        } else {
-            k as f64 / n as f64 - 1.0
-        }
-    };
-    for ky in 0..eh {
-        for kx in 0..ew {
-            let phase = -2.0 * std::f64::consts::PI * (freq(kx, ew) * u + freq(ky, eh) * v);
-            e[ky * ew + kx] *= Complex::from_polar(1.0, phase);
-        }
-    }
-    fft2(&mut e, true, &mut planner);
-    let scale = 1.0 / (ew * eh) as f64;
-    (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| e[y * ew + x].re * scale)
-        .collect()
 }
 
 /// Adds Gaussian noise and rounds to 8 bits, as a camera would.
