@@ -51,7 +51,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use cellinject_fem::FemError;
 use cellinject_fem::joint3d::{
-    self, DoubleNotch, JointMesh, JointSolution, SOLUTION_ENCODING_VERSION,
+    self, DoubleNotch, JointMesh, JointSolution, JointWorkspace, SOLUTION_ENCODING_VERSION,
 };
 use cellinject_flexure::Material;
 use serde::Serialize;
@@ -143,13 +143,19 @@ impl JointKey {
 
     /// Solves the joint (the 3-D FEM), ignoring any cache.
     pub fn solve(&self) -> Result<JointSolution, FemError> {
+        self.solve_in(&mut JointWorkspace::default())
+    }
+
+    /// [`JointKey::solve`] in `workspace` (memory shared by the joints solved in turn:
+    /// [`JointWorkspace`]).
+    pub fn solve_in(&self, workspace: &mut JointWorkspace) -> Result<JointSolution, FemError> {
         let material = Material {
             youngs: self.youngs,
             poisson: self.poisson,
             // Not used by the FEM; not part of the key.
             yield_strength: f64::NAN,
         };
-        joint3d::solve(&self.joint, &material, &self.mesh, self.level)
+        joint3d::solve_in(&self.joint, &material, &self.mesh, self.level, workspace)
     }
 }
 
@@ -412,6 +418,15 @@ pub fn solve_cached(
     store: &dyn JointStore,
     key: &JointKey,
 ) -> Result<(JointSolution, CacheUse), FemError> {
+    solve_cached_in(store, key, &mut JointWorkspace::default())
+}
+
+/// [`solve_cached`], a solve made in `workspace` ([`JointWorkspace`]).
+pub fn solve_cached_in(
+    store: &dyn JointStore,
+    key: &JointKey,
+    workspace: &mut JointWorkspace,
+) -> Result<(JointSolution, CacheUse), FemError> {
     let (status, detail) = match store.load(key) {
         CacheLookup::Hit(s) => {
             return Ok((
@@ -423,7 +438,7 @@ pub fn solve_cached(
             ));
         }
         CacheLookup::Off => {
-            let s = key.solve()?;
+            let s = key.solve_in(workspace)?;
             return Ok((
                 s,
                 CacheUse {
@@ -436,7 +451,7 @@ pub fn solve_cached(
         CacheLookup::Unreadable(why) => (CacheStatus::Miss, Some(why)),
         CacheLookup::Corrupt(why) => (CacheStatus::Recomputed, Some(why)),
     };
-    let s = key.solve()?;
+    let s = key.solve_in(workspace)?;
     let used = match store.store(key, &s) {
         Ok(()) => CacheUse { status, detail },
         Err(e) => CacheUse {

@@ -38,7 +38,7 @@ pub mod cost;
 pub mod report;
 
 use cellinject_fem::FemError;
-use cellinject_fem::joint3d::{DoubleNotch, JointMesh, JointSolution};
+use cellinject_fem::joint3d::{DoubleNotch, JointMesh, JointSolution, JointWorkspace};
 use cellinject_flexure::Material;
 use cellinject_model::{Design, Mechanism, ModelError};
 use cellinject_paper as paper;
@@ -56,7 +56,7 @@ pub use report::{
     TableCase, TableReport, TablesReport,
 };
 
-use cache::{CacheUse, solve_cached};
+use cache::{CacheUse, solve_cached_in};
 
 /// The stress tensor at one point of a joint, affine in the two stack forces.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -360,16 +360,18 @@ fn check_level(level: usize) -> Result<(), FeaError> {
     }
 }
 
-/// Solves (or reads) one joint.
+/// Solves (or reads) one joint, a solve made in `workspace` (shared by the joints
+/// a command solves in turn).
 fn joint(
     store: &dyn JointStore,
     joint: &DoubleNotch,
     material: &Material,
     level: usize,
     key: &'static str,
+    workspace: &mut JointWorkspace,
 ) -> Result<(JointSolution, CacheUse), FeaError> {
     let k = JointKey::new(joint, material, &JointMesh::default(), level);
-    solve_cached(store, &k).map_err(|source| FeaError::JointFem { key, source })
+    solve_cached_in(store, &k, workspace).map_err(|source| FeaError::JointFem { key, source })
 }
 
 fn joint_fem(s: &JointSolution, used: CacheUse) -> JointFem {
@@ -441,12 +443,14 @@ impl FeaModel {
         let material = material(params)?;
         let mechanism = Mechanism::new(design).map_err(FeaError::Model)?;
         let level = options.level;
+        let mut workspace = JointWorkspace::default();
         let (j12, u12) = joint(
             cache,
             &joint_geometry(params, params.throat_j12),
             &material,
             level,
             "structure.throat_J12",
+            &mut workspace,
         )?;
         let (j3, u3) = joint(
             cache,
@@ -454,7 +458,9 @@ impl FeaModel {
             &material,
             level,
             "structure.throat_J3",
+            &mut workspace,
         )?;
+        drop(workspace);
         let m12 = joint_model(&j12, "structure.throat_J12")?;
         let spec = StructureSpec {
             j3: joint_model(&j3, "structure.throat_J3")?,
@@ -860,12 +866,13 @@ pub fn joints(
         ("J3", params.throat_j3, PAPER_K_J3, "structure.throat_J3"),
     ];
     let mut rows = Vec::new();
+    let mut workspace = JointWorkspace::default();
     for (name, throat, paper_k, key) in targets {
         let geometry = joint_geometry(params, throat);
         let mut out = Vec::new();
         let mut finest = [f64::NAN; 2];
         for &level in &sorted {
-            let (s, used) = joint(cache, &geometry, &m, level, key)?;
+            let (s, used) = joint(cache, &geometry, &m, level, key, &mut workspace)?;
             finest = s.k_bend;
             out.push(JointLevel {
                 level,
