@@ -616,6 +616,29 @@ impl BSpline {
         self.c
     }
 
+    /// Width of the image, pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height of the image, pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Makes the single-precision coefficients the warps of a measurement read
+    /// ([`BSpline::warped_block_with`]) now, rather than in the first match, which
+    /// the other threads' first matches would wait for.
+    pub(crate) fn prepare_single(&self) {
+        self.single();
+    }
+
+    /// The coefficients in single precision, made when first needed.
+    fn single(&self) -> &[f32] {
+        self.c32
+            .get_or_init(|| self.c.iter().map(|&v| v as f32).collect())
+    }
+
     /// The spline's degree.
     pub fn degree(&self) -> Degree {
         self.degree
@@ -818,10 +841,7 @@ impl BSpline {
         // A vector read past a run's last tap runs `lanes − 2` values into the row
         // after (see `Rows::rows`): 14 of them in single precision.
         if single && self.width >= 16 {
-            let c = self
-                .c32
-                .get_or_init(|| self.c.iter().map(|&v| v as f32).collect());
-            self.dispatch_rows(c, (x0, y0), p, hhf, nw, out);
+            self.dispatch_rows(self.single(), (x0, y0), p, hhf, nw, out);
         } else {
             self.dispatch_rows(&self.c, (x0, y0), p, hhf, nw, out);
         }
@@ -870,35 +890,85 @@ impl BSpline {
         rayon::join(|| self.separable(0, &d, &w), || self.separable(0, &w, &d))
     }
 
-    /// `Σ_j wy_j Σ_i wx_i c[y + shift − 2 + j][x + shift − 2 + i]` at every pixel
-    /// (x, y), the mirror beyond the edges: six taps along the rows, then six along
-    /// the columns.
-    ///
-    /// A large image in bands of [`SEPARABLE_BAND`] rows, in parallel.
-    fn separable(&self, shift: isize, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> Vec<f64> {
+    /// [`BSpline::translated_image`] into `out` (resized to the image; every value
+    /// overwritten): a caller making several keeps one buffer, where each fresh
+    /// image-sized one costs its pages' first-touch faults (half a pass's time).
+    pub(crate) fn translated_image_into(&self, t: f64, out: &mut Vec<f64>) {
+        let shift = t.floor();
+        let wt = self.degree.weights(t - shift);
+        out.resize(self.width * self.height, 0.0);
+        self.separable_into(shift as isize, &wt, &wt, out);
+    }
+
+    /// [`BSpline::translated_image`] in single precision (each value the double
+    /// one rounded), made band by band: no image-sized double-precision temporary.
+    pub(crate) fn translated_image_f32(&self, t: f64) -> Vec<f32> {
+        let shift = t.floor();
+        let wt = self.degree.weights(t - shift);
         let (w, h) = (self.width, self.height);
-        let mut out = vec![0.0; w * h];
-        let band = |y0: usize, out: &mut [f64]| {
-            pulp::Arch::new().dispatch(Separable {
-                c: &self.c,
-                w,
-                h,
-                shift,
-                wx,
-                wy,
-                y0,
-                out,
-            })
+        let mut out = vec![0.0f32; w * h];
+        let band = |y0: usize, rows: &mut [f32], tmp: &mut Vec<f64>| {
+            tmp.resize(rows.len(), 0.0);
+            self.separable_band(shift as isize, &wt, &wt, y0, tmp);
+            for (o, v) in rows.iter_mut().zip(tmp.iter()) {
+                *o = *v as f32;
+            }
         };
         if w * h >= PARALLEL_PIXELS && w > 0 {
             use rayon::prelude::*;
             out.par_chunks_mut(SEPARABLE_BAND * w)
                 .enumerate()
-                .for_each(|(b, rows)| band(b * SEPARABLE_BAND, rows));
+                .for_each_init(Vec::new, |tmp, (b, rows)| {
+                    band(b * SEPARABLE_BAND, rows, tmp)
+                });
         } else {
-            band(0, &mut out);
+            band(0, &mut out, &mut Vec::new());
         }
         out
+    }
+
+    /// `Σ_j wy_j Σ_i wx_i c[y + shift − 2 + j][x + shift − 2 + i]` at every pixel
+    /// (x, y), the mirror beyond the edges: six taps along the rows, then six along
+    /// the columns.
+    fn separable(&self, shift: isize, wx: &[f64; TAPS], wy: &[f64; TAPS]) -> Vec<f64> {
+        let mut out = vec![0.0; self.width * self.height];
+        self.separable_into(shift, wx, wy, &mut out);
+        out
+    }
+
+    /// [`BSpline::separable`] into `out` (`w·h` values, each overwritten). A large
+    /// image in bands of [`SEPARABLE_BAND`] rows, in parallel.
+    fn separable_into(&self, shift: isize, wx: &[f64; TAPS], wy: &[f64; TAPS], out: &mut [f64]) {
+        let w = self.width;
+        if w * self.height >= PARALLEL_PIXELS && w > 0 {
+            use rayon::prelude::*;
+            out.par_chunks_mut(SEPARABLE_BAND * w)
+                .enumerate()
+                .for_each(|(b, rows)| self.separable_band(shift, wx, wy, b * SEPARABLE_BAND, rows));
+        } else {
+            self.separable_band(shift, wx, wy, 0, out);
+        }
+    }
+
+    /// Rows `y0..` of [`BSpline::separable`], as many as `out` holds.
+    fn separable_band(
+        &self,
+        shift: isize,
+        wx: &[f64; TAPS],
+        wy: &[f64; TAPS],
+        y0: usize,
+        out: &mut [f64],
+    ) {
+        pulp::Arch::new().dispatch(Separable {
+            c: &self.c,
+            w: self.width,
+            h: self.height,
+            shift,
+            wx,
+            wy,
+            y0,
+            out,
+        })
     }
 
     #[inline(always)]

@@ -28,8 +28,6 @@
 
 use std::sync::OnceLock;
 
-use rayon::prelude::*;
-
 use crate::bspline::{self, BSpline, Degree, TAPS, transpose};
 use crate::icgn::{self, Reference, SINC_HALF, Subset, sinc_weights};
 
@@ -86,7 +84,7 @@ impl<'a> Corrections<'a> {
         Self::with_rounding(
             reference,
             degree,
-            rounding_tables(reference, quantisation_step),
+            rounding_tables(reference.spline(), quantisation_step),
         )
     }
 
@@ -323,60 +321,61 @@ fn convolve<const T: usize>(src: &[f64], w: &[f64; T], out: &mut [f64]) {
 }
 
 /// The rounding tables of `reference` for a current image quantised to
-/// `quantisation_step` grey levels, one per phase of `ROUNDING_PHASES[1..]`, in
-/// parallel (empty when the step is 0: not quantised).
-pub(crate) fn rounding_tables(reference: &Reference, quantisation_step: f64) -> Vec<Vec<f32>> {
+/// `quantisation_step` grey levels, one per phase of `ROUNDING_PHASES[1..]` (empty
+/// when the step is 0: not quantised). The phases in turn, each spread over the
+/// threads, through one image-sized buffer: three phases side by side touched three
+/// times the fresh memory (15 MB on a 512² image), and the first touch of a page
+/// costs more than the arithmetic on it.
+pub(crate) fn rounding_tables(reference: &BSpline, quantisation_step: f64) -> Vec<Vec<f32>> {
     if quantisation_step <= 0.0 {
         return Vec::new();
     }
+    let mut buffer = Vec::new();
     icgn::ROUNDING_PHASES[1..]
-        .par_iter()
-        .map(|&a| {
-            pulp::Arch::new().dispatch(RoundingTable {
-                reference,
-                phase: a,
-                step: quantisation_step,
-            })
-        })
+        .iter()
+        .map(|&a| rounding_table(reference, a, quantisation_step, &mut buffer))
         .collect()
 }
 
-/// [`rounding_table`] compiled for the machine's vector units.
-struct RoundingTable<'a> {
-    reference: &'a Reference,
-    phase: f64,
-    step: f64,
-}
-
-impl pulp::WithSimd for RoundingTable<'_> {
-    type Output = Vec<f32>;
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
-        rounding_table(self.reference, self.phase, self.step)
-    }
-}
-
-/// The rounding residual at the reference's pixels for a current image translated by
-/// (a, a) (see the module's doc), row-major.
-#[inline(always)]
-fn rounding_table(reference: &Reference, a: f64, step: f64) -> Vec<f32> {
-    let img = reference.image();
-    let (w, h) = (img.width(), img.height());
+/// The rounding residual at the pixels of the reference whose spline is `reference`
+/// for a current image translated by (a, a) (see the module's doc), row-major;
+/// `buffer` is the image-sized scratch.
+fn rounding_table(reference: &BSpline, a: f64, step: f64, buffer: &mut Vec<f64>) -> Vec<f32> {
+    let (w, h) = (reference.width(), reference.height());
     // The current image: the reference's spline at (x − a, y − a), rounded.
-    let mut residual = reference.spline().translated_image(-a);
-    for v in &mut residual {
-        *v = (*v / step).round() * step - *v;
-    }
-    if !residual.iter().all(|v| v.is_finite()) {
+    reference.translated_image_into(-a, buffer);
+    let finite = pulp::Arch::new().dispatch(Residual {
+        values: buffer,
+        step,
+    });
+    if !finite {
         return vec![0.0; w * h];
     }
     // Interpolated where the reference's pixels lie in it, at (x + a, y + a).
-    BSpline::from_values(w, h, residual, reference.spline().degree())
-        .translated_image(a)
-        .into_iter()
-        .map(|v| v as f32)
-        .collect()
+    let spline = BSpline::from_values(w, h, std::mem::take(buffer), reference.degree());
+    let table = spline.translated_image_f32(a);
+    *buffer = spline.into_coefficients();
+    table
+}
+
+/// Each value replaced by its rounding residual to `step` (rounded minus value),
+/// compiled for the machine's vector units; whether all are finite.
+struct Residual<'a> {
+    values: &'a mut [f64],
+    step: f64,
+}
+
+impl pulp::WithSimd for Residual<'_> {
+    type Output = bool;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let step = self.step;
+        for v in self.values.iter_mut() {
+            *v = (*v / step).round() * step - *v;
+        }
+        self.values.iter().all(|v| v.is_finite())
+    }
 }
 
 #[cfg(test)]

@@ -210,10 +210,11 @@ impl Prepared {
         };
         let levels = (search_radius as f64 / 8.0).log2().ceil().clamp(0.0, 5.0) as usize;
         // The current image's quantisation step and the reference's spline, then the
-        // rounding tables, beside the reference's quantisation noise, the current
-        // image's spline and both pyramids: the tables need only the reference's
-        // spline and the step, and rayon hands their phases to whichever thread is
-        // free.
+        // rounding tables beside the spline's gradients; on the other side the
+        // reference's quantisation noise, the current image's spline (and its single
+        // precision, which every match's warp reads) and both pyramids. The tables need
+        // only the reference's spline and the step, and rayon hands their bands to
+        // whichever thread is free.
         let step_of = |qc: f64| {
             if prefilter > 0.0 {
                 0.0
@@ -225,8 +226,12 @@ impl Prepared {
             || {
                 let qc = image::quantisation_variance(given_c);
                 let step = step_of(qc).max(min_step);
-                let r = Reference::with_degree(reference.clone(), spline);
-                let rounding = correction::rounding_tables(&r, step);
+                let rs = BSpline::with_degree(reference, spline);
+                let (gradients, rounding) = rayon::join(
+                    || rs.node_gradients(),
+                    || correction::rounding_tables(&rs, step),
+                );
+                let r = Reference::from_spline(reference.clone(), rs, gradients);
                 (qc, step, r, rounding)
             },
             || {
@@ -238,7 +243,11 @@ impl Prepared {
                             || search::pyramid(current, levels),
                         )
                     },
-                    || BSpline::with_degree(current, spline),
+                    || {
+                        let s = BSpline::with_degree(current, spline);
+                        s.prepare_single();
+                        s
+                    },
                 );
                 (qr, rest)
             },

@@ -168,6 +168,12 @@ impl Reference {
     pub fn with_degree(image: Image, degree: Degree) -> Self {
         let s = BSpline::with_degree(&image, degree);
         let (gx, gy) = s.node_gradients();
+        Reference::from_spline(image, s, (gx, gy))
+    }
+
+    /// The reference of `image` from its spline and the spline's
+    /// [`BSpline::node_gradients`], made by the caller (beside other work).
+    pub(crate) fn from_spline(image: Image, s: BSpline, (gx, gy): (Vec<f64>, Vec<f64>)) -> Self {
         Reference {
             image,
             spline: s,
@@ -1018,25 +1024,23 @@ pub struct Iterated {
 const LINE_PHASES: usize = 64;
 
 /// [`LineResponses`] at phase `t`, interpolated linearly in a table over the phase
-/// made once per process and pair of degrees (the responses are smooth in `t`).
+/// kept for the process and pair of degrees (the responses are smooth in `t`). Each
+/// of the table's phases is made when a match first reads it: a field meets a few
+/// (its shifts' fractional parts), and the whole table, three line splines per phase,
+/// took 4 ms of one thread while the other waited for it.
 #[inline(always)]
 fn line_responses(current: Degree, reference: Degree, t: f64) -> LineResponses {
-    static TABLES: [OnceLock<Vec<LineResponses>>; 4] = [
-        const { OnceLock::new() },
-        const { OnceLock::new() },
-        const { OnceLock::new() },
-        const { OnceLock::new() },
-    ];
+    type Table = [OnceLock<LineResponses>; LINE_PHASES + 1];
+    static TABLES: [Table; 4] = [const { [const { OnceLock::new() }; LINE_PHASES + 1] }; 4];
     let k = 2 * usize::from(current == Degree::Quintic) + usize::from(reference == Degree::Quintic);
-    let table = TABLES[k].get_or_init(|| {
-        (0..=LINE_PHASES)
-            .map(|p| LineResponses::new(current, reference, p as f64 / LINE_PHASES as f64))
-            .collect()
-    });
+    let at = |p: usize| {
+        TABLES[k][p]
+            .get_or_init(|| LineResponses::new(current, reference, p as f64 / LINE_PHASES as f64))
+    };
     let scaled = (t - t.floor()) * LINE_PHASES as f64;
     let p = (scaled as usize).min(LINE_PHASES - 1);
     let a = scaled - p as f64;
-    let (l0, l1) = (&table[p], &table[p + 1]);
+    let (l0, l1) = (at(p), at(p + 1));
     let mix = |x: f64, y: f64| (1.0 - a) * x + a * y;
     LineResponses {
         gain: mix(l0.gain, l1.gain),
