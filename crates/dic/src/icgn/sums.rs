@@ -12,11 +12,77 @@
 //! 1e14; the test compares them with the pixel-by-pixel pass).
 
 use super::Reference;
+use crate::lanes::lane_sums;
 
 /// Window sums of one row at one grid column: Σ over the window's pixels of f,
 /// gx, gx·dx, gy, gy·dx, gx·f, gx·f·dx, gy·f, gy·f·dx, and of gx², gx·gy and gy²
 /// each times 1, dx and dx².
 const ROW: usize = 18;
+
+/// The window sums of every row from `y_lo` at each grid column `xs` (see [`ROW`]),
+/// the window `offsets.len()` pixels wide: a vector of the window's pixels at a
+/// time, on the machine's vector units.
+struct RowSums<'a> {
+    /// The reference's grey levels and gradients (x, y), row-major.
+    images: [&'a [f64]; 3],
+    width: usize,
+    xs: &'a [usize],
+    y_lo: usize,
+    /// Each window pixel's dx from its centre.
+    offsets: &'a [f64],
+    rows: &'a mut [[f64; ROW]],
+}
+
+impl pulp::WithSimd for RowSums<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let RowSums {
+            images: [f, gx, gy],
+            width,
+            xs,
+            y_lo,
+            offsets,
+            rows,
+        } = self;
+        let n = offsets.len();
+        let half = n / 2;
+        for (r, out) in rows.chunks_exact_mut(xs.len()).enumerate() {
+            let line = (y_lo + r) * width;
+            for (o, &cx) in out.iter_mut().zip(xs) {
+                let at = line + cx - half;
+                let (f, gx, gy) = (&f[at..at + n], &gx[at..at + n], &gy[at..at + n]);
+                *o = lane_sums!(n, |a| {
+                    let (f, gx, gy, dx) = (a.of(f), a.of(gx), a.of(gy), a.of(offsets));
+                    let (hx, hy) = (gx * f, gy * f);
+                    let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
+                    let (xx1, xy1, yy1) = (xx * dx, xy * dx, yy * dx);
+                    [
+                        f,
+                        gx,
+                        gx * dx,
+                        gy,
+                        gy * dx,
+                        hx,
+                        hx * dx,
+                        hy,
+                        hy * dx,
+                        xx,
+                        xx1,
+                        xx1 * dx,
+                        xy,
+                        xy1,
+                        xy1 * dx,
+                        yy,
+                        yy1,
+                        yy1 * dx,
+                    ]
+                });
+            }
+        }
+    }
+}
 
 /// A subset's reference-only sums, as [`super::prepare_in`] makes them: `first` is
 /// Σf and Σ of J and of J·f for J = [gx, gx·dx, gx·dy, gy, gy·dx, gy·dy]; `second`
@@ -64,43 +130,15 @@ impl GridSums {
         let (f, gx, gy) = (reference.image.data(), &reference.gx, &reference.gy);
         // Each row's window sums at each grid column.
         let mut rows = vec![[0.0; ROW]; (y_hi - y_lo + 1) * xs.len()];
-        for (r, out) in rows.chunks_exact_mut(xs.len()).enumerate() {
-            let line = (y_lo + r) * w;
-            for (o, &cx) in out.iter_mut().zip(&xs) {
-                let mut s = [0.0; ROW];
-                for x in cx - half..=cx + half {
-                    let k = line + x;
-                    let (f, gx, gy) = (f[k], gx[k], gy[k]);
-                    let dx = x as f64 - cx as f64;
-                    let (hx, hy) = (gx * f, gy * f);
-                    let (xx, xy, yy) = (gx * gx, gx * gy, gy * gy);
-                    let terms = [
-                        f,
-                        gx,
-                        gx * dx,
-                        gy,
-                        gy * dx,
-                        hx,
-                        hx * dx,
-                        hy,
-                        hy * dx,
-                        xx,
-                        xx * dx,
-                        xx * dx * dx,
-                        xy,
-                        xy * dx,
-                        xy * dx * dx,
-                        yy,
-                        yy * dx,
-                        yy * dx * dx,
-                    ];
-                    for (a, t) in s.iter_mut().zip(terms) {
-                        *a += t;
-                    }
-                }
-                *o = s;
-            }
-        }
+        let offsets: Vec<f64> = (0..=2 * half).map(|i| i as f64 - half as f64).collect();
+        pulp::Arch::new().dispatch(RowSums {
+            images: [f, gx, gy],
+            width: w,
+            xs: &xs,
+            y_lo,
+            offsets: &offsets,
+            rows: &mut rows,
+        });
         // Each point's rows, weighted by dy and dy².
         let mut sums = Vec::with_capacity(count.0 * count.1);
         for cy in ys {
