@@ -157,10 +157,10 @@ enum Command {
         after_help = "Examples:\n  cellinject plate generate --rows 4 --cols 6 --out plate.toml\n  cellinject plate check --plate plate.toml\n  cellinject plate detect --plate plate.toml"
     )]
     Plate(plate::PlateCommand),
-    /// Vision on a lab's own micrographs: the cells in one image (phase contrast or bright field, either polarity).
+    /// Vision on a lab's own micrographs: the cells in one image (phase contrast or bright field, either polarity), the pipette's tip.
     #[command(
         subcommand,
-        after_help = "Examples:\n  cellinject vision cells --image cells.png --pixel-size 0.107e-6\n  cellinject vision cells --image field.png --out overlay.png --format json\n\nSee docs/vision.md."
+        after_help = "Examples:\n  cellinject vision cells --image cells.png --pixel-size 0.107e-6\n  cellinject vision cells --image field.png --out overlay.png --format json\n  cellinject vision tip --image pipette.png --pixel-size 0.345e-6 --out tip.png\n\nSee docs/vision.md."
     )]
     Vision(vision::VisionCommand),
     /// The unattended injection workflow: every cell of a plate found, injected and checked, recorded in a database (the default command).

@@ -1,12 +1,15 @@
-//! `cellinject vision`: cell detection on a lab's own images (`cellinject_cells::vision`).
+//! `cellinject vision`: cells and the pipette's tip in a lab's own images
+//! (`cellinject_cells::vision`, `cellinject_cells::tip`).
 
 use std::path::PathBuf;
 
 use anyhow::Result;
+use cellinject_cells::CellsError;
+use cellinject_cells::tip::find_tip_in;
 use cellinject_cells::vision::{Arg, Contrast, Request, RequestError, find_cells};
 use cellinject_files::{Kind, Plan, Staged, encode_rgb};
-use cellinject_plot::frame::{stretched, with_outlines};
-use cellinject_print::vision::{CellsReport, outlines};
+use cellinject_plot::frame::{stretched, with_outlines, with_tip};
+use cellinject_print::vision::{CellsReport, VisionTip, outlines};
 use clap::{Args, Subcommand, ValueEnum};
 
 use crate::output::print_json;
@@ -20,6 +23,28 @@ pub enum VisionCommand {
         after_help = "Examples:\n  cellinject vision cells --image cells.png --pixel-size 0.107e-6\n  cellinject vision cells --image field.tif --pixel-size 0.88e-6 --contrast dark --out overlay.png --format json\n\nSee docs/vision.md."
     )]
     Cells(CellsArgs),
+    /// The pipette's tip in one micrograph (the pipette entering from any edge): tip, axis, width near the tip and confidence; no pipette in view is exit 1.
+    #[command(
+        after_help = "Examples:\n  cellinject vision tip --image pipette.png --pixel-size 0.345e-6\n  cellinject vision tip --image frame.tif --out tip.png --format json\n\nExit codes: 0 a tip found; 1 no pipette in view; 2 bad input.\nSee docs/vision.md."
+    )]
+    Tip(TipArgs),
+}
+
+/// `vision tip`'s arguments.
+#[derive(Debug, Args)]
+pub struct TipArgs {
+    /// The image: PNG, TIFF or JPEG, 8 or 16 bit (colour is read as grey).
+    #[arg(long)]
+    image: PathBuf,
+    /// m per pixel in the object plane (e.g. 0.345e-6); the width is then given in m too [default: the image's shorter side taken as 240 µm].
+    #[arg(long, value_name = "M")]
+    pixel_size: Option<f64>,
+    /// The image with the tip marked and the axis drawn towards the shank (PNG).
+    #[arg(long, value_name = "OVERLAY.png")]
+    out: Option<PathBuf>,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    format: Format,
 }
 
 /// Which cells to look for.
@@ -70,7 +95,73 @@ fn parse_range(s: &str) -> Result<(f64, f64), String> {
 pub fn run(cmd: &VisionCommand) -> Result<()> {
     match cmd {
         VisionCommand::Cells(a) => cells(a),
+        VisionCommand::Tip(a) => tip(a),
     }
+}
+
+fn tip(a: &TipArgs) -> Result<()> {
+    if let Some(p) = a.pixel_size
+        && !(p.is_finite() && p > 0.0)
+    {
+        return Err(InputError(format!("--pixel-size {p}: must be a positive length in m")).into());
+    }
+    let mut plan = Plan::new();
+    plan.input("--image", &a.image);
+    let out = match &a.out {
+        Some(o) => Some(plan.output("--out", o, &[Kind::Png])?),
+        None => None,
+    };
+    plan.check()?;
+    let img = crate::dic::load_grey(&a.image).map_err(|e| InputError(format!("--image: {e}")))?;
+    let (w, h) = (img.width(), img.height());
+    let found = match find_tip_in(img.data(), w, h, a.pixel_size) {
+        Ok(t) => t,
+        // The image was read and searched: no pipette is a result, not bad input.
+        Err(CellsError::NoPipette) => {
+            anyhow::bail!("--image `{}`: {}", a.image.display(), CellsError::NoPipette)
+        }
+        Err(e) => return Err(InputError(format!("--image `{}`: {e}", a.image.display())).into()),
+    };
+    let report = VisionTip::new(&found, a.pixel_size);
+    let overlay = match &out {
+        Some(path) => {
+            let grey = stretched(img.data());
+            let (tip, axis) = (report.tip_px, found.axis_rad);
+            Some((
+                path,
+                with_tip(&grey, w as u32, h as u32, tip, axis, found.width)?,
+            ))
+        }
+        None => None,
+    };
+    let text = report.text(&a.image.display().to_string(), w, h);
+    finish(&report, &text, overlay, a.format)
+}
+
+/// A `vision` command's end: the overlay written (staged: a crash leaves no part of
+/// it), then the report as JSON (with the file) or as text (and `wrote FILE`).
+fn finish(
+    report: &impl serde::Serialize,
+    text: &str,
+    overlay: Option<(&PathBuf, cellinject_plot::Rgb)>,
+    format: Format,
+) -> Result<()> {
+    let mut written = Vec::new();
+    if let Some((path, rgb)) = overlay {
+        let mut staged = Staged::new();
+        staged.add(path, &encode_rgb(rgb, path)?)?;
+        staged.commit()?;
+        written.push(path.clone());
+    }
+    if format == Format::Json {
+        let files: Vec<&std::path::Path> = written.iter().map(|p| p.as_path()).collect();
+        return print_json(report, &files);
+    }
+    outln!("{}", text.trim_end());
+    if let Some(p) = written.first() {
+        outln!("wrote {}", p.display());
+    }
+    Ok(())
 }
 
 fn cells(a: &CellsArgs) -> Result<()> {
@@ -105,27 +196,17 @@ fn cells(a: &CellsArgs) -> Result<()> {
     let census = find_cells(img.data(), w, h, &options)
         .map_err(|e| InputError(format!("--image `{}`: {e}", a.image.display())))?;
     let report = CellsReport::new(&census, a.pixel_size);
-    let mut written = Vec::new();
-    if let Some(path) = &out {
+    let overlay = match &out {
         // Stretched over the image's own range, the outlines drawn over it.
-        let grey = stretched(img.data());
-        let outlines = outlines(&census);
-        let rgb = with_outlines(&grey, w as u32, h as u32, &outlines)?;
-        let mut staged = Staged::new();
-        staged.add(path, &encode_rgb(rgb, path)?)?;
-        staged.commit()?;
-        written.push(path.clone());
-    }
-    if a.format == Format::Json {
-        let files: Vec<&std::path::Path> = written.iter().map(|p| p.as_path()).collect();
-        return print_json(&report, &files);
-    }
-    outln!(
-        "{}",
-        report.text(&a.image.display().to_string(), w, h).trim_end()
-    );
-    if let Some(p) = written.first() {
-        outln!("wrote {}", p.display());
-    }
-    Ok(())
+        Some(path) => {
+            let grey = stretched(img.data());
+            Some((
+                path,
+                with_outlines(&grey, w as u32, h as u32, &outlines(&census))?,
+            ))
+        }
+        None => None,
+    };
+    let text = report.text(&a.image.display().to_string(), w, h);
+    finish(&report, &text, overlay, a.format)
 }

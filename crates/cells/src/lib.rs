@@ -32,6 +32,7 @@ use std::collections::VecDeque;
 use thiserror::Error;
 
 pub mod focus;
+pub mod pipette;
 pub mod tip;
 pub mod vision;
 
@@ -48,8 +49,9 @@ pub enum CellsError {
         /// Rows.
         height: usize,
     },
-    /// No pipette entering the image from its top edge.
-    #[error("no pipette found: nothing dark enters the image from its top edge")]
+    /// No pipette in view: nothing dark enters the image from its edge (the top
+    /// edge for [`tip::locate`], any for [`tip::find_tip`]) and ends in a tip.
+    #[error("no pipette in view: nothing dark enters the image from an edge and ends in a tip")]
     NoPipette,
     /// An option outside its domain.
     #[error("{what} = {value}: {reason}")]

@@ -89,8 +89,20 @@ pub fn locate_tapered(
     taper: f64,
 ) -> Result<Tip, CellsError> {
     check_inputs(pixels.len(), (width, height), pixel_size, blur, taper)?;
-    let um = |v: f64| v * 1e-6 / pixel_size;
     let dark = Darkness::new(pixels, width, height);
+    fit_tip(&dark, pixel_size, blur, taper).map(|(tip, _)| tip)
+}
+
+/// [`locate_tapered`] on the image's darkness, and how well the profile along the
+/// axis fits the model: the share of its variance the fit explains (R², 0 to 1).
+fn fit_tip(
+    dark: &Darkness<'_>,
+    pixel_size: f64,
+    blur: Option<f64>,
+    taper: f64,
+) -> Result<(Tip, f64), CellsError> {
+    let (width, height) = (dark.w, dark.h);
+    let um = |v: f64| v * 1e-6 / pixel_size;
     let mask = dark.mask(0.05);
     // The pipette: of the dark components that enter from the top edge, the widest
     // there (the shank; a feeder wall is a thin line).
@@ -126,26 +138,7 @@ pub fn locate_tapered(
         u = [-u[0], -u[1]];
     }
     // The axis: centres of darkness across the tube behind the tip.
-    let mut centres = Vec::new();
-    let mut b = um(8.0);
-    while b <= um(50.0) {
-        let (px, py) = (gx - b * u[0], gy - b * u[1]);
-        let n = [-u[1], u[0]];
-        let half = taper * b + um(5.0);
-        let (mut sw, mut swo) = (0.0, 0.0);
-        let mut o = -half;
-        while o <= half {
-            let v = sample(&dark, px + o * n[0], py + o * n[1]).max(0.0);
-            sw += v;
-            swo += v * o;
-            o += 0.5;
-        }
-        if sw > 0.0 {
-            let c = swo / sw;
-            centres.push((px + c * n[0], py + c * n[1]));
-        }
-        b += um(2.0);
-    }
+    let centres = axis_centres(dark, (gx, gy), u, taper, pixel_size);
     let (ax, ay) = if centres.len() >= 3 {
         let n = centres.len() as f64;
         let m = centres
@@ -178,7 +171,7 @@ pub fn locate_tapered(
         let mut m = 0.0;
         let mut o = -half;
         while o <= half {
-            m += sample(&dark, px + o * n[0], py + o * n[1]) * 0.5;
+            m += sample(dark, px + o * n[0], py + o * n[1]) * 0.5;
             o += 0.5;
         }
         prof.push((s, m));
@@ -207,13 +200,275 @@ pub fn locate_tapered(
     let (_, t1, s1) = best;
     let fine = blur.map_or(((s1 - 0.5).max(0.3), s1 + 0.5, 0.1), |b| (b, b, 1.0));
     search(&mut best, (t1 - 0.6, t1 + 0.6, 0.05), fine);
-    let (_, t, sigma) = best;
-    Ok(Tip {
-        x: ox + t * u[0],
-        y: oy + t * u[1],
-        axis: u,
-        sigma,
-    })
+    let (r, t, sigma) = best;
+    let mean = prof.iter().map(|p| p.1).sum::<f64>() / prof.len().max(1) as f64;
+    let spread: f64 = prof.iter().map(|p| (p.1 - mean).powi(2)).sum();
+    let explained = if spread > 0.0 {
+        (1.0 - r / spread).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    Ok((
+        Tip {
+            x: ox + t * u[0],
+            y: oy + t * u[1],
+            axis: u,
+            sigma,
+        },
+        explained,
+    ))
+}
+
+/// The tube's darkness-weighted centres across it, 8-50 µm behind the first guess
+/// `(gx, gy)` of the tip along `-u`, every 2 µm; a cross-section the image's edge cuts
+/// is left out.
+fn axis_centres(
+    dark: &Darkness<'_>,
+    (gx, gy): (f64, f64),
+    u: [f64; 2],
+    taper: f64,
+    pixel_size: f64,
+) -> Vec<(f64, f64)> {
+    let (width, height) = (dark.w, dark.h);
+    let um = |v: f64| v * 1e-6 / pixel_size;
+    let mut centres = Vec::new();
+    let mut b = um(8.0);
+    while b <= um(50.0) {
+        let (px, py) = (gx - b * u[0], gy - b * u[1]);
+        let n = [-u[1], u[0]];
+        let half = taper * b + um(5.0);
+        // A cross-section the image's edge cuts has its centre pulled inwards (a
+        // tube slanting out of the frame): only whole ones.
+        let inside = |o: f64| {
+            let (x, y) = (px + o * n[0], py + o * n[1]);
+            x >= 0.0 && y >= 0.0 && x <= (width - 1) as f64 && y <= (height - 1) as f64
+        };
+        if !(inside(-half) && inside(half)) {
+            b += um(2.0);
+            continue;
+        }
+        let (mut sw, mut swo) = (0.0, 0.0);
+        let mut o = -half;
+        while o <= half {
+            let v = sample(dark, px + o * n[0], py + o * n[1]).max(0.0);
+            sw += v;
+            swo += v * o;
+            o += 0.5;
+        }
+        if sw > 0.0 {
+            let c = swo / sw;
+            centres.push((px + c * n[0], py + c * n[1]));
+        }
+        b += um(2.0);
+    }
+    centres
+}
+
+/// The pipette's tip in an image in which the pipette may enter from any edge, as
+/// `vision tip` reports it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FoundTip {
+    /// Pixels, column of the tip.
+    pub x: f64,
+    /// Pixels, row of the tip.
+    pub y: f64,
+    /// rad, the direction of the pipette's axis from the tip towards the shank:
+    /// `atan2(dy, dx)` with x along the columns and y along the rows (down the image).
+    pub axis_rad: f64,
+    /// Pixels, the tube's width [`WIDTH_BEHIND`] behind the tip: where its darkness
+    /// across the axis is at least half the highest.
+    pub width: f64,
+    /// 0 to 1, how well the darkness along the axis fits a tube ending at the tip:
+    /// the share of its variance the fitted model explains.
+    pub confidence: f64,
+}
+
+/// m, how far behind the tip [`FoundTip::width`] is measured.
+pub const WIDTH_BEHIND: f64 = 5e-6;
+
+/// Least [`FoundTip::confidence`] of a pipette: below it, what enters the image is
+/// not a tube ending in a tip (a wall, a shadow, a cell at the edge).
+pub const MIN_TIP_CONFIDENCE: f64 = 0.6;
+
+/// The edge a pipette enters the image from, as the view of the image that brings
+/// that edge to the top (where [`locate_tapered`] looks for it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum View {
+    Top,
+    Bottom,
+    Left,
+    Right,
+}
+
+impl View {
+    /// The view's width and height for an image `w` x `h`.
+    fn size(self, w: usize, h: usize) -> (usize, usize) {
+        match self {
+            View::Top | View::Bottom => (w, h),
+            View::Left | View::Right => (h, w),
+        }
+    }
+
+    /// The image's pixel seen at (i, j) of the view.
+    fn source(self, i: usize, j: usize, w: usize, h: usize) -> usize {
+        let (x, y) = match self {
+            View::Top => (i, j),
+            View::Bottom => (i, h - 1 - j),
+            View::Left => (j, i),
+            View::Right => (w - 1 - j, i),
+        };
+        y * w + x
+    }
+
+    /// The view of `pixels` (`w` x `h`).
+    fn pixels(self, pixels: &[u16], w: usize, h: usize) -> Vec<u16> {
+        let (vw, vh) = self.size(w, h);
+        let mut out = Vec::with_capacity(vw * vh);
+        for j in 0..vh {
+            out.extend((0..vw).map(|i| pixels[self.source(i, j, w, h)]));
+        }
+        out
+    }
+
+    /// A point (x, y) of the view in the image's pixels.
+    fn point(self, (x, y): (f64, f64), w: usize, h: usize) -> (f64, f64) {
+        match self {
+            View::Top => (x, y),
+            View::Bottom => (x, (h - 1) as f64 - y),
+            View::Left => (y, x),
+            View::Right => ((w - 1) as f64 - y, x),
+        }
+    }
+
+    /// A direction of the view in the image's.
+    fn direction(self, [dx, dy]: [f64; 2]) -> [f64; 2] {
+        match self {
+            View::Top => [dx, dy],
+            View::Bottom => [dx, -dy],
+            View::Left => [dy, dx],
+            View::Right => [-dy, dx],
+        }
+    }
+}
+
+/// The pipette's tip in a `width × height` image at `pixel_size` m per pixel (from
+/// the image alone, the pipette entering from any edge): [`locate_tapered`] (its blur
+/// fitted, the taper of a glass in the image plane) in each view that brings an edge
+/// to the top, the best fit kept. [`CellsError::NoPipette`] when nothing dark enters
+/// from an edge, or what does fits a tube ending in a tip less than
+/// [`MIN_TIP_CONFIDENCE`].
+pub fn find_tip(
+    pixels: &[u16],
+    width: usize,
+    height: usize,
+    pixel_size: f64,
+) -> Result<FoundTip, CellsError> {
+    let taper = 0.12;
+    check_inputs(pixels.len(), (width, height), pixel_size, None, taper)?;
+    let mut best: Option<FoundTip> = None;
+    for view in [View::Top, View::Bottom, View::Left, View::Right] {
+        let (vw, vh) = view.size(width, height);
+        let seen = view.pixels(pixels, width, height);
+        let dark = Darkness::new(&seen, vw, vh);
+        let (tip, confidence) = match fit_tip(&dark, pixel_size, None, taper) {
+            Ok(found) => found,
+            Err(CellsError::NoPipette) => continue,
+            Err(e) => return Err(e),
+        };
+        if best.is_some_and(|b| b.confidence >= confidence) {
+            continue;
+        }
+        let behind = WIDTH_BEHIND / pixel_size;
+        let tube = tube_width(&dark, &tip, behind, taper);
+        let (x, y) = view.point((tip.x, tip.y), width, height);
+        let [ax, ay] = view.direction(tip.axis);
+        best = Some(FoundTip {
+            x,
+            y,
+            axis_rad: (-ay).atan2(-ax),
+            width: tube,
+            confidence,
+        });
+    }
+    best.filter(|b| b.confidence >= MIN_TIP_CONFIDENCE)
+        .ok_or(CellsError::NoPipette)
+}
+
+/// m, the length the shorter side of an image is taken to span when no pixel size is
+/// given ([`find_tip_in`]): the locator's lengths (the last 60 µm of the tube give its
+/// direction) then keep the same share of any image, whatever its resolution.
+pub const DEFAULT_SHORT_SIDE: f64 = 240e-6;
+
+/// [`find_tip`] for any front end: `values` are the image's grey levels (any scale,
+/// none negative), `pixel_size` m per pixel or `None` (the image's shorter side then
+/// spans [`DEFAULT_SHORT_SIDE`]). The levels are scaled into 16 bits by one factor,
+/// which keeps every ratio to the background (the darkness the locator reads).
+pub fn find_tip_in(
+    values: &[f64],
+    width: usize,
+    height: usize,
+    pixel_size: Option<f64>,
+) -> Result<FoundTip, CellsError> {
+    if let Some(p) = pixel_size
+        && !(p.is_finite() && p > 0.0)
+    {
+        return Err(CellsError::Invalid {
+            what: "pixel_size",
+            value: p,
+            reason: "must be a positive length",
+        });
+    }
+    if values.len() != width * height || width < 8 || height < 8 {
+        return Err(CellsError::Size {
+            len: values.len(),
+            width,
+            height,
+        });
+    }
+    if let Some(&bad) = values.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
+        return Err(CellsError::Invalid {
+            what: "image",
+            value: bad,
+            reason: "grey levels must be finite and not negative",
+        });
+    }
+    let top = values.iter().copied().fold(0.0f64, f64::max);
+    if top <= 0.0 {
+        return Err(CellsError::NoPipette);
+    }
+    let scale = 60_000.0 / top;
+    let pixels: Vec<u16> = values.iter().map(|v| (v * scale).round() as u16).collect();
+    let pixel = pixel_size.unwrap_or(DEFAULT_SHORT_SIDE / width.min(height) as f64);
+    find_tip(&pixels, width, height, pixel)
+}
+
+/// Pixels, the width of the tube `behind` px behind `tip` (in the view `dark` is
+/// of): the span across the axis, in quarter pixels, where the darkness is at least
+/// half its highest there.
+fn tube_width(dark: &Darkness<'_>, tip: &Tip, behind: f64, taper: f64) -> f64 {
+    let u = tip.axis;
+    let (px, py) = (tip.x - behind * u[0], tip.y - behind * u[1]);
+    let n = [-u[1], u[0]];
+    let half = 2.0 * taper * behind + 4.0 + 3.0 * tip.sigma;
+    let mut profile = Vec::new();
+    let mut o = -half;
+    while o <= half {
+        profile.push((o, sample(dark, px + o * n[0], py + o * n[1])));
+        o += 0.25;
+    }
+    let top = profile.iter().map(|p| p.1).fold(0.0f64, f64::max);
+    if top <= 0.0 {
+        return 0.0;
+    }
+    let inside: Vec<f64> = profile
+        .iter()
+        .filter(|p| p.1 >= 0.5 * top)
+        .map(|p| p.0)
+        .collect();
+    match (inside.first(), inside.last()) {
+        (Some(a), Some(b)) => b - a + 0.25,
+        _ => 0.0,
+    }
 }
 
 /// [`locate_tapered`]'s inputs checked: a positive taper, a frame of at least 8 x 8

@@ -94,6 +94,19 @@ pub fn stretched(values: &[f64]) -> Vec<u8> {
     }
 }
 
+/// `grey` (8-bit, row-major, `width` x `height`) as RGB bytes to draw over, the
+/// drawing's font registered; an error when the sizes disagree.
+fn rgb_of(grey: &[u8], width: u32, height: u32) -> Result<Vec<u8>, PlotError> {
+    register_font();
+    if grey.len() != width as usize * height as usize || width == 0 || height == 0 {
+        return Err(PlotError::Drawing(format!(
+            "frame of {width}x{height} with {} pixels",
+            grey.len()
+        )));
+    }
+    Ok(grey.iter().flat_map(|&g| [g, g, g]).collect())
+}
+
 /// An outline to draw over a frame ([`with_outlines`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Outline {
@@ -114,14 +127,7 @@ pub fn with_outlines(
     height: u32,
     outlines: &[Outline],
 ) -> Result<Rgb, PlotError> {
-    register_font();
-    if grey.len() != width as usize * height as usize || width == 0 || height == 0 {
-        return Err(PlotError::Drawing(format!(
-            "frame of {width}x{height} with {} pixels",
-            grey.len()
-        )));
-    }
-    let mut data: Vec<u8> = grey.iter().flat_map(|&g| [g, g, g]).collect();
+    let mut data = rgb_of(grey, width, height)?;
     {
         let root = BitMapBackend::with_buffer(&mut data, (width, height)).into_drawing_area();
         let thick = (width.max(height) / 300).max(2);
@@ -147,6 +153,49 @@ pub fn with_outlines(
                 .pos(Pos::new(HPos::Left, VPos::Bottom));
             let at = (x + (0.72 * r as f64) as i32, y - (0.72 * r as f64) as i32);
             root.draw(&Text::new(format!("{}", k + 1), at, text))
+                .map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(Rgb {
+        width,
+        height,
+        data,
+    })
+}
+
+/// `grey` (8-bit, row-major, `width` x `height`) as RGB with a pipette's tip marked:
+/// a cross at `tip` (pixels, from the centre of the top-left pixel), a circle of
+/// `width` px around it (at least 4), and the axis drawn from the tip towards the
+/// shank along `axis_rad` (`atan2(dy, dx)`, y down) for a fifth of the frame's
+/// larger side.
+pub fn with_tip(
+    grey: &[u8],
+    width: u32,
+    height: u32,
+    tip: [f64; 2],
+    axis_rad: f64,
+    tip_width: f64,
+) -> Result<Rgb, PlotError> {
+    let mut data = rgb_of(grey, width, height)?;
+    {
+        let root = BitMapBackend::with_buffer(&mut data, (width, height)).into_drawing_area();
+        let thick = (width.max(height) / 300).max(2);
+        let (axis, mark) = (RGBColor(40, 220, 60), RGBColor(255, 60, 40));
+        let (x, y) = (tip[0].round() as i32, tip[1].round() as i32);
+        let reach = 0.2 * f64::from(width.max(height));
+        let end = (
+            (tip[0] + reach * axis_rad.cos()).round() as i32,
+            (tip[1] + reach * axis_rad.sin()).round() as i32,
+        );
+        root.draw(&PathElement::new([(x, y), end], axis.stroke_width(thick)))
+            .map_err(|e| err(&e))?;
+        let r = (0.5 * tip_width).round().max(4.0) as i32;
+        root.draw(&Circle::new((x, y), r, mark.stroke_width(thick)))
+            .map_err(|e| err(&e))?;
+        let arm = 2 * r;
+        for seg in [[(x - arm, y), (x + arm, y)], [(x, y - arm), (x, y + arm)]] {
+            root.draw(&PathElement::new(seg, mark.stroke_width(thick.min(2))))
                 .map_err(|e| err(&e))?;
         }
         root.present().map_err(|e| err(&e))?;

@@ -1,5 +1,6 @@
 //! `cellinject vision cells`'s report: what a micrograph holds, as JSON and as text.
 
+use cellinject_cells::tip::FoundTip;
 use cellinject_cells::vision::{Census, Found};
 use cellinject_plot::frame::Outline;
 use serde::Serialize;
@@ -133,5 +134,57 @@ mod tests {
         let bare = CellsReport::new(&census, None);
         assert_eq!(bare.cells[0].diameter_m, None);
         assert!(!bare.text("a.png", 1, 1).contains("µm"));
+    }
+}
+
+/// What `vision tip` found in one image (docs/json.md, `vision tip`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VisionTip {
+    /// m per pixel in the object plane, when given.
+    pub pixel_size_m: Option<f64>,
+    /// Pixels, the tip's (column, row) from the centre of the top-left pixel.
+    pub tip_px: [f64; 2],
+    /// rad, the axis from the tip towards the shank (`atan2(dy, dx)`, y down the image).
+    pub axis_rad: f64,
+    /// Pixels, the tube's width 5 µm behind the tip (its darkness's full width at half
+    /// height).
+    pub width_px: f64,
+    /// m, the same through the pixel size; `None` without one.
+    pub width_m: Option<f64>,
+    /// 0-1: how well the darkness along the axis fits a tube ending at the tip.
+    pub confidence: f64,
+}
+
+impl VisionTip {
+    /// The report of `tip`, the width in m too when `pixel_size` (m) is known.
+    pub fn new(tip: &FoundTip, pixel_size: Option<f64>) -> Self {
+        VisionTip {
+            pixel_size_m: pixel_size,
+            tip_px: [tip.x, tip.y],
+            axis_rad: tip.axis_rad,
+            width_px: tip.width,
+            width_m: pixel_size.map(|p| tip.width * p),
+            confidence: tip.confidence,
+        }
+    }
+
+    /// For people: one line naming the image (`name`, `width` x `height` px).
+    pub fn text(&self, name: &str, width: usize, height: usize) -> String {
+        let scale = self
+            .pixel_size_m
+            .map(|p| format!(" at {:.4} µm/px", p * 1e6))
+            .unwrap_or_default();
+        let size = self
+            .width_m
+            .map(|w| format!(" ({:.2} µm)", w * 1e6))
+            .unwrap_or_default();
+        format!(
+            "pipette tip at ({:.1}, {:.1}) px in {name} ({width}x{height} px{scale}): axis {:.1}° towards the shank, width {:.1} px{size} near the tip, confidence {:.2}\n",
+            self.tip_px[0],
+            self.tip_px[1],
+            self.axis_rad.to_degrees(),
+            self.width_px,
+            self.confidence
+        )
     }
 }

@@ -1,4 +1,4 @@
-//! `cellinject vision cells` on images the test renders: a phase-contrast cell (a
+//! `cellinject vision cells` and `vision tip` on images the test renders: a phase-contrast cell (a
 //! bright body in a dark halo) found at its outline, the JSON of issue 40's interface,
 //! the overlay; bad input refused naming it. (The real photograph, `data.cell()`, and
 //! its variants are `crates/cells/tests/micrographs.rs`.)
@@ -138,4 +138,83 @@ fn bad_images_and_arguments_exit_2_naming_them() {
         "the input is untouched"
     );
     let _ = fs::remove_dir_all(&d);
+}
+
+/// A 16-bit PNG of a rendered pipette (`cellinject_cells::pipette`) whose tip is at
+/// `tip` px and whose axis runs towards the shank at `axis_deg`.
+fn pipette_png(path: &Path, tip: [f64; 2], axis_deg: f64) {
+    let (w, h) = (320usize, 240usize);
+    let scene =
+        cellinject_cells::pipette::PipetteScene::new(w, h, 0.345e-6, tip, axis_deg.to_radians());
+    let px = scene.render(11);
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w as u32, h as u32, px)
+        .unwrap()
+        .save(path)
+        .unwrap();
+}
+
+/// `vision tip`: a pipette entering from the lower right found at its tip, the JSON
+/// of issue 40's interface, the overlay written; no pipette (a bare frame, a cell
+/// alone) is exit 1 saying so; bad input exit 2 naming it.
+#[test]
+fn the_tip_is_found_and_no_pipette_is_exit_1() {
+    let d = common::dir("vision", "tip");
+    pipette_png(&d.join("p.png"), [150.0, 100.0], 30.0);
+    let o = common::run(
+        &d,
+        &[
+            "vision",
+            "tip",
+            "--image",
+            "p.png",
+            "--pixel-size",
+            "0.345e-6",
+            "--format",
+            "json",
+            "--out",
+            "o.png",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let tip = v["tip_px"].as_array().unwrap();
+    let (x, y) = (tip[0].as_f64().unwrap(), tip[1].as_f64().unwrap());
+    assert!((x - 150.0).hypot(y - 100.0) < 1.0, "{v}");
+    let axis = v["axis_rad"].as_f64().unwrap().to_degrees();
+    assert!((axis - 30.0).abs() < 2.0, "{v}");
+    for k in ["width_px", "confidence"] {
+        assert!(v[k].as_f64().unwrap() > 0.0, "{k}: {v}");
+    }
+    assert!(v["width_m"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(d.join("o.png").is_file());
+    // Text: one line with the tip.
+    let o = common::run(&d, &["vision", "tip", "--image", "p.png"]);
+    assert_eq!(o.status.code(), Some(0), "{}", err(&o));
+    let text = String::from_utf8(o.stdout).unwrap();
+    assert!(text.starts_with("pipette tip at ("), "{text}");
+    // No pipette: a bare frame and a frame with a cell alone.
+    phase_png(&d.join("c.png"), (240, 200), (131.4, 97.8), 40.0);
+    let bare = image::GrayImage::from_fn(240, 200, |x, y| {
+        image::Luma([(120 + (x + 3 * y) % 5) as u8])
+    });
+    bare.save(d.join("bare.png")).unwrap();
+    for f in ["bare.png", "c.png"] {
+        let o = common::run(&d, &["vision", "tip", "--image", f]);
+        assert_eq!(o.status.code(), Some(1), "{f}: {}", err(&o));
+        assert!(err(&o).contains("no pipette in view"), "{f}: {}", err(&o));
+        assert!(o.stdout.is_empty(), "{f}");
+    }
+    // Bad input: a NaN pixel size, a text file, the overlay over the image.
+    fs::write(d.join("t.png"), "not an image").unwrap();
+    for args in [
+        &["--image", "p.png", "--pixel-size", "NaN"][..],
+        &["--image", "p.png", "--pixel-size", "-2e-7"],
+        &["--image", "t.png"],
+        &["--image", "p.png", "--out", "p.png"],
+    ] {
+        let mut a = vec!["vision", "tip"];
+        a.extend_from_slice(args);
+        let o = common::run(&d, &a);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", err(&o));
+    }
 }
