@@ -120,6 +120,11 @@ fn tip(a: &TipArgs) -> Result<()> {
         Err(CellsError::NoPipette) => {
             anyhow::bail!("--image `{}`: {}", a.image.display(), CellsError::NoPipette)
         }
+        Err(CellsError::Invalid {
+            what: "pixel_size",
+            value,
+            reason,
+        }) => return Err(InputError(format!("--pixel-size {value:e}: {reason}")).into()),
         Err(e) => return Err(InputError(format!("--image `{}`: {e}", a.image.display())).into()),
     };
     let report = VisionTip::new(&found, a.pixel_size);

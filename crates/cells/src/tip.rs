@@ -93,14 +93,25 @@ pub fn locate_tapered(
     fit_tip(&dark, pixel_size, blur, taper).map(|(tip, _)| tip)
 }
 
-/// [`locate_tapered`] on the image's darkness, and how well the profile along the
-/// axis fits the model: the share of its variance the fit explains (R², 0 to 1).
+/// How well [`fit_tip`]'s tip fits: the share of the profile's variance its model
+/// explains (R², 0 to 1), and the pipette's width where it enters (pixels of the top
+/// row it covers).
+/// Whether it also reaches the image's bottom row (a tube crossing the frame: its tip
+/// is out of view).
+#[derive(Debug, Clone, Copy)]
+struct Fit {
+    explained: f64,
+    entry: usize,
+    through: bool,
+}
+
+/// [`locate_tapered`] on the image's darkness, and how well it fits ([`Fit`]).
 fn fit_tip(
     dark: &Darkness<'_>,
     pixel_size: f64,
     blur: Option<f64>,
     taper: f64,
-) -> Result<(Tip, f64), CellsError> {
+) -> Result<(Tip, Fit), CellsError> {
     let (width, height) = (dark.w, dark.h);
     let um = |v: f64| v * 1e-6 / pixel_size;
     let mask = dark.mask(0.05);
@@ -108,12 +119,11 @@ fn fit_tip(
     // there (the shank; a feeder wall is a thin line).
     // (Only those are searched: components from the top row's pixels, in the order
     // and the pixel order `components` gives them.)
-    let pipette = crate::components_from(&mask, width, height, 0..width)
+    let (entry, pipette) = crate::components_from(&mask, width, height, 0..width)
         .into_iter()
         .map(|c| (c.iter().filter(|&&i| i < width).count(), c))
         .filter(|(top, _)| *top > 0)
         .max_by_key(|(top, _)| *top)
-        .map(|(_, c)| c)
         .ok_or(CellsError::NoPipette)?;
     if pipette.len() < 50 {
         return Err(CellsError::NoPipette);
@@ -215,7 +225,11 @@ fn fit_tip(
             axis: u,
             sigma,
         },
-        explained,
+        Fit {
+            explained,
+            entry,
+            through: ymax + 1 >= height,
+        },
     ))
 }
 
@@ -354,9 +368,12 @@ impl View {
 /// The pipette's tip in a `width × height` image at `pixel_size` m per pixel (from
 /// the image alone, the pipette entering from any edge): [`locate_tapered`] (its blur
 /// fitted, the taper of a glass in the image plane) in each view that brings an edge
-/// to the top, the best fit kept. [`CellsError::NoPipette`] when nothing dark enters
-/// from an edge, or what does fits a tube ending in a tip less than
-/// [`MIN_TIP_CONFIDENCE`].
+/// to the top; of the views whose tip lies inside the frame (at least [`BORDER`]
+/// from its edges: on the border the tube leaves the frame), whose tube does not cross
+/// the frame, is at most [`MAX_TIP_WIDTH`] wide near the tip and fits a tube ending in
+/// a tip at least [`MIN_TIP_CONFIDENCE`], the one whose pipette enters widest.
+/// [`CellsError::NoPipette`] when there is none; [`CellsError::Invalid`] for a pixel size that makes the locator's lengths
+/// ([`SPAN`]) smaller than a few pixels or larger than the image.
 pub fn find_tip(
     pixels: &[u16],
     width: usize,
@@ -365,34 +382,75 @@ pub fn find_tip(
 ) -> Result<FoundTip, CellsError> {
     let taper = 0.12;
     check_inputs(pixels.len(), (width, height), pixel_size, None, taper)?;
-    let mut best: Option<FoundTip> = None;
+    let span = SPAN / pixel_size;
+    if !(MIN_SPAN_PX..=2.0 * width.max(height) as f64).contains(&span) {
+        return Err(CellsError::Invalid {
+            what: "pixel_size",
+            value: pixel_size,
+            reason: "must make the pipette's last 60 µm (the tube the locator reads) between 8 pixels and twice the image's larger side",
+        });
+    }
+    // A tip on the image's border is where the tube leaves the frame, not its end.
+    let inside = |x: f64, y: f64| {
+        let m = BORDER;
+        x >= m && y >= m && x <= (width - 1) as f64 - m && y <= (height - 1) as f64 - m
+    };
+    // Of the views with a tip inside the frame and a good fit, the one whose pipette
+    // enters widest: the shank crosses the edge it comes from (a tip near a side edge
+    // touches that edge too, and the tube cut along it may be longer).
+    let mut best: Option<(usize, FoundTip)> = None;
     for view in [View::Top, View::Bottom, View::Left, View::Right] {
         let (vw, vh) = view.size(width, height);
         let seen = view.pixels(pixels, width, height);
         let dark = Darkness::new(&seen, vw, vh);
-        let (tip, confidence) = match fit_tip(&dark, pixel_size, None, taper) {
+        let (tip, fit) = match fit_tip(&dark, pixel_size, None, taper) {
             Ok(found) => found,
             Err(CellsError::NoPipette) => continue,
             Err(e) => return Err(e),
         };
-        if best.is_some_and(|b| b.confidence >= confidence) {
+        let (x, y) = view.point((tip.x, tip.y), width, height);
+        if fit.explained < MIN_TIP_CONFIDENCE
+            || fit.through
+            || !inside(x, y)
+            || best.is_some_and(|(entry, _)| entry >= fit.entry)
+        {
             continue;
         }
         let behind = WIDTH_BEHIND / pixel_size;
         let tube = tube_width(&dark, &tip, behind, taper);
-        let (x, y) = view.point((tip.x, tip.y), width, height);
+        // A glass's tip is a few micrometres wide there; far wider is not one.
+        if tube * pixel_size > MAX_TIP_WIDTH {
+            continue;
+        }
         let [ax, ay] = view.direction(tip.axis);
-        best = Some(FoundTip {
-            x,
-            y,
-            axis_rad: (-ay).atan2(-ax),
-            width: tube,
-            confidence,
-        });
+        best = Some((
+            fit.entry,
+            FoundTip {
+                x,
+                y,
+                axis_rad: (-ay).atan2(-ax),
+                width: tube,
+                confidence: fit.explained,
+            },
+        ));
     }
-    best.filter(|b| b.confidence >= MIN_TIP_CONFIDENCE)
-        .ok_or(CellsError::NoPipette)
+    best.map(|(_, t)| t).ok_or(CellsError::NoPipette)
 }
+
+/// m, the widest [`FoundTip::width`] of a pipette's tip (a pulled glass is 2-3 µm
+/// wide 5 µm behind its tip; blur and a blunt tip add a few).
+pub const MAX_TIP_WIDTH: f64 = 12e-6;
+
+/// Pixels, how far inside the image's border a tip must lie for [`find_tip`] to report
+/// it: nearer, the tube may run on out of the frame.
+pub const BORDER: f64 = 2.0;
+
+/// m, the length of tube whose direction the locator reads (its last 60 µm); a pixel
+/// size must make it between [`MIN_SPAN_PX`] pixels and twice the image's larger side.
+pub const SPAN: f64 = 60e-6;
+
+/// Fewest pixels [`SPAN`] may cover.
+pub const MIN_SPAN_PX: f64 = 8.0;
 
 /// m, the length the shorter side of an image is taken to span when no pixel size is
 /// given ([`find_tip_in`]): the locator's lengths (the last 60 µm of the tube give its

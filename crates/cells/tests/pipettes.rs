@@ -89,6 +89,53 @@ fn rendered_width(radius: f64, pixel: f64, blur: f64) -> f64 {
     inside[inside.len() - 1] - inside[0]
 }
 
+/// A pipette entering from the top with its tip 10-25 px from a side edge (its tube,
+/// widening behind the tip, is cut along that edge for most of its length): the tip is
+/// where the tube ends, within a pixel, not on the top edge (it was found there with
+/// a confidence of 1); a tube running on out of the frame has no tip in view. (At
+/// 8 px the cut tube's end along the side edge is taken for the tip.)
+#[test]
+fn a_tip_near_a_side_edge_is_found_and_one_out_of_the_frame_is_not() {
+    let (w, h) = (320usize, 240usize);
+    for x0 in [11.0, 15.0, 20.0, 25.0, 295.0, 300.0, 305.0, 310.0] {
+        let tip = [x0, 150.0];
+        let scene = PipetteScene::new(w, h, PIXEL, tip, -std::f64::consts::FRAC_PI_2);
+        let t =
+            find_tip(&scene.render(5), w, h, PIXEL).unwrap_or_else(|e| panic!("tip at {x0}: {e}"));
+        assert!(
+            (t.x - tip[0]).hypot(t.y - tip[1]) < 1.0,
+            "tip at {x0}: found ({:.1}, {:.1})",
+            t.x,
+            t.y
+        );
+    }
+    let scene = PipetteScene::new(w, h, PIXEL, [160.0, 300.0], -std::f64::consts::FRAC_PI_2);
+    assert_eq!(
+        find_tip(&scene.render(6), w, h, PIXEL),
+        Err(CellsError::NoPipette)
+    );
+}
+
+/// A pixel size that makes the locator's 60 µm under 8 px or over twice the frame is
+/// refused (it ran for minutes at 1e-12 m).
+#[test]
+fn a_pixel_size_out_of_scale_is_refused() {
+    let (w, h) = (320usize, 240usize);
+    let px = PipetteScene::new(w, h, PIXEL, [160.0, 120.0], 1.0).render(7);
+    for p in [1e-12, 5e-8, 1e-5, 1.0] {
+        assert!(
+            matches!(
+                find_tip(&px, w, h, p),
+                Err(CellsError::Invalid {
+                    what: "pixel_size",
+                    ..
+                })
+            ),
+            "{p}"
+        );
+    }
+}
+
 /// A bare frame (ramp and noise) and a frame with a cell alone: no pipette.
 #[test]
 fn a_frame_without_a_pipette_says_so() {

@@ -209,6 +209,7 @@ fn the_tip_is_found_and_no_pipette_is_exit_1() {
     for args in [
         &["--image", "p.png", "--pixel-size", "NaN"][..],
         &["--image", "p.png", "--pixel-size", "-2e-7"],
+        &["--image", "p.png", "--pixel-size", "1e-12"],
         &["--image", "t.png"],
         &["--image", "p.png", "--out", "p.png"],
     ] {
