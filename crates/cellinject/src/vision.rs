@@ -105,14 +105,7 @@ fn tip(a: &TipArgs) -> Result<()> {
     {
         return Err(InputError(format!("--pixel-size {p}: must be a positive length in m")).into());
     }
-    let mut plan = Plan::new();
-    plan.input("--image", &a.image);
-    let out = match &a.out {
-        Some(o) => Some(plan.output("--out", o, &[Kind::Png])?),
-        None => None,
-    };
-    plan.check()?;
-    let img = crate::dic::load_grey(&a.image).map_err(|e| InputError(format!("--image: {e}")))?;
+    let (img, out) = open(&a.image, a.out.as_deref())?;
     let (w, h) = (img.width(), img.height());
     let found = match find_tip_in(img.data(), w, h, a.pixel_size) {
         Ok(t) => t,
@@ -141,6 +134,23 @@ fn tip(a: &TipArgs) -> Result<()> {
     };
     let text = report.text(&a.image.display().to_string(), w, h);
     finish(&report, &text, overlay, a.format)
+}
+
+/// A `vision` command's start: the image and the overlay's path checked as a pair
+/// (the overlay may not be the image), then the image read as grey levels.
+fn open(
+    image: &std::path::Path,
+    out: Option<&std::path::Path>,
+) -> Result<(cellinject_dic::Image, Option<PathBuf>)> {
+    let mut plan = Plan::new();
+    plan.input("--image", image);
+    let out = match out {
+        Some(o) => Some(plan.output("--out", o, &[Kind::Png])?),
+        None => None,
+    };
+    plan.check()?;
+    let img = crate::dic::load_grey(image).map_err(|e| InputError(format!("--image: {e}")))?;
+    Ok((img, out))
 }
 
 /// A `vision` command's end: the overlay written (staged: a crash leaves no part of
@@ -188,14 +198,7 @@ fn cells(a: &CellsArgs) -> Result<()> {
     };
     // The options checked before any file is read (the image's size not known yet).
     request.options(usize::MAX, usize::MAX).map_err(refused)?;
-    let mut plan = Plan::new();
-    plan.input("--image", &a.image);
-    let out = match &a.out {
-        Some(o) => Some(plan.output("--out", o, &[Kind::Png])?),
-        None => None,
-    };
-    plan.check()?;
-    let img = crate::dic::load_grey(&a.image).map_err(|e| InputError(format!("--image: {e}")))?;
+    let (img, out) = open(&a.image, a.out.as_deref())?;
     let (w, h) = (img.width(), img.height());
     let options = request.options(w, h).map_err(refused)?;
     let census = find_cells(img.data(), w, h, &options)

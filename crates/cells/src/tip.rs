@@ -93,15 +93,15 @@ pub fn locate_tapered(
     fit_tip(&dark, pixel_size, blur, taper).map(|(tip, _)| tip)
 }
 
-/// How well [`fit_tip`]'s tip fits: the share of the profile's variance its model
-/// explains (R², 0 to 1), and the pipette's width where it enters (pixels of the top
-/// row it covers).
-/// Whether it also reaches the image's bottom row (a tube crossing the frame: its tip
-/// is out of view).
+/// How well [`fit_tip`]'s tip fits.
 #[derive(Debug, Clone, Copy)]
 struct Fit {
+    /// The share of the profile's variance its model explains (R², 0 to 1).
     explained: f64,
+    /// The pipette's width where it enters: pixels of the top row it covers.
     entry: usize,
+    /// Whether it also reaches the bottom row (a tube crossing the frame: its tip is
+    /// out of view).
     through: bool,
 }
 
@@ -467,15 +467,7 @@ pub fn find_tip_in(
     height: usize,
     pixel_size: Option<f64>,
 ) -> Result<FoundTip, CellsError> {
-    if let Some(p) = pixel_size
-        && !(p.is_finite() && p > 0.0)
-    {
-        return Err(CellsError::Invalid {
-            what: "pixel_size",
-            value: p,
-            reason: "must be a positive length",
-        });
-    }
+    // A pixel size given is checked by `find_tip` with the rest.
     if values.len() != width * height || width < 8 || height < 8 {
         return Err(CellsError::Size {
             len: values.len(),
